@@ -1,0 +1,23 @@
+# Quick start:  `make main` trains UA2C on the SUMO env;  `make test` runs the test suite.
+# Both create .venv if it is missing and install everything they need (CPU torch first).
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.sb3-ua2c-installed
+
+.PHONY: main test bench install
+
+$(STAMP): setup.cfg pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e ".[test,zoo]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+main: $(STAMP)
+	$(PY) -m sb3_ua2c main
+
+test: $(STAMP)
+	$(PY) -m pytest -q
