@@ -1,0 +1,262 @@
+"""The single adapter between the environments and SUMO (the only module importing libsumo).
+
+libsumo runs SUMO inside the Python process, about 15× faster than TraCI over a socket, but it
+holds ONE simulation per process: a second ``start`` silently replaces the first, so two
+environments in one process (e.g. in a ``DummyVecEnv``) would corrupt each other without any
+error. :class:`SumoSimulation` therefore claims the process when it is created and refuses a
+second live instance with an error that points to ``SubprocVecEnv``. The claim is released by
+:meth:`SumoSimulation.close` (or when the instance is garbage collected) and is ignored in a
+forked child process, which starts its own simulation.
+
+Crashes of the interpreter known for libsumo are avoided here: no call is made on a vehicle
+that is not on the road (calls on pending vehicles can segfault), lane indices are passed as
+Python ``int`` (numpy integers are rejected), and every call after :meth:`close` raises.
+
+Importing this module never fails; :func:`import_libsumo` raises :class:`SumoNotInstalledError`
+with installation instructions when SUMO is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import weakref
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+INSTALL_HINT = (
+    "SUMO is required for the traffic environments: `pip install eclipse-sumo libsumo` "
+    "(the pip wheels need no SUMO_HOME), or install SUMO >= 1.20 and set SUMO_HOME."
+)
+
+# TraCI variable ids (libsumo.constants); kept here so that importing needs no SUMO.
+VAR_ROAD_ID = 0x50
+VAR_LANE_INDEX = 0x52
+VAR_LANEPOSITION = 0x56
+VAR_SPEED = 0x40
+VAR_ACCELERATION = 0x72
+#: Variables subscribed for every vehicle, in this order.
+VEHICLE_VARS = (VAR_ROAD_ID, VAR_LANE_INDEX, VAR_LANEPOSITION, VAR_SPEED, VAR_ACCELERATION)
+
+_libsumo: ModuleType | None = None
+# (pid, weak reference to the live simulation) of the simulation owning this process.
+_owner: tuple[int, weakref.ref] | None = None
+
+
+class SumoNotInstalledError(ImportError):
+    """SUMO (libsumo / eclipse-sumo) is not installed."""
+
+
+class SumoProcessBusyError(RuntimeError):
+    """A second live SUMO simulation was requested in a process that already runs one."""
+
+
+def import_libsumo() -> ModuleType:
+    """Import and return ``libsumo``, or raise :class:`SumoNotInstalledError` saying how to install it."""
+    global _libsumo
+    if _libsumo is None:
+        try:
+            import libsumo
+        except ImportError as exc:  # pragma: no cover - exercised only without SUMO
+            raise SumoNotInstalledError(INSTALL_HINT) from exc
+        _libsumo = libsumo
+    return _libsumo
+
+
+def _sumo_bin_dir() -> Path | None:
+    try:
+        import sumo  # the eclipse-sumo wheel
+    except ImportError:
+        sumo = None
+    if sumo is not None:
+        folder = Path(sumo.__file__).parent / "bin"
+        if folder.is_dir():
+            return folder
+    home = os.environ.get("SUMO_HOME")
+    if home and Path(home, "bin").is_dir():
+        return Path(home, "bin")
+    return None
+
+
+def netconvert_binary() -> str:
+    """Path of ``netconvert`` (eclipse-sumo wheel, ``$SUMO_HOME/bin`` or ``PATH``)."""
+    folder = _sumo_bin_dir()
+    for candidate in ([str(folder / "netconvert")] if folder else []) + [shutil.which("netconvert") or ""]:
+        if candidate and os.access(candidate, os.X_OK):
+            return candidate
+    raise SumoNotInstalledError("netconvert not found. " + INSTALL_HINT)
+
+
+def _release(pid: int, ident: int) -> None:
+    global _owner
+    if _owner is not None and _owner[0] == pid and id(_owner[1]()) in (ident, id(None)):
+        _owner = None
+
+
+class SumoSimulation:
+    """One libsumo simulation of a network, restarted per episode with :meth:`load`.
+
+    :param net_file: SUMO network.
+    :param route_file: route file with vehicle types and routes.
+    :param step_length: simulation step [s].
+    :param extra_args: further ``sumo`` command-line options.
+    :raises SumoProcessBusyError: if another simulation is live in this process.
+    """
+
+    def __init__(
+        self, net_file: str | Path, route_file: str | Path, step_length: float, extra_args: Sequence[str] = ()
+    ) -> None:
+        global _owner
+        self.libsumo = import_libsumo()
+        if _owner is not None and _owner[0] == os.getpid() and _owner[1]() is not None:
+            raise SumoProcessBusyError(
+                "libsumo runs one simulation per process and another SUMO environment is still open "
+                "here; a second one would silently replace its simulation. Close the first env "
+                "(env.close()), or run several envs in separate processes with "
+                "stable_baselines3.common.vec_env.SubprocVecEnv (e.g. make_vec_env(..., "
+                "vec_env_cls=SubprocVecEnv))."
+            )
+        _owner = (os.getpid(), weakref.ref(self))
+        weakref.finalize(self, _release, os.getpid(), id(self))
+        self.net_file, self.route_file = str(net_file), str(route_file)
+        self.step_length = float(step_length)
+        self.extra_args = list(extra_args)
+        self._running = False
+        self._closed = False
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def _args(self, seed: int) -> list[str]:
+        return [
+            "-n", self.net_file, "-r", self.route_file,
+            "--step-length", repr(self.step_length),
+            "--seed", str(int(seed)),
+            "--collision.action", "warn",  # collisions are read and handled by the env
+            "--collision.check-junctions", "true",
+            "--collision.mingap-factor", "0",  # a collision is a physical overlap
+            "--time-to-teleport", "-1",  # never teleport (it hides jams and crashes)
+            "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
+            "--xml-validation", "never",
+            *self.extra_args,
+        ]
+
+    def load(self, seed: int) -> None:
+        """(Re)start the simulation at time 0 with SUMO's random seed ``seed``."""
+        self._check_open()
+        if self._running:
+            self.libsumo.load(self._args(seed))
+        else:
+            self.libsumo.start(["sumo", *self._args(seed)])
+            self._running = True
+
+    def close(self) -> None:
+        """Stop the simulation and release the process (idempotent)."""
+        global _owner
+        if self._closed:
+            return
+        self._closed = True
+        if self._running:
+            self._running = False
+            try:
+                self.libsumo.close()
+            except Exception:  # noqa: BLE001 - closing a dead connection is not an error
+                pass
+        if _owner is not None and _owner[0] == os.getpid() and _owner[1]() is self:
+            _owner = None
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("this SUMO simulation is closed; create a new environment")
+
+    def _check_running(self) -> None:
+        self._check_open()
+        if not self._running:
+            raise RuntimeError("the SUMO simulation is not started; call reset() first")
+
+    # -- stepping and reading --------------------------------------------------------------------
+    def step(self) -> None:
+        """Advance the simulation by one step."""
+        self._check_running()
+        self.libsumo.simulationStep()
+
+    @property
+    def time(self) -> float:
+        return float(self.libsumo.simulation.getTime())
+
+    def departed_ids(self) -> tuple[str, ...]:
+        return self.libsumo.simulation.getDepartedIDList()
+
+    def arrived_ids(self) -> tuple[str, ...]:
+        return self.libsumo.simulation.getArrivedIDList()
+
+    def colliding_ids(self) -> tuple[str, ...]:
+        return self.libsumo.simulation.getCollidingVehiclesIDList()
+
+    def pending_ids(self) -> tuple[str, ...]:
+        return self.libsumo.simulation.getPendingVehicles()
+
+    def vehicle_ids(self) -> tuple[str, ...]:
+        return self.libsumo.vehicle.getIDList()
+
+    def subscribe(self, vehicle_id: str) -> None:
+        """Subscribe ``vehicle_id`` (on the road) to :data:`VEHICLE_VARS`."""
+        self.libsumo.vehicle.subscribe(vehicle_id, VEHICLE_VARS)
+
+    def subscription_results(self) -> dict[str, dict[int, Any]]:
+        """``{vehicle id: {variable id: value}}`` of all subscribed vehicles on the road."""
+        return self.libsumo.vehicle.getAllSubscriptionResults()
+
+    def leader(self, vehicle_id: str, distance: float) -> tuple[str, float] | None:
+        """``(leader id, gap [m])`` within ``distance`` on the vehicle's route, else ``None``."""
+        res = self.libsumo.vehicle.getLeader(vehicle_id, float(distance))
+        if res is None or not res[0]:
+            return None
+        return res[0], float(res[1])
+
+    # -- control -------------------------------------------------------------------------------
+    def add_vehicle(
+        self, vehicle_id: str, route_id: str, type_id: str, depart_pos: str, depart_lane: str, depart_speed: str
+    ) -> None:
+        """Insert a vehicle at the next step (``depart*`` are SUMO depart attribute strings)."""
+        self.libsumo.vehicle.add(
+            vehicle_id, route_id, typeID=type_id, departPos=depart_pos,
+            departLane=depart_lane, departSpeed=depart_speed,
+        )
+
+    def remove(self, vehicle_id: str) -> None:
+        self.libsumo.vehicle.remove(vehicle_id)
+
+    def set_external_control(self, vehicle_id: str) -> None:
+        """Hand all speed and lane decisions of ``vehicle_id`` to the caller.
+
+        Speed mode 32: no safe-speed, acceleration or deceleration limit (the env enforces its
+        own bounds); lane-change mode 0: no autonomous lane change and no safety check on
+        commanded ones (an unsafe lane change can collide).
+        """
+        self.libsumo.vehicle.setSpeedMode(vehicle_id, 32)
+        self.libsumo.vehicle.setLaneChangeMode(vehicle_id, 0)
+
+    def set_sumo_control(self, vehicle_id: str) -> None:
+        """Let SUMO's own car-following and lane-change models drive ``vehicle_id``."""
+        self.libsumo.vehicle.setSpeed(vehicle_id, -1.0)
+        self.libsumo.vehicle.setSpeedMode(vehicle_id, 31)
+        self.libsumo.vehicle.setLaneChangeMode(vehicle_id, 1621)
+
+    def set_speed(self, vehicle_id: str, speed: float) -> None:
+        """Speed [m/s] the vehicle will have after the next step (external control)."""
+        self.libsumo.vehicle.setSpeed(vehicle_id, float(speed))
+
+    def change_lane(self, vehicle_id: str, lane_index: int, duration: float) -> None:
+        """Request a change to ``lane_index`` of the current edge, executed at the next step."""
+        self.libsumo.vehicle.changeLane(vehicle_id, int(lane_index), float(duration))
+
+    def __del__(self) -> None:  # pragma: no cover - best effort at interpreter shutdown
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001
+            pass

@@ -1,0 +1,343 @@
+"""Pure maths of chunk execution and chunk targets (paper §3.1 Eq. 4, §3.2 Eq. 7 and Eq. 8), and the
+adaptive-chunk executor shared by the training rollouts and by ``predict``.
+
+Conventions: a set of sampled candidate chunks has shape ``(*batch, S, k, action_dim)``; per-position
+statistics have shape ``(*batch, k)``; actions live in SB3's normalised action space ``[-1, 1]``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch as th
+
+#: variance floor inside the Gaussian entropy, so that identical samples give a finite entropy
+ENTROPY_EPS = 1e-6
+
+
+def normalize_discrete_dims(
+    discrete_action_dims: Mapping[int, Sequence[float]] | None, action_dim: int
+) -> dict[int, int]:
+    """
+    Validate ``discrete_action_dims`` and return ``{dim: n_categories}``.
+
+    A categorical action dimension with ``n`` values is encoded, like the traffic environment's lane
+    change, by ``n`` equal-width bins over its Box bounds (3 values over [-1, 1] -> thresholds ±1/3);
+    the i-th value corresponds to the i-th bin.
+
+    :param discrete_action_dims: mapping ``action index -> increasing category values`` (or ``None``)
+    :param action_dim: number of action dimensions
+    :return: mapping ``action index -> number of categories``
+    """
+    if discrete_action_dims is None:
+        return {}
+    if not isinstance(discrete_action_dims, Mapping):
+        raise ValueError(
+            "discrete_action_dims must be a mapping {action index: category values}, "
+            f"got {type(discrete_action_dims).__name__}"
+        )
+    out: dict[int, int] = {}
+    for dim, values in discrete_action_dims.items():
+        if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or not 0 <= int(dim) < action_dim:
+            raise ValueError(f"discrete_action_dims: action index {dim!r} is not in [0, {action_dim})")
+        vals = [float(v) for v in values]
+        if len(vals) < 2:
+            raise ValueError(f"discrete_action_dims[{dim}] needs at least 2 category values, got {vals}")
+        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
+            raise ValueError(f"discrete_action_dims[{dim}] values must be strictly increasing, got {vals}")
+        out[int(dim)] = len(vals)
+    return out
+
+
+def categorize(actions: th.Tensor, n_categories: int) -> th.Tensor:
+    """
+    Map normalised actions to category indices by ``n_categories`` equal-width bins over [-1, 1].
+
+    :param actions: tensor of any shape, values in (or clipped to) [-1, 1]
+    :param n_categories: number of categories ``n``
+    :return: long tensor of the same shape with values in ``{0, ..., n - 1}``
+    """
+    scaled = (actions.clamp(-1.0, 1.0) + 1.0) * (0.5 * n_categories)
+    return scaled.floor().long().clamp_(0, n_categories - 1)
+
+
+def gaussian_entropy(samples: th.Tensor, eps: float = ENTROPY_EPS) -> th.Tensor:
+    """
+    Entropy of a Gaussian fitted to samples along dim ``-3`` (the candidate dim):
+    ``0.5 * log(2 pi e (sigma_hat^2 + eps))`` with the unbiased sample variance (0 for one sample).
+
+    :param samples: candidate chunks (unclipped), shape ``(*batch, S, k, d)``
+    :param eps: variance floor
+    :return: per-position, per-dimension entropy, shape ``(*batch, k, d)``
+    """
+    n = samples.shape[-3]
+    var = samples.var(dim=-3, correction=1) if n > 1 else th.zeros_like(samples.select(-3, 0))
+    return 0.5 * th.log(2.0 * math.pi * math.e * (var + eps))
+
+
+def categorical_entropy(categories: th.Tensor, n_categories: int) -> th.Tensor:
+    """
+    Entropy of the empirical distribution of category indices along dim ``-2`` (the candidate dim).
+
+    :param categories: long tensor of shape ``(*batch, S, k)``
+    :param n_categories: number of categories
+    :return: ``-sum_c p_c log p_c`` (with ``0 log 0 = 0``), shape ``(*batch, k)``
+    """
+    # (*batch, S, k) -> (*batch, S, k, n) -> frequencies (*batch, k, n)
+    p = th.nn.functional.one_hot(categories, n_categories).to(th.float32).mean(dim=-3)
+    return -(p * th.log(p.clamp_min(1e-30))).sum(dim=-1)
+
+
+def chunk_entropy(
+    samples: th.Tensor, discrete_dims: Mapping[int, int] | None = None, eps: float = ENTROPY_EPS
+) -> th.Tensor:
+    """
+    Per-position entropy ``H_u`` of the sampled actions (Eq. 7), over the S candidates.
+
+    Continuous dims use the Gaussian entropy of the unclipped samples, categorical dims the entropy
+    of the empirical category frequencies. The action is treated as a factorised distribution, so
+    ``H_u`` is the sum over action dims of the per-dim entropies.
+
+    :param samples: candidate chunks, shape ``(*batch, S, k, action_dim)``
+    :param discrete_dims: ``{dim: n_categories}`` for categorical dims (see ``normalize_discrete_dims``)
+    :param eps: variance floor of the Gaussian entropy
+    :return: ``H_u`` for ``u = 1..k``, shape ``(*batch, k)``
+    """
+    discrete_dims = dict(discrete_dims or {})
+    action_dim = samples.shape[-1]
+    continuous = [d for d in range(action_dim) if d not in discrete_dims]
+    total = th.zeros(samples.shape[:-3] + samples.shape[-2:-1], dtype=samples.dtype, device=samples.device)
+    if continuous:
+        cont = samples if len(continuous) == action_dim else samples[..., continuous]
+        total = total + gaussian_entropy(cont, eps).sum(dim=-1)
+    for dim, n in discrete_dims.items():
+        total = total + categorical_entropy(categorize(samples[..., dim], n), n).to(samples.dtype)
+    return total
+
+
+def executable_prefix_length(entropy: th.Tensor, threshold: float) -> th.Tensor:
+    """
+    Executable prefix length of Eq. 7: the largest ``u`` such that ``H_1..H_u <= delta``, at least 1.
+
+    ``threshold = inf`` executes the whole chunk (fixed chunking); a NaN entropy counts as unreliable.
+
+    :param entropy: per-position entropy, shape ``(*batch, k)``
+    :param threshold: entropy threshold ``delta``
+    :return: long tensor ``L_t`` in ``[1, k]``, shape ``(*batch,)``
+    """
+    ok = (entropy <= threshold).long()
+    return th.cumprod(ok, dim=-1).sum(dim=-1).clamp_(min=1)
+
+
+def discounted_chunk_return(rewards: th.Tensor, horizon: th.Tensor, gamma: float) -> th.Tensor:
+    """
+    ``sum_{u < L} gamma^u r_{t+u}`` of Eq. 4 (``L = k``) and Eq. 8 (``L = L_t``).
+
+    :param rewards: rewards of the window, shape ``(batch, k)``; entries at ``u >= L`` are ignored
+    :param horizon: per-sample horizon ``L``, shape ``(batch,)``
+    :param gamma: discount factor
+    :return: discounted returns, shape ``(batch,)``
+    """
+    k = rewards.shape[-1]
+    u = th.arange(k, device=rewards.device)
+    discounts = th.pow(th.as_tensor(gamma, dtype=rewards.dtype, device=rewards.device), u.to(rewards.dtype))
+    mask = u.unsqueeze(0) < horizon.unsqueeze(-1)  # (batch, k)
+    return (rewards * discounts * mask).sum(dim=-1)
+
+
+def chunk_target(
+    rewards: th.Tensor,
+    horizon: th.Tensor,
+    bootstrap_mask: th.Tensor,
+    next_value: th.Tensor,
+    gamma: float,
+) -> th.Tensor:
+    """
+    Chunk-level Bellman target of Eq. 4 / Eq. 8, one code path for both:
+    ``y = sum_{u < L} gamma^u r_{t+u} + m * gamma^L * V(h_{t+L})``.
+
+    An episode that terminates inside the window has ``L`` cut at the terminal step and ``m = 0``;
+    a time-limit truncation keeps ``m = 1`` (bootstrap from the last observation).
+
+    :param rewards: window rewards, shape ``(batch, k)``
+    :param horizon: ``L`` per sample (``k`` for full offline windows, ``L_t`` for online plans), ``(batch,)``
+    :param bootstrap_mask: ``m`` in {0, 1}, shape ``(batch,)``
+    :param next_value: ``max_q min_j Q_target_j(h_{t+L}, a^(q))``, shape ``(batch,)``
+    :param gamma: discount factor
+    :return: targets ``y``, shape ``(batch,)``
+    """
+    discount = th.pow(th.as_tensor(gamma, dtype=rewards.dtype, device=rewards.device), horizon.to(rewards.dtype))
+    return discounted_chunk_return(rewards, horizon, gamma) + bootstrap_mask.to(rewards.dtype) * discount * next_value
+
+
+class PlanResult(NamedTuple):
+    """Output of one replanning for ``m`` environments."""
+
+    #: selected chunks (clipped to [-1, 1]), shape ``(m, k, action_dim)``
+    chunks: np.ndarray
+    #: executable prefix lengths ``L_t`` (Eq. 7), shape ``(m,)``
+    lengths: np.ndarray
+    #: per-position entropies ``H_u``, shape ``(m, k)``
+    entropy: np.ndarray
+
+
+#: ``planner(observation_history (m, ℓ, obs_dim), action_history (m, ℓ, action_dim)) -> PlanResult``
+Planner = Callable[[np.ndarray, np.ndarray], PlanResult]
+
+
+class ChunkExecutorState(NamedTuple):
+    """
+    Recurrent state of the adaptive-chunk executor, as passed through ``predict(..., state=...)``.
+
+    All arrays have the number of environments as first dim.
+    """
+
+    #: ``o_{t-ℓ+1:t}`` (the newest entry is the last observation seen), shape ``(n, ℓ, obs_dim)``
+    observation_history: np.ndarray
+    #: ``a_{t-ℓ:t-1}`` (zeros before the episode start), shape ``(n, ℓ, action_dim)``
+    action_history: np.ndarray
+    #: current plan (selected chunk), shape ``(n, k, action_dim)``
+    plan: np.ndarray
+    #: executable length ``L_t`` of the current plan, shape ``(n,)``
+    plan_length: np.ndarray
+    #: number of actions of the current plan already executed, shape ``(n,)``
+    plan_position: np.ndarray
+
+
+class ExecutorStep(NamedTuple):
+    """What one executor step did, for every environment."""
+
+    #: executed actions (normalised), shape ``(n, action_dim)``
+    actions: np.ndarray
+    #: whether a new plan started at this step, shape ``(n,)``
+    new_plan: np.ndarray
+    #: the current plans, shape ``(n, k, action_dim)``
+    plans: np.ndarray
+    #: ``L_t`` of the current plans, shape ``(n,)``
+    plan_lengths: np.ndarray
+    #: entropies of the plans made at this step (rows of other envs are NaN), shape ``(n, k)``
+    entropy: np.ndarray
+
+
+class AdaptiveChunkExecutor:
+    """
+    Per-environment adaptive chunk execution (Eq. 7): replan when the executable prefix of the current
+    plan is used up or an episode starts, otherwise play the next action of the plan.
+
+    The history window is padded at the episode start by repeating the first observation (past
+    actions are zeros) and never crosses episodes. The same object drives the training rollouts and,
+    rebuilt from a :class:`ChunkExecutorState`, ``predict``.
+
+    :param n_envs: number of environments
+    :param obs_dim: flattened observation size
+    :param action_dim: action size
+    :param chunk_size: chunk length ``k``
+    :param history_len: history length ``ℓ``
+    """
+
+    def __init__(self, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, history_len: int) -> None:
+        self.n_envs, self.obs_dim, self.action_dim = n_envs, obs_dim, action_dim
+        self.chunk_size, self.history_len = chunk_size, history_len
+        self.observation_history = np.zeros((n_envs, history_len, obs_dim), dtype=np.float32)
+        self.action_history = np.zeros((n_envs, history_len, action_dim), dtype=np.float32)
+        self.plan = np.zeros((n_envs, chunk_size, action_dim), dtype=np.float32)
+        self.plan_length = np.zeros(n_envs, dtype=np.int64)
+        self.plan_position = np.zeros(n_envs, dtype=np.int64)
+        self._started = np.zeros(n_envs, dtype=bool)
+
+    @property
+    def state(self) -> ChunkExecutorState:
+        """A copy of the recurrent state."""
+        return ChunkExecutorState(
+            self.observation_history.copy(),
+            self.action_history.copy(),
+            self.plan.copy(),
+            self.plan_length.copy(),
+            self.plan_position.copy(),
+        )
+
+    def load_state(self, state: ChunkExecutorState | tuple[np.ndarray, ...]) -> None:
+        """
+        Restore a state returned by :attr:`state` (copied; the argument is not modified).
+
+        :param state: recurrent state of the same shapes
+        """
+        if len(state) != 5:
+            raise ValueError(f"state must be a ChunkExecutorState (5 arrays), got a tuple of {len(state)}")
+        obs_h, act_h, plan, plan_len, plan_pos = (np.asarray(x) for x in state)
+        expected = {
+            "observation_history": (obs_h.shape, self.observation_history.shape),
+            "action_history": (act_h.shape, self.action_history.shape),
+            "plan": (plan.shape, self.plan.shape),
+            "plan_length": (plan_len.shape, self.plan_length.shape),
+            "plan_position": (plan_pos.shape, self.plan_position.shape),
+        }
+        for name, (got, want) in expected.items():
+            if got != want:
+                raise ValueError(f"state.{name} has shape {got}, expected {want}")
+        self.observation_history[:] = obs_h
+        self.action_history[:] = act_h
+        self.plan[:] = plan
+        self.plan_length[:] = plan_len
+        self.plan_position[:] = plan_pos
+        self._started[:] = True
+
+    def reset(self, mask: np.ndarray, observations: np.ndarray) -> None:
+        """
+        Start new episodes for the environments in ``mask``: fill the history with their first
+        observation, clear past actions and drop the current plan.
+
+        :param mask: boolean, shape ``(n,)``
+        :param observations: flattened observations, shape ``(n, obs_dim)``
+        """
+        self.observation_history[mask] = observations[mask, None, :]
+        self.action_history[mask] = 0.0
+        self.plan_position[mask] = 0
+        self.plan_length[mask] = 0
+        self._started[mask] = True
+
+    def act(
+        self,
+        observations: np.ndarray,
+        episode_start: np.ndarray,
+        planner: Planner,
+        noise: np.ndarray | None = None,
+    ) -> ExecutorStep:
+        """
+        Observe ``o_t`` and return ``a_t`` for every environment, replanning where needed.
+
+        :param observations: flattened current observations, shape ``(n, obs_dim)``
+        :param episode_start: whether ``o_t`` is the first observation of an episode, shape ``(n,)``
+        :param planner: see :data:`Planner`
+        :param noise: optional exploration noise added to the executed actions (then clipped), ``(n, action_dim)``
+        :return: the executed actions and what was (re)planned
+        """
+        observations = np.asarray(observations, dtype=np.float32).reshape(self.n_envs, self.obs_dim)
+        start = np.asarray(episode_start, dtype=bool).reshape(self.n_envs) | ~self._started
+        if start.any():
+            self.reset(start, observations)
+        cont = ~start
+        if cont.any():
+            # shift the window by one step: (n, ℓ, obs_dim), oldest first
+            self.observation_history[cont, :-1] = self.observation_history[cont, 1:]
+            self.observation_history[cont, -1] = observations[cont]
+        replan = self.plan_position >= self.plan_length
+        entropy = np.full((self.n_envs, self.chunk_size), np.nan, dtype=np.float32)
+        if replan.any():
+            idx = np.flatnonzero(replan)
+            result = planner(self.observation_history[idx], self.action_history[idx])
+            self.plan[idx] = result.chunks
+            self.plan_length[idx] = result.lengths
+            self.plan_position[idx] = 0
+            entropy[idx] = result.entropy
+        actions = self.plan[np.arange(self.n_envs), self.plan_position].copy()
+        if noise is not None:
+            actions = np.clip(actions + noise, -1.0, 1.0).astype(np.float32)
+        self.plan_position += 1
+        # push a_t into the action window
+        self.action_history[:, :-1] = self.action_history[:, 1:]
+        self.action_history[:, -1] = actions
+        return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)

@@ -1,0 +1,94 @@
+"""Pure maths of conditional flow matching over action chunks (paper §3.1, Eq. 2).
+
+Chunks have shape ``(batch, k, action_dim)`` everywhere; a flow time ``tau`` has shape ``(batch,)``
+and is broadcast over the chunk dimensions. All functions are pure (no module state) so that they
+can be tested against hand-computed values.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch as th
+
+VelocityFn = Callable[[th.Tensor, th.Tensor], th.Tensor]
+
+
+def _expand_tau(tau: th.Tensor, like: th.Tensor) -> th.Tensor:
+    """Reshape ``tau`` of shape ``like.shape[:tau.ndim]`` so that it broadcasts over ``like``."""
+    if tau.shape != like.shape[: tau.ndim]:
+        raise ValueError(f"tau of shape {tuple(tau.shape)} does not match the leading dims of {tuple(like.shape)}")
+    # (batch,) -> (batch, 1, 1) for chunks of shape (batch, k, action_dim)
+    return tau.reshape(tau.shape + (1,) * (like.ndim - tau.ndim))
+
+
+def interpolate(x0: th.Tensor, x1: th.Tensor, tau: th.Tensor) -> th.Tensor:
+    """
+    Linear probability path of Eq. 2: ``x_tau = (1 - tau) x0 + tau x1``.
+
+    :param x0: noise chunks, shape ``(batch, k, action_dim)``
+    :param x1: data chunks, same shape as ``x0``
+    :param tau: flow times in [0, 1], shape ``(batch,)``
+    :return: interpolated chunks ``x_tau``, shape ``(batch, k, action_dim)``
+    """
+    t = _expand_tau(tau, x0)
+    return (1.0 - t) * x0 + t * x1
+
+
+def target_velocity(x0: th.Tensor, x1: th.Tensor) -> th.Tensor:
+    """
+    Regression target of the velocity field in Eq. 2: ``x1 - x0`` (constant along the path).
+
+    :param x0: noise chunks, shape ``(batch, k, action_dim)``
+    :param x1: data chunks, same shape
+    :return: target velocity, shape ``(batch, k, action_dim)``
+    """
+    return x1 - x0
+
+
+def estimate_terminal(x_tau: th.Tensor, tau: th.Tensor, velocity: th.Tensor) -> th.Tensor:
+    """
+    One-step estimate of the terminal chunk used by the value term of Eq. 2:
+    ``x̂1 = x_tau + (1 - tau) v_theta(x_tau, tau | h_t)``.
+
+    :param x_tau: interpolated chunks, shape ``(batch, k, action_dim)``
+    :param tau: flow times, shape ``(batch,)``
+    :param velocity: predicted velocity at ``(x_tau, tau)``, same shape as ``x_tau``
+    :return: ``x̂1``, shape ``(batch, k, action_dim)``
+    """
+    return x_tau + (1.0 - _expand_tau(tau, x_tau)) * velocity
+
+
+def flow_matching_loss(velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor) -> th.Tensor:
+    """
+    First term of Eq. 2, ``E ||v_theta(x_tau, tau | h_t) - (x1 - x0)||^2``.
+
+    The squared norm is averaged over the ``k * action_dim`` chunk entries (instead of summed) so
+    that the weight ``lambda`` of the value term does not change meaning with the chunk size.
+
+    :param velocity: predicted velocities, shape ``(batch, k, action_dim)``
+    :param x0: noise chunks, same shape
+    :param x1: data chunks, same shape
+    :return: scalar loss
+    """
+    return (velocity - target_velocity(x0, x1)).pow(2).mean()
+
+
+def euler_sample(velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int) -> th.Tensor:
+    """
+    Integrate ``dx/dtau = v(x, tau)`` from ``tau = 0`` to ``1`` with ``n_steps`` explicit Euler steps.
+
+    :param velocity_fn: maps ``(x, tau)`` with ``x`` of shape ``(*batch, k, action_dim)`` and a
+        scalar-valued ``tau`` tensor of shape ``()`` to a velocity of the same shape as ``x``
+    :param x0: initial noise, shape ``(*batch, k, action_dim)``
+    :param n_steps: number of Euler steps ``N`` (>= 1)
+    :return: ``x1`` (not clipped), same shape as ``x0``
+    """
+    if n_steps < 1:
+        raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+    x = x0
+    dt = 1.0 / n_steps
+    for i in range(n_steps):
+        tau = th.full((), i * dt, dtype=x0.dtype, device=x0.device)
+        x = x + dt * velocity_fn(x, tau)
+    return x

@@ -1,0 +1,474 @@
+"""Networks of UA2C: the flow-matching chunk actor (velocity field) and the twin Transformer chunk critics.
+
+Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
+Mixed Traffic", §2.3 and §3.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+from torch.nn import functional as F
+
+from sb3_ua2c.chunking import (
+    AdaptiveChunkExecutor,
+    ChunkExecutorState,
+    PlanResult,
+    chunk_entropy,
+    executable_prefix_length,
+)
+from sb3_ua2c.flow import euler_sample
+
+#: seed of the noise used by ``predict(..., deterministic=True)``
+DETERMINISTIC_NOISE_SEED = 0
+
+
+class VelocityField(nn.Module):
+    """
+    Conditional velocity field ``v_theta(x_tau, tau | h_t)`` over chunks (Eq. 2), an MLP.
+
+    The first layer is split into a history part, computed once per history, and a chunk/time part,
+    so that S candidates x N Euler steps reuse the history features.
+
+    :param history_dim: size of the flattened history ``(o_{t-ℓ+1:t}, a_{t-ℓ:t-1})``
+    :param chunk_size: ``k``
+    :param action_dim: action size
+    :param net_arch: hidden layer sizes (at least one)
+    :param activation_fn: activation class
+    """
+
+    def __init__(
+        self,
+        history_dim: int,
+        chunk_size: int,
+        action_dim: int,
+        net_arch: list[int],
+        activation_fn: type[nn.Module] = nn.GELU,
+    ) -> None:
+        super().__init__()
+        if len(net_arch) == 0:
+            raise ValueError("net_arch must have at least one hidden layer for the velocity field")
+        self.chunk_size, self.action_dim = chunk_size, action_dim
+        chunk_dim = chunk_size * action_dim
+        self.history_layer = nn.Linear(history_dim, net_arch[0])
+        self.chunk_layer = nn.Linear(chunk_dim + 1, net_arch[0], bias=False)
+        layers: list[nn.Module] = [activation_fn()]
+        for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
+            layers += [nn.Linear(n_in, n_out), activation_fn()]
+        layers.append(nn.Linear(net_arch[-1], chunk_dim))
+        self.trunk = nn.Sequential(*layers)
+
+    def condition(self, history: th.Tensor) -> th.Tensor:
+        """
+        :param history: flattened histories, shape ``(batch, history_dim)``
+        :return: first-layer history features, shape ``(batch, hidden)``
+        """
+        return self.history_layer(history)
+
+    def forward(self, x: th.Tensor, tau: th.Tensor, cond: th.Tensor) -> th.Tensor:
+        """
+        :param x: chunks, shape ``(batch, *extra, k, action_dim)``
+        :param tau: flow times, shape ``(batch, *extra)`` or a scalar tensor
+        :param cond: history features from :meth:`condition`, shape ``(batch, hidden)``
+        :return: velocities, same shape as ``x``
+        """
+        lead = x.shape[:-2]
+        flat = x.reshape(*lead, -1)  # (batch, *extra, k, action_dim) -> (batch, *extra, k*action_dim)
+        tau = tau.to(x.dtype).expand(lead).unsqueeze(-1)  # (batch, *extra, 1)
+        # (batch, hidden) -> (batch, 1.., hidden), broadcast over the extra (candidate) dims
+        cond = cond.reshape(cond.shape[:1] + (1,) * (len(lead) - 1) + cond.shape[1:])
+        h = self.chunk_layer(th.cat([flat, tau], dim=-1)) + cond
+        return self.trunk(h).reshape(x.shape)
+
+
+class _EnsembleLinear(nn.Module):
+    """``n`` independent linear layers applied in one batched matmul: ``(n, M, in) -> (n, M, out)``."""
+
+    def __init__(self, n: int, in_features: int, out_features: int) -> None:
+        super().__init__()
+        bound = 1.0 / math.sqrt(in_features)
+        self.weight = nn.Parameter(th.empty(n, in_features, out_features).uniform_(-bound, bound))
+        self.bias = nn.Parameter(th.empty(n, 1, out_features).uniform_(-bound, bound))
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        if x.ndim == 2:  # shared input (M, in) for all members
+            return th.matmul(x, self.weight) + self.bias
+        return th.baddbmm(self.bias, x, self.weight)
+
+
+class _EnsembleLayerNorm(nn.Module):
+    """Layer norm with per-member affine parameters, input ``(n, M, d)``."""
+
+    def __init__(self, n: int, dim: int) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(th.ones(n, 1, dim))
+        self.bias = nn.Parameter(th.zeros(n, 1, dim))
+        self.dim = dim
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return th.addcmul(self.bias, F.layer_norm(x, (self.dim,)), self.weight)
+
+
+class _EnsembleBlock(nn.Module):
+    """Pre-norm Transformer encoder block for ``n`` independent members, input ``(n, B, T, d)``."""
+
+    def __init__(self, n: int, dim: int, n_heads: int, ff_dim: int, activation_fn: type[nn.Module]) -> None:
+        super().__init__()
+        self.n_heads = n_heads
+        self.norm1 = _EnsembleLayerNorm(n, dim)
+        self.qkv = _EnsembleLinear(n, dim, 3 * dim)
+        self.out = _EnsembleLinear(n, dim, dim)
+        self.norm2 = _EnsembleLayerNorm(n, dim)
+        self.ff1 = _EnsembleLinear(n, dim, ff_dim)
+        self.act = activation_fn()
+        self.ff2 = _EnsembleLinear(n, ff_dim, dim)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        n, b, t, d = x.shape
+        h = d // self.n_heads
+        flat = x.reshape(n, b * t, d)  # (n, B, T, d) -> (n, B*T, d)
+        qkv = self.qkv(self.norm1(flat))
+        # (n, B*T, 3d) -> (3, n*B, heads, T, d/heads)
+        qkv = qkv.reshape(n, b, t, 3, self.n_heads, h).permute(3, 0, 1, 4, 2, 5).reshape(3, n * b, self.n_heads, t, h)
+        att = F.scaled_dot_product_attention(qkv[0], qkv[1], qkv[2])
+        # (n*B, heads, T, d/heads) -> (n, B*T, d)
+        att = att.reshape(n, b, self.n_heads, t, h).permute(0, 1, 3, 2, 4).reshape(n, b * t, d)
+        flat = flat + self.out(att)
+        flat = flat + self.ff2(self.act(self.ff1(self.norm2(flat))))
+        return flat.reshape(n, b, t, d)
+
+
+class ChunkCritics(nn.Module):
+    """
+    Twin (``n_critics``) Transformer chunk critics ``Q_phi_j(o_{t-ℓ+1:t}, a_{t:t+k-1})`` of Eq. 3,
+    evaluated in one batched call.
+
+    Token layout (compact): one token for the whole observation history (a linear projection of
+    ``ℓ * obs_dim`` numbers) followed by ``k`` action tokens, each with a learned position
+    embedding; the value is read from the history token after the last block.
+
+    :param obs_history_dim: ``ℓ * obs_dim``
+    :param chunk_size: ``k``
+    :param action_dim: action size
+    :param n_critics: number of critics (2 for clipped double-Q)
+    :param embed_dim: token width ``d``
+    :param n_layers: number of Transformer blocks
+    :param n_heads: attention heads (must divide ``embed_dim``)
+    :param ff_dim: hidden width of the feed-forward sublayer
+    :param activation_fn: activation class
+    """
+
+    def __init__(
+        self,
+        obs_history_dim: int,
+        chunk_size: int,
+        action_dim: int,
+        n_critics: int = 2,
+        embed_dim: int = 64,
+        n_layers: int = 1,
+        n_heads: int = 4,
+        ff_dim: int = 128,
+        activation_fn: type[nn.Module] = nn.GELU,
+    ) -> None:
+        super().__init__()
+        self.n_critics, self.embed_dim = n_critics, embed_dim
+        self.obs_token = _EnsembleLinear(n_critics, obs_history_dim, embed_dim)
+        self.action_token = _EnsembleLinear(n_critics, action_dim, embed_dim)
+        self.position = nn.Parameter(th.randn(n_critics, 1, chunk_size + 1, embed_dim) * 0.02)
+        self.blocks = nn.ModuleList(
+            [_EnsembleBlock(n_critics, embed_dim, n_heads, ff_dim, activation_fn) for _ in range(n_layers)]
+        )
+        self.norm = _EnsembleLayerNorm(n_critics, embed_dim)
+        self.head = _EnsembleLinear(n_critics, embed_dim, 1)
+
+    def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
+        """
+        :param obs_history: flattened observation histories, shape ``(B, ℓ*obs_dim)``
+        :param chunks: ``C`` candidate chunks per history, shape ``(B, C, k, action_dim)``
+        :return: Q-values, shape ``(n_critics, B, C)``
+        """
+        b, c, k, a = chunks.shape
+        n, d = self.n_critics, self.embed_dim
+        obs_tok = self.obs_token(obs_history)  # (B, ℓ*obs_dim) -> (n, B, d)
+        obs_tok = obs_tok.unsqueeze(2).expand(n, b, c, d).reshape(n, b * c, 1, d)
+        act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b * c, k, d)
+        x = th.cat([obs_tok, act_tok], dim=2) + self.position  # (n, B*C, 1+k, d)
+        for block in self.blocks:
+            x = block(x)
+        q = self.head(self.norm(x[:, :, 0]))  # (n, B*C, d) -> (n, B*C, 1)
+        return q.reshape(n, b, c)
+
+
+class UA2CPolicy(BasePolicy):
+    """
+    Policy of UA2C: flow-matching chunk actor, twin Transformer chunk critics (+ Polyak targets) and
+    the adaptive-chunk planner (Eq. 7) used by ``predict``.
+
+    :param observation_space: Box observation space
+    :param action_space: Box action space
+    :param lr_schedule: learning rate schedule
+    :param chunk_size: ``k``
+    :param history_len: ``ℓ``
+    :param flow_steps: Euler steps ``N`` when acting
+    :param n_candidates: chunks ``S`` sampled per replanning
+    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
+    :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
+    :param net_arch: hidden sizes of the velocity-field MLP
+    :param critic_embed_dim: token width of the critics
+    :param critic_n_layers: Transformer blocks per critic
+    :param critic_n_heads: attention heads
+    :param critic_ff_dim: feed-forward width
+    :param n_critics: number of critics
+    :param activation_fn: activation class for actor and critics
+    :param optimizer_class: optimizer class
+    :param optimizer_kwargs: extra optimizer arguments
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        lr_schedule: Schedule,
+        chunk_size: int = 5,
+        history_len: int = 4,
+        flow_steps: int = 10,
+        n_candidates: int = 32,
+        entropy_threshold: float = 0.0,
+        discrete_dims: dict[int, int] | None = None,
+        net_arch: list[int] | None = None,
+        critic_embed_dim: int = 64,
+        critic_n_layers: int = 1,
+        critic_n_heads: int = 4,
+        critic_ff_dim: int = 128,
+        n_critics: int = 2,
+        activation_fn: type[nn.Module] = nn.GELU,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(action_space, spaces.Box):
+            raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
+        if not isinstance(observation_space, spaces.Box):
+            raise ValueError(f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}")
+        super().__init__(
+            observation_space,
+            action_space,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            squash_output=True,
+            normalize_images=False,
+        )
+        net_arch = [256, 256, 256] if net_arch is None else list(net_arch)
+        for name, value in [
+            ("critic_embed_dim", critic_embed_dim),
+            ("critic_n_layers", critic_n_layers),
+            ("critic_n_heads", critic_n_heads),
+            ("critic_ff_dim", critic_ff_dim),
+            ("n_critics", n_critics),
+        ]:
+            if int(value) != value or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if critic_embed_dim % critic_n_heads:
+            raise ValueError(f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}")
+        if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
+            raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
+        self.chunk_size, self.history_len = chunk_size, history_len
+        self.flow_steps, self.n_candidates = flow_steps, n_candidates
+        self.entropy_threshold = float(entropy_threshold)
+        self.discrete_dims = dict(discrete_dims or {})
+        self.net_arch = net_arch
+        self.critic_kwargs = dict(
+            n_critics=n_critics,
+            embed_dim=critic_embed_dim,
+            n_layers=critic_n_layers,
+            n_heads=critic_n_heads,
+            ff_dim=critic_ff_dim,
+            activation_fn=activation_fn,
+        )
+        self.activation_fn = activation_fn
+        self.obs_dim = int(np.prod(observation_space.shape))
+        self.action_dim = int(np.prod(action_space.shape))
+        #: ``L_t`` and ``H_u`` of the last replanning done by ``predict`` (one row per env)
+        self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
+        self.last_plan_entropy: np.ndarray = np.zeros((0, chunk_size), dtype=np.float32)
+        self._build(lr_schedule)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        history_dim = self.history_len * (self.obs_dim + self.action_dim)
+        self.actor = VelocityField(history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn)
+        critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
+        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
+        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
+        self.critic_target.load_state_dict(self.critic.state_dict())
+        self.critic_target.requires_grad_(False)
+        self.critic_target.train(False)
+        self.actor.optimizer = self.optimizer_class(  # type: ignore[assignment]
+            self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+        self.critic.optimizer = self.optimizer_class(  # type: ignore[assignment]
+            self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            chunk_size=self.chunk_size,
+            history_len=self.history_len,
+            flow_steps=self.flow_steps,
+            n_candidates=self.n_candidates,
+            entropy_threshold=self.entropy_threshold,
+            discrete_dims=self.discrete_dims,
+            net_arch=self.net_arch,
+            critic_embed_dim=self.critic_kwargs["embed_dim"],
+            critic_n_layers=self.critic_kwargs["n_layers"],
+            critic_n_heads=self.critic_kwargs["n_heads"],
+            critic_ff_dim=self.critic_kwargs["ff_dim"],
+            n_critics=self.critic_kwargs["n_critics"],
+            activation_fn=self.activation_fn,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
+        return data
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.actor.train(mode)
+        self.critic.train(mode)
+        self.training = mode
+
+    # ------------------------------------------------------------------ maths on tensors
+    @staticmethod
+    def flatten_history(obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+        """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> actor input ``(B, ℓ*(obs_dim+action_dim))``."""
+        b = obs_history.shape[0]
+        return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
+
+    def sample_chunks(
+        self,
+        cond: th.Tensor,
+        n_samples: int,
+        n_steps: int,
+        generator: th.Generator | None = None,
+    ) -> th.Tensor:
+        """
+        Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
+
+        :param cond: history features of the actor, shape ``(B, hidden)``
+        :param n_samples: candidates per history
+        :param n_steps: Euler steps
+        :param generator: optional random generator for the noise
+        :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
+        """
+        shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
+        x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+        return euler_sample(lambda x, tau: self.actor(x, tau, cond), x0, n_steps)
+
+    def plan_tensors(
+        self, obs_history: th.Tensor, action_history: th.Tensor, generator: th.Generator | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """
+        One replanning (Eq. 7): sample S chunks, keep the one with the highest ``min_j Q_j``, measure
+        the per-position entropy of the S samples and the executable prefix length.
+
+        :param obs_history: shape ``(m, ℓ, obs_dim)``
+        :param action_history: shape ``(m, ℓ, action_dim)``
+        :param generator: optional random generator for the noise
+        :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
+        """
+        m = obs_history.shape[0]
+        cond = self.actor.condition(self.flatten_history(obs_history, action_history))
+        samples = self.sample_chunks(cond, self.n_candidates, self.flow_steps, generator)  # (m, S, k, A)
+        entropy = chunk_entropy(samples, self.discrete_dims)  # (m, k)
+        lengths = executable_prefix_length(entropy, self.entropy_threshold)
+        clipped = samples.clamp(-1.0, 1.0)
+        q = self.critic(obs_history.reshape(m, -1), clipped).min(dim=0).values  # (m, S)
+        best = q.argmax(dim=1)
+        return clipped[th.arange(m, device=clipped.device), best], lengths, entropy
+
+    def plan(
+        self, obs_history: np.ndarray, action_history: np.ndarray, deterministic: bool = False
+    ) -> PlanResult:
+        """
+        NumPy front end of :meth:`plan_tensors` (a :data:`~sb3_ua2c.chunking.Planner`).
+
+        ``deterministic=True`` draws the noise from a generator with a fixed seed, so the same history
+        always gives the same plan; the selection and prefix rules are unchanged.
+        """
+        generator = None
+        if deterministic:
+            generator = th.Generator(device=self.device)
+            generator.manual_seed(DETERMINISTIC_NOISE_SEED)
+        with th.inference_mode():
+            obs_t = th.as_tensor(obs_history, device=self.device, dtype=th.float32)
+            act_t = th.as_tensor(action_history, device=self.device, dtype=th.float32)
+            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator)
+        return PlanResult(chunks.cpu().numpy(), lengths.cpu().numpy(), entropy.cpu().numpy())
+
+    # ------------------------------------------------------------------ SB3 interface
+    def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        return self._predict(obs, deterministic=deterministic)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        """First action of a plan made from a history holding only ``observation`` (episode start)."""
+        assert isinstance(observation, th.Tensor)
+        obs = observation.reshape(observation.shape[0], 1, -1).expand(-1, self.history_len, -1)
+        act = th.zeros(obs.shape[0], self.history_len, self.action_dim, device=obs.device)
+        generator = None
+        if deterministic:
+            generator = th.Generator(device=obs.device)
+            generator.manual_seed(DETERMINISTIC_NOISE_SEED)
+        chunks, _, _ = self.plan_tensors(obs.float(), act, generator)
+        return chunks[:, 0]
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """
+        One action per environment step; ``state`` carries the history window and the remaining chunk
+        (a :class:`~sb3_ua2c.chunking.ChunkExecutorState`), so ``evaluate_policy``, ``EvalCallback``
+        and rl-zoo's ``enjoy`` replan only when the executable prefix is used up or an episode starts.
+
+        :param observation: observation(s)
+        :param state: state returned by the previous call (``None`` = new episodes)
+        :param episode_start: whether each observation starts an episode
+        :param deterministic: fixed-seed noise (same history -> same plan) instead of fresh noise
+        :return: actions in the env's action space and the next state
+        """
+        self.set_training_mode(False)
+        if isinstance(observation, dict):
+            raise ValueError("UA2C supports Box observation spaces only, got a dict observation")
+        obs = np.asarray(observation, dtype=np.float32)
+        vectorized = obs.shape != self.observation_space.shape
+        obs = obs.reshape(-1, self.obs_dim)
+        n_envs = obs.shape[0]
+        executor = AdaptiveChunkExecutor(n_envs, self.obs_dim, self.action_dim, self.chunk_size, self.history_len)
+        if episode_start is None:
+            episode_start = np.zeros(n_envs, dtype=bool) if state is not None else np.ones(n_envs, dtype=bool)
+        if state is not None:
+            executor.load_state(state)
+        step = executor.act(
+            obs, np.asarray(episode_start, dtype=bool).reshape(n_envs), lambda o, a: self.plan(o, a, deterministic)
+        )
+        if step.new_plan.any():
+            if self.last_plan_lengths.shape != (n_envs,):
+                self.last_plan_lengths = np.zeros(n_envs, dtype=np.int64)
+                self.last_plan_entropy = np.zeros((n_envs, self.chunk_size), dtype=np.float32)
+            self.last_plan_lengths[step.new_plan] = step.plan_lengths[step.new_plan]
+            self.last_plan_entropy[step.new_plan] = step.entropy[step.new_plan]
+        actions = self.unscale_action(step.actions).reshape((-1, *self.action_space.shape))
+        if not vectorized:
+            actions = actions.squeeze(axis=0)
+        new_state: ChunkExecutorState = executor.state
+        return actions, new_state
+
+
+MlpPolicy = UA2CPolicy

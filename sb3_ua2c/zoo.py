@@ -1,0 +1,407 @@
+"""rl-zoo3 launcher for UA2C: ``python -m sb3_ua2c.zoo train|enjoy|optimize ...`` (console script ``ua2c-zoo``).
+
+rl-zoo3 has no plugin mechanism, so this module
+
+1. registers ``ua2c`` in rl-zoo3's algorithm table (``rl_zoo3.ALGOS``), its Optuna sampler in
+   ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER`` and its converter (used by ``--trial-id``) in
+   ``HYPERPARAMS_CONVERTER``, before rl-zoo3 parses its arguments (``--algo`` checks its choices
+   against the table at parse time, and ``--gym-packages`` is imported too late for an algorithm);
+2. hands every other argument to rl-zoo3's own ``train`` / ``enjoy`` unchanged.
+
+Choices made here, where rl-zoo3 2.9.2 alone does not do what a UA2C user expects:
+
+* ``--algo`` defaults to ``ua2c`` (rl-zoo3's own default is ``ppo``).
+* ``optimize`` is ``train --optimize-hyperparameters``.
+* ``train -i model.zip`` continues the run: the number of timesteps keeps growing
+  (``learn(reset_num_timesteps=False)``) instead of restarting at 0, so ``-n`` means
+  "this many more steps" and logs/schedules continue where the checkpoint stopped. Any checkpoint
+  written by ``model.save`` works, including one produced by offline pre-training.
+* rl-zoo3 ships no hyperparameters for ``ua2c``: ``train``/``optimize`` with ``--algo ua2c`` and no
+  ``--conf-file`` stop with a message pointing at ``zoo_configs/ua2c.yml``.
+
+Sweeps: without ``--storage`` the study lives in memory (one process). ``--storage
+sqlite:///sweep.db`` keeps it on one machine; several workers on several machines share a
+study through ``--storage postgresql://user:password@host:5432/db --study-name NAME`` (Optuna's
+RDB storage, driver ``psycopg2``). ``--n-trials`` counts per worker; ``--max-total-trials`` caps
+the whole study.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import os
+import socket
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import optuna
+
+COMMANDS = ("train", "enjoy", "optimize")
+
+# Key of the PostgreSQL advisory lock that serialises Optuna's schema creation between workers.
+_SCHEMA_LOCK_KEY = 0x55413243  # "UA2C"
+
+#: Keys of an rl-zoo3 hyperparameter entry that rl-zoo3 consumes itself; every other key of a
+#: ``zoo_configs/*.yml`` entry is passed to the algorithm's constructor.
+ZOO_KEYS = frozenset(
+    {
+        "n_timesteps",
+        "n_envs",
+        "normalize",
+        "env_wrapper",
+        "vec_env_wrapper",
+        "frame_stack",
+        "callback",
+        "env_kwargs",
+        "monitor_kwargs",
+        "noise_type",
+        "noise_std",
+    }
+)
+
+_USAGE = """usage: python -m sb3_ua2c.zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
+
+  train     rl-zoo3 train (``-i model.zip`` continues from a checkpoint, timesteps keep growing)
+  enjoy     rl-zoo3 enjoy (runs the stateful predict: adaptive chunks are replanned in place)
+  optimize  rl-zoo3 train --optimize-hyperparameters (Optuna; ``--storage postgresql://...``
+            lets workers on several machines share one study)
+
+``--algo`` defaults to ua2c. ``python -m sb3_ua2c.zoo train --help`` lists rl-zoo3's arguments.
+example: python -m sb3_ua2c.zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
+"""
+
+
+@dataclass(frozen=True)
+class UA2CSearchSpace:
+    """
+    Ranges of the UA2C Optuna sampler (``--optimize``). Intervals are ``(low, high)``; tuples of
+    choices are categorical. Every name is a UA2C constructor argument except ``gamma``, which is
+    sampled as ``one_minus_gamma`` on a log scale (as rl-zoo3 does for SAC/TD3/TQC).
+
+    :param gamma: discount interval, inside (0, 1)
+    :param learning_rate: log-uniform interval
+    :param batch_size: choices
+    :param tau: Polyak coefficient, log-uniform interval
+    :param chunk_size: choices of k (Eq. 2-4); 1 gives the one-step baseline
+    :param history_len: choices of the history length l of h_t
+    :param flow_steps: integer interval of Euler steps N of the flow sampler
+    :param n_candidates: choices of S, chunks sampled per replanning (Eq. 7, 8)
+    :param n_target_candidates: choices of Q, chunks sampled per target (Eq. 4)
+    :param entropy_threshold: uniform interval of delta (Eq. 7), in nats; may be negative
+        (differential entropy)
+    :param q_weight: log-uniform interval of lambda (Eq. 2)
+    """
+
+    gamma: tuple[float, float] = (0.95, 0.9999)
+    learning_rate: tuple[float, float] = (1e-5, 2e-3)
+    batch_size: tuple[int, ...] = (64, 128, 256)
+    tau: tuple[float, float] = (1e-3, 0.08)
+    chunk_size: tuple[int, ...] = (3, 5, 8, 10)
+    history_len: tuple[int, ...] = (1, 2, 4)
+    flow_steps: tuple[int, int] = (2, 10)
+    n_candidates: tuple[int, ...] = (8, 16, 32)
+    n_target_candidates: tuple[int, ...] = (1, 2, 4)
+    entropy_threshold: tuple[float, float] = (-3.0, 1.5)
+    q_weight: tuple[float, float] = (0.01, 3.0)
+
+    def __post_init__(self) -> None:
+        # name -> (interval, exclusive lower bound of low, exclusive upper bound of high)
+        intervals = {
+            "gamma": (self.gamma, 0.0, 1.0),
+            "learning_rate": (self.learning_rate, 0.0, math.inf),
+            "tau": (self.tau, 0.0, 1.0),
+            "flow_steps": (self.flow_steps, 0, math.inf),
+            "entropy_threshold": (self.entropy_threshold, -math.inf, math.inf),
+            "q_weight": (self.q_weight, 0.0, math.inf),
+        }
+        for name, (interval, lower, upper) in intervals.items():
+            if not (isinstance(interval, tuple) and len(interval) == 2):
+                raise ValueError(f"{name} must be a (low, high) tuple, got {interval!r}")
+            low, high = interval
+            if not (lower < low < high < upper):
+                raise ValueError(f"{name} must satisfy {lower} < low < high < {upper}, got {interval!r}")
+        if not all(isinstance(v, int) for v in self.flow_steps):
+            raise ValueError(f"flow_steps must hold integers, got {self.flow_steps!r}")
+        for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates"):
+            choices = getattr(self, name)
+            if not (
+                isinstance(choices, tuple)
+                and choices
+                and all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in choices)
+            ):
+                raise ValueError(f"{name} must be a non-empty tuple of integers >= 1, got {choices!r}")
+
+    @classmethod
+    def from_dict(cls, config: dict[str, Any]) -> UA2CSearchSpace:
+        """
+        Build from a mapping (e.g. parsed YAML); lists become tuples.
+
+        :param config: field name -> interval or choices
+        :raises ValueError: on an unknown key or a bad value, naming it
+        """
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(config) - known)
+        if unknown:
+            raise ValueError(f"Unknown UA2C search-space key(s) {unknown}; known: {sorted(known)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
+
+
+def sample_ua2c_params(
+    trial: optuna.Trial,
+    n_actions: int,
+    n_envs: int,
+    additional_args: dict[str, Any],
+    space: UA2CSearchSpace | None = None,
+) -> dict[str, Any]:
+    """
+    rl-zoo3 sampler for UA2C: draws one point of ``space`` and returns UA2C constructor arguments.
+
+    The signature is rl-zoo3's sampler signature (``HYPERPARAMS_SAMPLER``). The trial's raw
+    parameters (``trial.params``) go through :func:`convert_ua2c_params`, so ``--trial-id`` reloads
+    the same constructor arguments.
+
+    :param trial: the Optuna trial
+    :param n_actions: action dimension (unused: UA2C explores by sampling its flow policy)
+    :param n_envs: number of environments (unused)
+    :param additional_args: rl-zoo3's extra arguments (unused)
+    :param space: ranges; ``None`` uses ``UA2CSearchSpace()``
+    :return: keyword arguments for ``UA2C(...)``
+    """
+    space = UA2CSearchSpace() if space is None else space
+    sampled = {
+        "one_minus_gamma": trial.suggest_float("one_minus_gamma", 1.0 - space.gamma[1], 1.0 - space.gamma[0], log=True),
+        "learning_rate": trial.suggest_float("learning_rate", *space.learning_rate, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", space.batch_size),
+        "tau": trial.suggest_float("tau", *space.tau, log=True),
+        "chunk_size": trial.suggest_categorical("chunk_size", space.chunk_size),
+        "history_len": trial.suggest_categorical("history_len", space.history_len),
+        "flow_steps": trial.suggest_int("flow_steps", *space.flow_steps),
+        "n_candidates": trial.suggest_categorical("n_candidates", space.n_candidates),
+        "n_target_candidates": trial.suggest_categorical("n_target_candidates", space.n_target_candidates),
+        "entropy_threshold": trial.suggest_float("entropy_threshold", *space.entropy_threshold),
+        "q_weight": trial.suggest_float("q_weight", *space.q_weight, log=True),
+    }
+    trial.set_user_attr("gamma", 1.0 - sampled["one_minus_gamma"])
+    return convert_ua2c_params(sampled)
+
+
+def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
+    """
+    Turn sampled Optuna parameters into UA2C constructor arguments (rl-zoo3 ``HYPERPARAMS_CONVERTER``).
+
+    :param sampled: ``trial.params`` of a UA2C trial
+    :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma``
+    """
+    params = dict(sampled)
+    if "one_minus_gamma" in params:
+        params["gamma"] = 1.0 - params.pop("one_minus_gamma")
+    return params
+
+
+def register(search_space: UA2CSearchSpace | None = None) -> None:
+    """
+    Register ``ua2c`` in rl-zoo3: algorithm table, Optuna sampler and sampled-parameter converter.
+
+    Idempotent; called by :func:`main`. Call it yourself before using rl-zoo3's Python API
+    (``rl_zoo3.train.train()``, ``ExperimentManager``) with ``algo="ua2c"``.
+
+    :param search_space: ranges for ``--optimize``; ``None`` uses ``UA2CSearchSpace()``
+    """
+    import rl_zoo3.hyperparams_opt as hyperparams_opt
+    from rl_zoo3 import ALGOS
+
+    try:  # TEMPORARY until sb3_ua2c.UA2C lands
+        from sb3_ua2c import UA2C
+
+        ALGOS["ua2c"] = UA2C
+    except ImportError:
+        pass
+    if search_space is None:
+        hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = sample_ua2c_params
+    else:
+        hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = functools.partial(sample_ua2c_params, space=search_space)
+    hyperparams_opt.HYPERPARAMS_CONVERTER["ua2c"] = convert_ua2c_params
+
+
+def _experiment_manager_class() -> type:
+    """
+    rl-zoo3's ``ExperimentManager`` with two additions.
+
+    * Continued runs (``-i model.zip``) keep counting timesteps: rl-zoo3 2.9.2 calls
+      ``model.learn(n_timesteps)``, which resets ``num_timesteps`` to 0 after loading a checkpoint;
+      here the call gets ``reset_num_timesteps=False`` when continuing.
+    * Every Optuna trial records the worker that ran it (user attribute ``worker`` =
+      ``"hostname:pid"``), so a study shared by several machines shows who ran what.
+    """
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    class UA2CExperimentManager(ExperimentManager):
+        def learn(self, model: Any) -> None:
+            if not self.continue_training:
+                super().learn(model)
+                return
+            # Shadow the bound method for this one call only; removed before the model is saved.
+            model.learn = functools.partial(type(model).learn, model, reset_num_timesteps=False)
+            try:
+                super().learn(model)
+            finally:
+                del model.learn
+
+        def objective(self, trial: optuna.Trial) -> float:
+            trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
+            return super().objective(trial)
+
+    return UA2CExperimentManager
+
+
+@contextlib.contextmanager
+def _patched_train_module() -> Iterator[None]:
+    import rl_zoo3.train as zoo_train
+
+    original = zoo_train.ExperimentManager
+    zoo_train.ExperimentManager = _experiment_manager_class()
+    try:
+        yield
+    finally:
+        zoo_train.ExperimentManager = original
+
+
+def _option_value(args: Sequence[str], names: Sequence[str]) -> str | None:
+    """Value of the last occurrence of an option among ``names`` (``--x v`` or ``--x=v``), else None."""
+    value = None
+    for i, arg in enumerate(args):
+        for name in names:
+            if arg == name and i + 1 < len(args):
+                value = args[i + 1]
+            elif arg.startswith(name + "="):
+                value = arg[len(name) + 1 :]
+    return value
+
+
+def prepare_storage(storage: str | None, attempts: int = 5) -> None:
+    """
+    Create Optuna's tables in an RDB storage once, safely when several workers start together.
+
+    Workers started at the same time on an empty database would all run Optuna's schema creation
+    and all but one crash (duplicate ``CREATE TYPE``/``CREATE TABLE``; optuna issue #1092). On
+    PostgreSQL the creation runs under a session advisory lock, so exactly one worker creates
+    the schema and the others find it; other databases retry. In-memory studies (``None``) and
+    journal files (``*.log``) need nothing.
+
+    :param storage: the ``--storage`` value
+    :param attempts: tries for databases without advisory locks
+    """
+    if storage is None or storage.endswith(".log") or "://" not in storage:
+        return
+    import optuna
+    import sqlalchemy
+
+    try:
+        engine = sqlalchemy.create_engine(storage)
+    except ImportError as error:
+        raise SystemExit(
+            f"error: --storage {storage.split('://')[0]}://... needs its database driver ({error}); "
+            "for PostgreSQL: pip install 'sb3-ua2c[zoo]' (psycopg2-binary)"
+        ) from None
+    try:
+        if engine.dialect.name == "postgresql":
+            with engine.connect() as connection:
+                connection.execute(sqlalchemy.text("SELECT pg_advisory_lock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+                try:
+                    optuna.storages.RDBStorage(storage)
+                finally:
+                    connection.execute(sqlalchemy.text("SELECT pg_advisory_unlock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+            return
+        for attempt in range(attempts):
+            try:
+                optuna.storages.RDBStorage(storage)
+                return
+            except sqlalchemy.exc.SQLAlchemyError:
+                if attempt == attempts - 1:
+                    raise
+                time.sleep(0.5 * (attempt + 1))
+    finally:
+        engine.dispose()
+
+
+def build_zoo_argv(command: str, args: Sequence[str]) -> list[str]:
+    """
+    Translate launcher arguments into rl-zoo3 arguments (without the program name).
+
+    :param command: one of ``train``, ``enjoy``, ``optimize``
+    :param args: the arguments after the command, handed to rl-zoo3 unchanged except that
+        ``--algo ua2c`` is added when no ``--algo`` is given and ``optimize`` adds
+        ``--optimize-hyperparameters``
+    :return: the argument list for rl-zoo3's ``train()`` or ``enjoy()``
+    :raises ValueError: on an unknown command, or ``train``/``optimize`` of ``ua2c`` without
+        ``--conf-file`` (rl-zoo3 has no built-in UA2C hyperparameters)
+    """
+    if command not in COMMANDS:
+        raise ValueError(f"Unknown command {command!r}: expected one of {', '.join(COMMANDS)}")
+    zoo_args = list(args)
+    asks_help = any(arg in ("-h", "--help") for arg in zoo_args)
+    algo = _option_value(zoo_args, ("--algo",))
+    if algo is None:
+        algo = "ua2c"
+        zoo_args = ["--algo", algo, *zoo_args]
+    if command == "optimize" and not {"-optimize", "--optimize-hyperparameters"} & set(zoo_args):
+        zoo_args.append("--optimize-hyperparameters")
+    if (
+        command != "enjoy"
+        and algo == "ua2c"
+        and not asks_help
+        and _option_value(zoo_args, ("-conf", "--conf-file")) is None
+    ):
+        raise ValueError(
+            "rl-zoo3 has no built-in hyperparameters for ua2c: pass --conf-file "
+            "(e.g. --conf-file zoo_configs/ua2c.yml from a source checkout)"
+        )
+    return zoo_args
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """
+    Entry point of ``python -m sb3_ua2c.zoo`` and of the ``ua2c-zoo`` console script.
+
+    :param argv: ``[command, *rl_zoo3_arguments]``; defaults to ``sys.argv[1:]``
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_USAGE)
+        if not argv:
+            raise SystemExit(2)
+        return
+    command, rest = argv[0], argv[1:]
+    try:
+        zoo_argv = build_zoo_argv(command, rest)
+    except ValueError as error:
+        print(_USAGE, file=sys.stderr)
+        raise SystemExit(f"error: {error}") from None
+
+    register()
+    if {"-optimize", "--optimize-hyperparameters"} & set(zoo_argv):
+        prepare_storage(_option_value(zoo_argv, ("--storage",)))
+    from rl_zoo3.enjoy import enjoy
+    from rl_zoo3.train import train
+
+    program = f"ua2c-zoo {command}"
+    saved_argv = sys.argv
+    sys.argv = [program, *zoo_argv]
+    try:
+        if command == "enjoy":
+            enjoy()
+        else:
+            with _patched_train_module():
+                train()
+    finally:
+        sys.argv = saved_argv
+
+
+if __name__ == "__main__":
+    main()
