@@ -109,7 +109,7 @@ def find_slots(
     best = [math.inf] * 6
     slots = [-1] * 6
     counts = [0, 0, 0]
-    for i, (x, lane) in enumerate(zip(xs, lanes)):
+    for i, (x, lane) in enumerate(zip(xs, lanes, strict=True)):
         h = av_lane + 1 - lane  # left lane -> 0, current -> 1, right -> 2
         if h < 0 or h > 2:
             continue

@@ -31,8 +31,10 @@ import hashlib
 import os
 import subprocess
 import tempfile
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from envs.mdp import STYLES
 
@@ -54,20 +56,21 @@ AV_VCLASS = "custom1"
 #: SUMO vehicle-type attributes of each HDV driving style (index = label in ``STYLES``).
 #: Car following: IDM with maximum acceleration ``accel`` [m/s²], comfortable deceleration
 #: ``decel`` [m/s²], desired time headway ``tau`` [s] and standstill gap ``minGap`` [m]; the
-#: desired speed is ``speedFactor`` × the speed limit (per-vehicle spread ``speedDev``).
+#: desired speed is ``speedFactor`` × the speed limit (the env draws each vehicle's factor
+#: around it, so SUMO's own random numbers are never used: ``speedDev`` is 0).
 #: Lane changing (LC2013): ``lcSpeedGain`` (eagerness to overtake), ``lcKeepRight``,
 #: ``lcAssertive`` (accepted gaps in the target lane shrink as it grows), ``lcCooperative``.
 STYLE_VTYPES: dict[str, dict[str, float]] = {
     "conservative": {
-        "accel": 1.2, "decel": 2.0, "tau": 1.8, "minGap": 3.5, "speedFactor": 0.8, "speedDev": 0.05,
+        "accel": 1.2, "decel": 2.0, "tau": 1.8, "minGap": 3.5, "speedFactor": 0.8,
         "lcSpeedGain": 0.3, "lcKeepRight": 1.5, "lcAssertive": 0.7, "lcCooperative": 1.0,
     },
     "neutral": {
-        "accel": 2.0, "decel": 3.0, "tau": 1.2, "minGap": 2.5, "speedFactor": 0.9, "speedDev": 0.05,
+        "accel": 2.0, "decel": 3.0, "tau": 1.2, "minGap": 2.5, "speedFactor": 0.9,
         "lcSpeedGain": 1.0, "lcKeepRight": 1.0, "lcAssertive": 1.0, "lcCooperative": 0.8,
     },
     "aggressive": {
-        "accel": 3.2, "decel": 4.5, "tau": 0.6, "minGap": 1.0, "speedFactor": 1.05, "speedDev": 0.05,
+        "accel": 3.2, "decel": 4.5, "tau": 0.6, "minGap": 1.0, "speedFactor": 1.05,
         "lcSpeedGain": 3.0, "lcKeepRight": 0.3, "lcAssertive": 3.0, "lcCooperative": 0.2,
     },
 }
@@ -103,13 +106,22 @@ class ScenarioGeometry:
         for name in ("highway_in_length", "ramp_length", "accel_lane_length", "highway_out_length",
                      "speed_limit", "lane_width"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and 0.0 < float(value) < 1e5):
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0.0 < float(value) < 1e5):
                 raise ValueError(f"ScenarioGeometry.{name} must be a positive number, got {value!r}")
         if self.ramp_length > self.highway_in_length:
             raise ValueError(
                 f"ScenarioGeometry.ramp_length ({self.ramp_length}) must not exceed "
                 f"highway_in_length ({self.highway_in_length}): the ramp starts on the road"
             )
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> ScenarioGeometry:
+        """Build from a mapping; an unknown key raises ``ValueError`` naming it."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown ScenarioGeometry key(s) {unknown}; valid keys: {sorted(known)}")
+        return cls(**dict(values))
 
     @property
     def road_length(self) -> float:
@@ -219,11 +231,14 @@ def route_source(geometry: ScenarioGeometry, av_max_speed: float) -> str:
         r, g_, b = STYLE_COLORS[style]
         lines.append(
             f'  <vType id="{style}" vClass="passenger" carFollowModel="IDM" laneChangeModel="LC2013" '
-            f'length="5" maxSpeed="{hdv_max}" emergencyDecel="9" {attrs} color="{r},{g_},{b}"/>'
+            f'length="5" maxSpeed="{hdv_max}" emergencyDecel="9" speedDev="0" {attrs} color="{r},{g_},{b}"/>'
         )
     lines.append(
-        f'  <vType id="{AV_TYPE}" vClass="{AV_VCLASS}" length="5" minGap="2.5" accel="5" decel="9" '
-        f'emergencyDecel="9" tau="1" maxSpeed="{_fmt(av_max_speed)}" speedDev="0" color="220,30,30"/>'
+        # Under the env's control the AV ignores these; when SUMO drives it (data collection) it
+        # is a moderate IDM driver. IDM has no random term, so runs stay deterministic.
+        f'  <vType id="{AV_TYPE}" vClass="{AV_VCLASS}" carFollowModel="IDM" laneChangeModel="LC2013" '
+        f'length="5" minGap="2.5" accel="2.6" decel="4.5" emergencyDecel="9" tau="1" '
+        f'maxSpeed="{_fmt(av_max_speed)}" speedFactor="1" speedDev="0" color="220,30,30"/>'
     )
     lines += [
         f'  <route id="{ROUTE_HIGHWAY}" edges="hw_in merge hw_out"/>',

@@ -32,13 +32,12 @@ INSTALL_HINT = (
 )
 
 # TraCI variable ids (libsumo.constants); kept here so that importing needs no SUMO.
-VAR_ROAD_ID = 0x50
-VAR_LANE_INDEX = 0x52
+VAR_LANE_ID = 0x51
 VAR_LANEPOSITION = 0x56
 VAR_SPEED = 0x40
-VAR_ACCELERATION = 0x72
-#: Variables subscribed for every vehicle, in this order.
-VEHICLE_VARS = (VAR_ROAD_ID, VAR_LANE_INDEX, VAR_LANEPOSITION, VAR_SPEED, VAR_ACCELERATION)
+CMD_GET_VEHICLE_VARIABLE = 0xA4
+#: Variables subscribed for every vehicle (the fewer, the faster each step).
+VEHICLE_VARS = (VAR_LANE_ID, VAR_LANEPOSITION, VAR_SPEED)
 
 _libsumo: ModuleType | None = None
 # (pid, weak reference to the live simulation) of the simulation owning this process.
@@ -150,6 +149,33 @@ class SumoSimulation:
             self.libsumo.start(["sumo", *self._args(seed)])
             self._running = True
 
+    def clear(self, known_ids: Sequence[str] = (), context_owner: str | None = None, radius: float = 0.0) -> None:
+        """Remove every vehicle (on the road and pending) without reloading; time keeps running.
+
+        :param known_ids: ids that may be pending insertion (removed too, so that they can be re-added).
+        :param context_owner: vehicle whose context subscription (of ``radius``) is dropped first
+            (stepping with a subscription of a removed vehicle raises).
+        """
+        self._check_running()
+        veh = self.libsumo.vehicle
+        on_road = veh.getIDList()
+        if context_owner is not None and context_owner in on_road:
+            veh.unsubscribeContext(context_owner, CMD_GET_VEHICLE_VARIABLE, float(radius))
+        for vid in on_road:
+            veh.remove(vid)
+        gone = set(on_road)
+        for vid in known_ids:
+            if vid not in gone:
+                try:
+                    veh.remove(vid)
+                except self.libsumo.TraCIException:
+                    pass  # not in the simulation at all
+        self.libsumo.simulation.clearPending()
+
+    @property
+    def running(self) -> bool:
+        return self._running
+
     def close(self) -> None:
         """Stop the simulation and release the process (idempotent)."""
         global _owner
@@ -203,16 +229,31 @@ class SumoSimulation:
     def vehicle_ids(self) -> tuple[str, ...]:
         return self.libsumo.vehicle.getIDList()
 
-    def subscribe(self, vehicle_id: str) -> None:
-        """Subscribe ``vehicle_id`` (on the road) to :data:`VEHICLE_VARS`."""
-        self.libsumo.vehicle.subscribe(vehicle_id, VEHICLE_VARS)
+    def subscribe_context(self, vehicle_id: str, radius: float) -> None:
+        """Subscribe to :data:`VEHICLE_VARS` of every vehicle within ``radius`` metres of ``vehicle_id``.
 
-    def subscription_results(self) -> dict[str, dict[int, Any]]:
-        """``{vehicle id: {variable id: value}}`` of all subscribed vehicles on the road."""
-        return self.libsumo.vehicle.getAllSubscriptionResults()
+        Must be called when ``vehicle_id`` is on the road (not pending).
+        """
+        self.libsumo.vehicle.subscribeContext(vehicle_id, CMD_GET_VEHICLE_VARIABLE, float(radius), VEHICLE_VARS)
+
+    def context_results(self, vehicle_id: str) -> dict[str, dict[int, Any]]:
+        """``{vehicle id: {variable id: value}}`` around ``vehicle_id`` (itself included); {} once it left."""
+        return self.libsumo.vehicle.getContextSubscriptionResults(vehicle_id)
+
+    def lane_positions(self) -> list[tuple[str, str, float]]:
+        """``(vehicle id, lane id, lane position)`` of every vehicle on the road (slow; for drawing)."""
+        veh = self.libsumo.vehicle
+        return [(vid, veh.getLaneID(vid), veh.getLanePosition(vid)) for vid in veh.getIDList()]
+
+    def acceleration(self, vehicle_id: str) -> float:
+        """Acceleration of ``vehicle_id`` during the last step [m/s²]."""
+        return float(self.libsumo.vehicle.getAcceleration(vehicle_id))
 
     def leader(self, vehicle_id: str, distance: float) -> tuple[str, float] | None:
-        """``(leader id, gap [m])`` within ``distance`` on the vehicle's route, else ``None``."""
+        """``(leader id, gap − minGap [m])`` within ``distance`` on the vehicle's lanes, else ``None``.
+
+        As in TraCI, the returned distance excludes the follower's ``minGap``.
+        """
         res = self.libsumo.vehicle.getLeader(vehicle_id, float(distance))
         if res is None or not res[0]:
             return None
@@ -227,6 +268,20 @@ class SumoSimulation:
             vehicle_id, route_id, typeID=type_id, departPos=depart_pos,
             departLane=depart_lane, departSpeed=depart_speed,
         )
+
+    def try_add_vehicle(
+        self, vehicle_id: str, route_id: str, type_id: str, depart_pos: str, depart_lane: str, depart_speed: str
+    ) -> bool:
+        """:meth:`add_vehicle`, returning ``False`` instead of raising if SUMO refuses (e.g. id in use)."""
+        try:
+            self.add_vehicle(vehicle_id, route_id, type_id, depart_pos, depart_lane, depart_speed)
+        except self.libsumo.TraCIException:
+            return False
+        return True
+
+    def set_speed_factor(self, vehicle_id: str, factor: float) -> None:
+        """Desired speed of ``vehicle_id`` = ``factor`` × the lane speed limit (works on pending vehicles)."""
+        self.libsumo.vehicle.setSpeedFactor(vehicle_id, float(factor))
 
     def remove(self, vehicle_id: str) -> None:
         self.libsumo.vehicle.remove(vehicle_id)

@@ -341,3 +341,14 @@ class AdaptiveChunkExecutor:
         self.action_history[:, :-1] = self.action_history[:, 1:]
         self.action_history[:, -1] = actions
         return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
+
+
+def chunk_critic_loss(q_values: th.Tensor, target: th.Tensor) -> th.Tensor:
+    """
+    Chunk-level Bellman regression of Eq. 3: ``sum_j E[(Q_phi_j(o-history, a_{t:t+k-1}) - y_t)^2]``.
+
+    :param q_values: predictions of every critic, shape ``(n_critics, batch)``
+    :param target: ``y_t`` (no gradient), shape ``(batch,)``
+    :return: scalar loss
+    """
+    return (q_values - target.detach().unsqueeze(0)).pow(2).mean(dim=1).sum()

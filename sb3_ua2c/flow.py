@@ -92,3 +92,30 @@ def euler_sample(velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int) -> th.Ten
         tau = th.full((), i * dt, dtype=x0.dtype, device=x0.device)
         x = x + dt * velocity_fn(x, tau)
     return x
+
+
+def actor_loss(
+    velocity: th.Tensor,
+    x0: th.Tensor,
+    x1: th.Tensor,
+    q_values: th.Tensor,
+    q_weight: float,
+) -> tuple[th.Tensor, dict[str, float]]:
+    """
+    Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``.
+
+    The value term is divided by the (detached) mean ``|Q|`` of the batch, as in TD3+BC and FQL, so
+    that ``lambda`` is dimensionless and does not depend on the reward scale of the environment.
+
+    :param velocity: ``v_theta(x_tau, tau | h_t)``, shape ``(batch, k, action_dim)``
+    :param x0: noise chunks, same shape
+    :param x1: data chunks, same shape
+    :param q_values: ``min_j Q_j(o-history, x̂1)`` (critics frozen), shape ``(batch,)``
+    :param q_weight: ``lambda`` (>= 0)
+    :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``)
+    """
+    flow = flow_matching_loss(velocity, x0, x1)
+    q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
+    q_term = -q_values.mean() / q_scale
+    loss = flow + q_weight * q_term
+    return loss, {"flow_loss": flow.item(), "q_term": q_term.item(), "q_scale": q_scale.item()}

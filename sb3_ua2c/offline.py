@@ -135,7 +135,7 @@ def write_dataset(
     path: str | os.PathLike,
     observation_space: gym.Space,
     action_space: gym.Space,
-    env_spec: gym.envs.registration.EnvSpec | None = None,
+    env: gym.Env | None = None,
     metadata: dict[str, Any] | None = None,
     overwrite: bool = False,
 ) -> Path:
@@ -145,7 +145,8 @@ def write_dataset(
     :param path: destination directory (it will hold Minari's ``data/`` and our metadata file)
     :param observation_space: the environment's observation space
     :param action_space: the environment's action space
-    :param env_spec: the environment's spec (stored by Minari so the env can be recreated)
+    :param env: the (open) environment the data came from; Minari stores its spec so it can be
+        recreated (pass the object, not an id: a second SUMO simulation cannot open in this process)
     :param metadata: JSON-serialisable extra metadata (scenario config, behaviour policy, seed)
     :param overwrite: replace an existing dataset at ``path``
     :return: ``path``
@@ -183,7 +184,7 @@ def write_dataset(
             minari.create_dataset_from_buffers(
                 dataset_id=tmp_id,
                 buffer=buffers,
-                env=env_spec,
+                env=env,
                 algorithm_name=str(metadata.get("behaviour", "unknown")),
                 description=json.dumps(metadata, sort_keys=True, default=str),
                 observation_space=observation_space,
@@ -246,3 +247,181 @@ def load_dataset(path: str | os.PathLike) -> OfflineDataset:
 
 
 BehaviourPolicy = Callable[[np.ndarray, dict[str, Any], np.random.Generator], np.ndarray | None]
+
+
+@dataclass(frozen=True)
+class BehaviourConfig:
+    """Behaviour policy of an offline collection run on ``MixedTraffic-v0`` (human-like driving).
+
+    Per episode, SUMO's own car-following and lane-change models drive the AV with probability
+    ``sumo_fraction``; the recorded action is the one SUMO actually performed
+    (``info["applied_action"]``). To widen state coverage, each step of a SUMO-driven episode is,
+    with probability ``perturb_prob``, taken over by a perturbed action: the last performed
+    acceleration plus Gaussian noise of standard deviation ``accel_noise`` [m/s²], and a random
+    lane change with probability ``lane_change_prob``. The remaining episodes use a random policy
+    (uniform acceleration, lane change with probability ``lane_change_prob`` per step).
+
+    :param sumo_fraction: fraction of episodes driven by SUMO's driver model, in [0, 1]
+    :param perturb_prob: per-step probability of a perturbed takeover in SUMO episodes, in [0, 1]
+    :param accel_noise: standard deviation of the perturbation [m/s²], >= 0
+    :param lane_change_prob: per-step probability of a random lane change (takeovers, random episodes)
+    """
+
+    sumo_fraction: float = 0.8
+    perturb_prob: float = 0.1
+    accel_noise: float = 1.0
+    lane_change_prob: float = 0.02
+
+    def __post_init__(self) -> None:
+        for name in ("sumo_fraction", "perturb_prob", "lane_change_prob"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+                raise ValueError(f"BehaviourConfig.{name} must be a number in [0, 1], got {value!r}")
+        if isinstance(self.accel_noise, bool) or not isinstance(self.accel_noise, int | float) or not (
+            np.isfinite(self.accel_noise) and self.accel_noise >= 0
+        ):
+            raise ValueError(f"BehaviourConfig.accel_noise must be a finite number >= 0, got {self.accel_noise!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> BehaviourConfig:
+        """Build from a mapping; an unknown key raises ``ValueError`` naming it."""
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown BehaviourConfig key(s) {sorted(unknown)}; valid: {sorted(cls.__dataclass_fields__)}")
+        return cls(**values)
+
+
+def make_env(
+    env_id: str = "MixedTraffic-v0",
+    env_kwargs: dict[str, Any] | None = None,
+    style_classifier: str | os.PathLike | None = None,
+) -> gym.Env:
+    """Create the environment used by every offline-to-online stage (same spaces everywhere).
+
+    :param env_id: a registered gymnasium id (``import envs`` registers ``MixedTraffic-v0``)
+    :param env_kwargs: keyword arguments of the environment
+    :param style_classifier: path of a saved :class:`~sb3_ua2c.style.DrivingStyleClassifier`, or
+        ``"default"`` for the packaged one; when given, observations carry the driving-style
+        context c_t (Eq. 6) through :class:`~sb3_ua2c.wrappers.DrivingStyleContext`
+    """
+    import envs  # noqa: F401  (registers MixedTraffic-v0)
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    if style_classifier is not None:
+        from sb3_ua2c.wrappers import DrivingStyleContext
+
+        env = DrivingStyleContext(env, classifier=None if style_classifier == "default" else style_classifier)
+    return env
+
+
+def collect_episodes(
+    env: gym.Env,
+    n_episodes: int,
+    behaviour: BehaviourConfig | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+) -> list[Episode]:
+    """Drive ``env`` (a ``MixedTraffic-v0``, possibly wrapped) with the behaviour policy.
+
+    Episode ``i`` is reset with seed ``seed + i``; the behaviour's own randomness comes from a
+    generator seeded with ``seed``, so the same arguments give the same episodes.
+
+    :param env: the environment (its unwrapped env must offer ``set_ego_controller``)
+    :param n_episodes: number of episodes, >= 1
+    :param behaviour: the behaviour policy (default :class:`BehaviourConfig`)
+    :param seed: base seed
+    :param progress_bar: show a tqdm progress bar
+    :return: the episodes, actions in the environment's units
+    """
+    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int | np.integer) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    behaviour = behaviour or BehaviourConfig()
+    base = env.unwrapped
+    if not hasattr(base, "set_ego_controller"):
+        raise ValueError(f"collect_episodes needs a MixedTraffic env (with set_ego_controller), got {type(base).__name__}")
+    low, high = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
+    rng = np.random.default_rng(seed)
+    episodes = []
+    iterator = range(n_episodes)
+    if progress_bar:
+        from tqdm.auto import tqdm
+
+        iterator = tqdm(iterator, desc="collect", unit="episode")
+    for i in iterator:
+        sumo_driven = bool(rng.random() < behaviour.sumo_fraction)
+        obs, info = env.reset(seed=seed + i, options={"ego_controller": "sumo" if sumo_driven else "agent"})
+        observations, actions, rewards, terminations, truncations = [obs], [], [], [], []
+        last_accel = 0.0
+        done = False
+        while not done:
+            lane_change = float(rng.choice((-1.0, 1.0))) if rng.random() < behaviour.lane_change_prob else 0.0
+            if sumo_driven:
+                takeover = bool(rng.random() < behaviour.perturb_prob)
+                base.set_ego_controller("agent" if takeover else "sumo")
+                accel = last_accel + behaviour.accel_noise * float(rng.standard_normal())
+                action = np.array([accel, lane_change if takeover else 0.0])
+            else:
+                action = np.array([rng.uniform(low[0], high[0]), lane_change])
+            action = np.clip(action, low, high).astype(env.action_space.dtype)
+            obs, reward, terminated, truncated, info = env.step(action)
+            performed = np.asarray(info["applied_action"], dtype=np.float64)
+            last_accel = float(performed[0])
+            observations.append(obs)
+            actions.append(np.clip(performed, low, high))
+            rewards.append(float(reward))
+            terminations.append(bool(terminated))
+            truncations.append(bool(truncated))
+            done = terminated or truncated
+        episodes.append(
+            Episode(
+                observations=np.asarray(observations, dtype=env.observation_space.dtype),
+                actions=np.asarray(actions, dtype=env.action_space.dtype),
+                rewards=np.asarray(rewards),
+                terminations=np.asarray(terminations),
+                truncations=np.asarray(truncations),
+                seed=seed + i,
+            )
+        )
+    return episodes
+
+
+def collect_dataset(
+    path: str | os.PathLike,
+    n_episodes: int,
+    env_id: str = "MixedTraffic-v0",
+    env_kwargs: dict[str, Any] | None = None,
+    style_classifier: str | None = None,
+    behaviour: BehaviourConfig | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+    overwrite: bool = False,
+) -> OfflineDataset:
+    """Collect ``n_episodes`` with the behaviour policy and store them as a local Minari dataset.
+
+    The metadata records everything needed to rebuild the same environment (``env_id``,
+    ``env_kwargs``, ``style_classifier``), the behaviour policy and the seed.
+
+    :return: the dataset, loaded back from disk
+    """
+    behaviour = behaviour or BehaviourConfig()
+    env = make_env(env_id, env_kwargs, style_classifier)
+    try:
+        episodes = collect_episodes(env, n_episodes, behaviour, seed=seed, progress_bar=progress_bar)
+        metadata = {
+            "env_id": env_id,
+            "env_kwargs": dict(env_kwargs or {}),
+            "style_classifier": None if style_classifier is None else str(style_classifier),
+            "behaviour": "sumo-driver+perturbation/random",
+            "behaviour_config": {k: getattr(behaviour, k) for k in behaviour.__dataclass_fields__},
+            "seed": seed,
+            "n_episodes": n_episodes,
+            "total_steps": int(sum(len(ep) for ep in episodes)),
+            "mean_return": float(np.mean([ep.rewards.sum() for ep in episodes])),
+        }
+        write_dataset(
+            episodes, path, env.observation_space, env.action_space, env=env,
+            metadata=metadata, overwrite=overwrite,
+        )
+    finally:
+        env.close()
+    return load_dataset(path)

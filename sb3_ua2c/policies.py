@@ -50,7 +50,7 @@ class VelocityField(nn.Module):
         chunk_size: int,
         action_dim: int,
         net_arch: list[int],
-        activation_fn: type[nn.Module] = nn.GELU,
+        activation_fn: type[nn.Module] = nn.SiLU,
     ) -> None:
         super().__init__()
         if len(net_arch) == 0:
@@ -86,6 +86,13 @@ class VelocityField(nn.Module):
         cond = cond.reshape(cond.shape[:1] + (1,) * (len(lead) - 1) + cond.shape[1:])
         h = self.chunk_layer(th.cat([flat, tau], dim=-1)) + cond
         return self.trunk(h).reshape(x.shape)
+
+
+def _softmax(x: th.Tensor) -> th.Tensor:
+    """Softmax over the last dim; written out because ``torch.softmax`` is several times slower on CPU
+    for rows of about ten entries (the attention rows of a chunk critic)."""
+    e = (x - x.amax(dim=-1, keepdim=True)).exp()
+    return e / e.sum(dim=-1, keepdim=True)
 
 
 class _EnsembleLinear(nn.Module):
@@ -137,7 +144,9 @@ class _EnsembleBlock(nn.Module):
         qkv = self.qkv(self.norm1(flat))
         # (n, B*T, 3d) -> (3, n*B, heads, T, d/heads)
         qkv = qkv.reshape(n, b, t, 3, self.n_heads, h).permute(3, 0, 1, 4, 2, 5).reshape(3, n * b, self.n_heads, t, h)
-        att = F.scaled_dot_product_attention(qkv[0], qkv[1], qkv[2])
+        # explicit attention: for a dozen tokens it is faster on CPU than the fused SDPA kernels
+        scores = th.matmul(qkv[0], qkv[1].transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, heads, T, T)
+        att = th.matmul(_softmax(scores), qkv[2])
         # (n*B, heads, T, d/heads) -> (n, B*T, d)
         att = att.reshape(n, b, self.n_heads, t, h).permute(0, 1, 3, 2, 4).reshape(n, b * t, d)
         flat = flat + self.out(att)
@@ -175,7 +184,7 @@ class ChunkCritics(nn.Module):
         n_layers: int = 1,
         n_heads: int = 4,
         ff_dim: int = 128,
-        activation_fn: type[nn.Module] = nn.GELU,
+        activation_fn: type[nn.Module] = nn.SiLU,
     ) -> None:
         super().__init__()
         self.n_critics, self.embed_dim = n_critics, embed_dim
@@ -243,12 +252,12 @@ class UA2CPolicy(BasePolicy):
         entropy_threshold: float = 0.0,
         discrete_dims: dict[int, int] | None = None,
         net_arch: list[int] | None = None,
-        critic_embed_dim: int = 64,
+        critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
-        critic_n_heads: int = 4,
-        critic_ff_dim: int = 128,
+        critic_n_heads: int = 2,
+        critic_ff_dim: int = 64,
         n_critics: int = 2,
-        activation_fn: type[nn.Module] = nn.GELU,
+        activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
     ) -> None:
@@ -264,7 +273,7 @@ class UA2CPolicy(BasePolicy):
             squash_output=True,
             normalize_images=False,
         )
-        net_arch = [256, 256, 256] if net_arch is None else list(net_arch)
+        net_arch = [256, 256] if net_arch is None else list(net_arch)
         for name, value in [
             ("critic_embed_dim", critic_embed_dim),
             ("critic_n_layers", critic_n_layers),

@@ -595,6 +595,26 @@ class StyleDataset:
             dict(self.meta),
         )
 
+    def truncate(self, seq_len: int) -> StyleDataset:
+        """The same samples with only their last ``seq_len`` tokens (a shorter history ``ℓ``).
+
+        :param seq_len: new sequence length, at most the current one
+        """
+        _check_positive_int("StyleDataset.truncate", "seq_len", seq_len)
+        if seq_len > self.tokens.shape[1]:
+            raise ValueError(
+                f"StyleDataset.truncate: seq_len={seq_len} exceeds the stored {self.tokens.shape[1]}"
+            )
+        # sequences are right-aligned: the newest token is last and always valid
+        return StyleDataset(
+            self.tokens[:, -seq_len:],
+            self.valid[:, -seq_len:],
+            self.labels,
+            self.episodes,
+            self.slots,
+            {**self.meta, "seq_len": seq_len},
+        )
+
     def save(self, path: str | os.PathLike) -> None:
         """Save to a compressed ``.npz`` (meta as JSON).
 
@@ -726,6 +746,7 @@ def collect_style_dataset(
     env_kwargs: dict[str, Any] | None = None,
     policy: Callable[[np.ndarray], np.ndarray] | None = None,
     max_steps_per_episode: int | None = None,
+    sumo_driver_fraction: float = 0.5,
     progress_bar: bool = True,
 ) -> StyleDataset:
     """Roll out the environment and record labelled slot sequences.
@@ -744,6 +765,10 @@ def collect_style_dataset(
     :param env_kwargs: keyword arguments of ``gym.make``
     :param policy: AV behaviour ``obs -> action``; default :class:`RandomDriver`
     :param max_steps_per_episode: cut episodes longer than this
+    :param sumo_driver_fraction: fraction of episodes in which SUMO's own driver model drives
+        the AV (reset option ``{"ego_controller": "sumo"}`` of ``MixedTraffic-v0``; it merges
+        and follows traffic like an HDV); the other episodes use ``policy``. Use 0 for an
+        environment without that option.
     :param progress_bar: show a tqdm progress bar over episodes
     """
     import gymnasium as gym
@@ -751,6 +776,10 @@ def collect_style_dataset(
     _check_positive_int("collect_style_dataset", "n_episodes", n_episodes)
     _check_positive_int("collect_style_dataset", "seq_len", seq_len)
     _check_positive_int("collect_style_dataset", "stride", stride)
+    if not (0.0 <= sumo_driver_fraction <= 1.0):
+        raise ValueError(
+            f"collect_style_dataset: sumo_driver_fraction must be in [0, 1], got {sumo_driver_fraction!r}"
+        )
     if not (1 <= min_length <= seq_len):
         raise ValueError(f"collect_style_dataset: min_length must be in [1, seq_len], got {min_length}")
     if env_id == "MixedTraffic-v0":
@@ -769,7 +798,14 @@ def collect_style_dataset(
         iterator = tqdm(iterator, desc="collect", unit="ep")
     try:
         for episode in iterator:
-            obs, info = env.reset(seed=seed + episode)
+            options = None
+            if sumo_driver_fraction > 0:
+                # deterministic interleaving: episode e is SUMO-driven when the running share lags
+                sumo = math.floor((episode + 1) * sumo_driver_fraction) > math.floor(
+                    episode * sumo_driver_fraction
+                )
+                options = {"ego_controller": "sumo" if sumo else "agent"}
+            obs, info = env.reset(seed=seed + episode, options=options)
             seqs.reset()
             t, done = 0, False
             while True:
@@ -806,6 +842,7 @@ def collect_style_dataset(
         "stride": stride,
         "seed": seed,
         "env_kwargs": env_kwargs or {},
+        "sumo_driver_fraction": sumo_driver_fraction,
         "features": list(SLOT_FEATURES),
         "styles": list(STYLES),
         "slot_names": list(SLOT_NAMES),
@@ -1075,7 +1112,7 @@ def train_style_classifier(
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            total += float(loss) * idx.numel()
+            total += loss.item() * idx.numel()
         sched.step()
         model.eval()
         logits = _batched_logits(model, va.tokens, va.valid)
@@ -1234,6 +1271,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--stride", type=int, default=5, help="sample every N steps")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--max-steps", type=int, default=None, help="cut episodes after this many steps")
+    c.add_argument(
+        "--sumo-driver-fraction",
+        type=float,
+        default=0.5,
+        help="share of episodes where SUMO drives the AV (the rest: random driver; default 0.5)",
+    )
     c.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE", help="gym.make keyword arguments")
     c.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     t = sub.add_parser("train", help="train the classifier with early stopping (split by episode)")
@@ -1266,6 +1309,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 seed=args.seed,
                 env_kwargs=_parse_kv(args.env_kwargs),
                 max_steps_per_episode=args.max_steps,
+                sumo_driver_fraction=args.sumo_driver_fraction,
                 progress_bar=not args.no_progress,
             )
             ds.save(args.out)

@@ -44,6 +44,13 @@ if TYPE_CHECKING:
 
 COMMANDS = ("train", "enjoy", "optimize")
 
+#: Velocity-field architectures the sampler chooses from (``UA2CSearchSpace.net_arch``).
+NET_ARCHS: dict[str, tuple[int, ...]] = {
+    "small": (64, 64),
+    "medium": (256, 256),
+    "large": (256, 256, 256),
+}
+
 # Key of the PostgreSQL advisory lock that serialises Optuna's schema creation between workers.
 _SCHEMA_LOCK_KEY = 0x55413243  # "UA2C"
 
@@ -90,12 +97,16 @@ class UA2CSearchSpace:
     :param tau: Polyak coefficient, log-uniform interval
     :param chunk_size: choices of k (Eq. 2-4); 1 gives the one-step baseline
     :param history_len: choices of the history length l of h_t
-    :param flow_steps: integer interval of Euler steps N of the flow sampler
+    :param flow_steps: integer interval of Euler steps N of the flow sampler when acting
+    :param target_flow_steps: integer interval of Euler steps for the target candidates
     :param n_candidates: choices of S, chunks sampled per replanning (Eq. 7, 8)
     :param n_target_candidates: choices of Q, chunks sampled per target (Eq. 4)
     :param entropy_threshold: uniform interval of delta (Eq. 7), in nats; may be negative
         (differential entropy)
     :param q_weight: log-uniform interval of lambda (Eq. 2)
+    :param net_arch: choices among ``NET_ARCHS`` (velocity-field MLP), stored in ``policy_kwargs``
+    :param critic_embed_dim: choices of the critics' token width, stored in ``policy_kwargs``
+        (must be divisible by the policy's ``critic_n_heads``, 4 by default)
     """
 
     gamma: tuple[float, float] = (0.95, 0.9999)
@@ -105,10 +116,13 @@ class UA2CSearchSpace:
     chunk_size: tuple[int, ...] = (3, 5, 8, 10)
     history_len: tuple[int, ...] = (1, 2, 4)
     flow_steps: tuple[int, int] = (2, 10)
+    target_flow_steps: tuple[int, int] = (1, 6)
     n_candidates: tuple[int, ...] = (8, 16, 32)
     n_target_candidates: tuple[int, ...] = (1, 2, 4)
     entropy_threshold: tuple[float, float] = (-3.0, 1.5)
     q_weight: tuple[float, float] = (0.01, 3.0)
+    net_arch: tuple[str, ...] = ("small", "medium", "large")
+    critic_embed_dim: tuple[int, ...] = (32, 64)
 
     def __post_init__(self) -> None:
         # name -> (interval, exclusive lower bound of low, exclusive upper bound of high)
@@ -117,6 +131,7 @@ class UA2CSearchSpace:
             "learning_rate": (self.learning_rate, 0.0, math.inf),
             "tau": (self.tau, 0.0, 1.0),
             "flow_steps": (self.flow_steps, 0, math.inf),
+            "target_flow_steps": (self.target_flow_steps, 0, math.inf),
             "entropy_threshold": (self.entropy_threshold, -math.inf, math.inf),
             "q_weight": (self.q_weight, 0.0, math.inf),
         }
@@ -126,9 +141,12 @@ class UA2CSearchSpace:
             low, high = interval
             if not (lower < low < high < upper):
                 raise ValueError(f"{name} must satisfy {lower} < low < high < {upper}, got {interval!r}")
-        if not all(isinstance(v, int) for v in self.flow_steps):
-            raise ValueError(f"flow_steps must hold integers, got {self.flow_steps!r}")
-        for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates"):
+        for name in ("flow_steps", "target_flow_steps"):
+            if not all(isinstance(v, int) and not isinstance(v, bool) for v in getattr(self, name)):
+                raise ValueError(f"{name} must hold integers, got {getattr(self, name)!r}")
+        if not (isinstance(self.net_arch, tuple) and self.net_arch and set(self.net_arch) <= set(NET_ARCHS)):
+            raise ValueError(f"net_arch must be a non-empty tuple of names among {sorted(NET_ARCHS)}, got {self.net_arch!r}")
+        for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "critic_embed_dim"):
             choices = getattr(self, name)
             if not (
                 isinstance(choices, tuple)
@@ -182,10 +200,13 @@ def sample_ua2c_params(
         "chunk_size": trial.suggest_categorical("chunk_size", space.chunk_size),
         "history_len": trial.suggest_categorical("history_len", space.history_len),
         "flow_steps": trial.suggest_int("flow_steps", *space.flow_steps),
+        "target_flow_steps": trial.suggest_int("target_flow_steps", *space.target_flow_steps),
         "n_candidates": trial.suggest_categorical("n_candidates", space.n_candidates),
         "n_target_candidates": trial.suggest_categorical("n_target_candidates", space.n_target_candidates),
         "entropy_threshold": trial.suggest_float("entropy_threshold", *space.entropy_threshold),
         "q_weight": trial.suggest_float("q_weight", *space.q_weight, log=True),
+        "net_arch": trial.suggest_categorical("net_arch", space.net_arch),
+        "critic_embed_dim": trial.suggest_categorical("critic_embed_dim", space.critic_embed_dim),
     }
     trial.set_user_attr("gamma", 1.0 - sampled["one_minus_gamma"])
     return convert_ua2c_params(sampled)
@@ -196,11 +217,23 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
     Turn sampled Optuna parameters into UA2C constructor arguments (rl-zoo3 ``HYPERPARAMS_CONVERTER``).
 
     :param sampled: ``trial.params`` of a UA2C trial
-    :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma``
+    :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the policy's
+        ``net_arch`` (a ``NET_ARCHS`` name) and ``critic_embed_dim`` moved into ``policy_kwargs``.
+        As for every rl-zoo3 algorithm, a sampled ``policy_kwargs`` replaces the YAML one.
     """
     params = dict(sampled)
     if "one_minus_gamma" in params:
         params["gamma"] = 1.0 - params.pop("one_minus_gamma")
+    policy_kwargs = {}
+    if "net_arch" in params:
+        name = params.pop("net_arch")
+        if name not in NET_ARCHS:
+            raise ValueError(f"net_arch must be one of {sorted(NET_ARCHS)}, got {name!r}")
+        policy_kwargs["net_arch"] = list(NET_ARCHS[name])
+    if "critic_embed_dim" in params:
+        policy_kwargs["critic_embed_dim"] = params.pop("critic_embed_dim")
+    if policy_kwargs:
+        params["policy_kwargs"] = policy_kwargs
     return params
 
 
@@ -216,12 +249,9 @@ def register(search_space: UA2CSearchSpace | None = None) -> None:
     import rl_zoo3.hyperparams_opt as hyperparams_opt
     from rl_zoo3 import ALGOS
 
-    try:  # TEMPORARY until sb3_ua2c.UA2C lands
-        from sb3_ua2c import UA2C
+    from sb3_ua2c import UA2C
 
-        ALGOS["ua2c"] = UA2C
-    except ImportError:
-        pass
+    ALGOS["ua2c"] = UA2C
     if search_space is None:
         hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = sample_ua2c_params
     else:
@@ -236,6 +266,9 @@ def _experiment_manager_class() -> type:
     * Continued runs (``-i model.zip``) keep counting timesteps: rl-zoo3 2.9.2 calls
       ``model.learn(n_timesteps)``, which resets ``num_timesteps`` to 0 after loading a checkpoint;
       here the call gets ``reset_num_timesteps=False`` when continuing.
+    * Continuing from a checkpoint whose network shapes differ from the hyperparameters
+      (``chunk_size``, ``history_len``) stops with a clear error (see
+      :func:`check_checkpoint_compatible`) instead of a tensor-size mismatch deep inside loading.
     * Every Optuna trial records the worker that ran it (user attribute ``worker`` =
       ``"hostname:pid"``), so a study shared by several machines shows who ran what.
     """
@@ -253,11 +286,44 @@ def _experiment_manager_class() -> type:
             finally:
                 del model.learn
 
+        def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
+            check_checkpoint_compatible(self.trained_agent, hyperparams)
+            return super()._load_pretrained_agent(hyperparams, env)
+
         def objective(self, trial: optuna.Trial) -> float:
             trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
             return super().objective(trial)
 
     return UA2CExperimentManager
+
+
+#: Constructor arguments that fix network shapes: a continued run (``-i``) must keep them.
+SHAPE_ARGUMENTS = ("chunk_size", "history_len")
+
+
+def check_checkpoint_compatible(checkpoint: str, hyperparams: dict[str, Any]) -> None:
+    """
+    Check that hyperparameters passed with ``-i checkpoint`` keep the checkpoint's network shapes.
+
+    rl-zoo3 passes the YAML hyperparameters to ``load``, which overrides the saved attributes; a
+    different ``chunk_size`` or ``history_len`` would rebuild networks of another shape.
+
+    :param checkpoint: path of the ``.zip`` checkpoint
+    :param hyperparams: the hyperparameters rl-zoo3 is about to pass to ``load``
+    :raises ValueError: naming the first argument that differs
+    """
+    if not any(key in hyperparams for key in SHAPE_ARGUMENTS):
+        return
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(checkpoint, load_data=True, device="cpu", print_system_info=False)
+    for key in SHAPE_ARGUMENTS:
+        if key in hyperparams and data is not None and key in data and hyperparams[key] != data[key]:
+            raise ValueError(
+                f"{key}={hyperparams[key]!r} in the hyperparameters, but the checkpoint {checkpoint} was "
+                f"trained with {key}={data[key]!r}: the networks' shapes depend on it. Use the checkpoint's "
+                f"value (e.g. -params {key}:{data[key]!r})."
+            )
 
 
 @contextlib.contextmanager

@@ -13,7 +13,9 @@ _HEADWAY = (2.2, 1.5, 0.9)
 _ACCEL_STD = (0.3, 0.6, 1.2)
 
 
-def make_generated_dataset(n_episodes: int = 12, per_episode: int = 60, seq_len: int = 10, seed: int = 0) -> StyleDataset:
+def make_generated_dataset(
+    n_episodes: int = 12, per_episode: int = 60, seq_len: int = 10, seed: int = 0
+) -> StyleDataset:
     """Sequences whose style shows in the time headway and the acceleration noise, blurred by
     per-step noise so a single token is ambiguous but the sequence is informative."""
     rng = np.random.default_rng(seed)
@@ -45,7 +47,7 @@ class FakeSlotEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, episode_length: int = 30):
-        self.observation_space = spaces.Box(-np.inf, np.inf, (20,), np.float32)
+        self.observation_space = spaces.Box(-10.0, 10.0, (20,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.episode_length = episode_length
         self._t = 0
@@ -63,9 +65,9 @@ class FakeSlotEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         self._t = 0
-        return self.np_random.normal(size=20).astype(np.float32), self._info()
+        return self.np_random.normal(size=20).clip(-10, 10).astype(np.float32), self._info()
 
     def step(self, action):
         self._t += 1
-        obs = self.np_random.normal(size=20).astype(np.float32)
+        obs = self.np_random.normal(size=20).clip(-10, 10).astype(np.float32)
         return obs, 0.0, False, self._t >= self.episode_length, self._info()

@@ -1,0 +1,402 @@
+"""Chunk replay buffer of UA2C: per-step transitions plus, per online plan, the selected chunk and the
+executed length ``L_t``; an offline part holds whole logged episodes sampled as k-step windows.
+
+One sampling path serves both parts: every sample is a window starting at step ``t`` with a horizon
+``L`` (``min(k, steps to the episode end)`` for offline windows, the executed length for online
+plans), a chunk of ``k`` actions (the executed actions for ``u < L``; the unexecuted tail of the plan
+online, zeros offline), the ``k`` rewards (masked at ``u >= L``), a bootstrap mask (0 iff the episode
+terminated at the window's last step) and the histories at ``t`` and ``t + L``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import BaseBuffer
+from stable_baselines3.common.vec_env import VecNormalize
+
+
+class ChunkReplaySamples(NamedTuple):
+    """A batch of chunk transitions (tensors)."""
+
+    #: ``o_{t-ℓ+1:t}``, shape ``(B, ℓ, obs_dim)``
+    observation_history: th.Tensor
+    #: ``a_{t-ℓ:t-1}``, shape ``(B, ℓ, action_dim)``
+    action_history: th.Tensor
+    #: ``a_{t:t+k-1}`` (normalised), shape ``(B, k, action_dim)``
+    chunks: th.Tensor
+    #: ``r_{t:t+k-1}``, zero at ``u >= L``, shape ``(B, k)``
+    rewards: th.Tensor
+    #: ``L``, shape ``(B,)``
+    horizons: th.Tensor
+    #: 1 to bootstrap from ``h_{t+L}``, 0 if the episode terminated inside the window, shape ``(B,)``
+    bootstrap: th.Tensor
+    #: ``o_{t+L-ℓ+1:t+L}``, shape ``(B, ℓ, obs_dim)``
+    next_observation_history: th.Tensor
+    #: ``a_{t+L-ℓ:t+L-1}``, shape ``(B, ℓ, action_dim)``
+    next_action_history: th.Tensor
+
+
+@dataclass(frozen=True)
+class OfflineEpisode:
+    """
+    One logged episode of per-step transitions (actions in SB3's normalised space [-1, 1]).
+
+    :param observations: ``o_0..o_{T-1}``, shape ``(T, *obs_shape)`` (``T + 1`` rows are accepted when
+        ``next_observations`` is omitted: ``o_T`` is then the last next observation)
+    :param actions: shape ``(T, action_dim)``
+    :param rewards: shape ``(T,)``
+    :param terminations: shape ``(T,)``; only the last step may be true
+    :param truncations: shape ``(T,)``; only the last step may be true
+    :param next_observations: ``o_1..o_T``, shape ``(T, *obs_shape)``
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    terminations: np.ndarray
+    truncations: np.ndarray
+    next_observations: np.ndarray | None = None
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, np.ndarray]) -> OfflineEpisode:
+        """Build from a mapping with the field names above (unknown keys raise ``ValueError``)."""
+        allowed = set(cls.__dataclass_fields__)
+        unknown = set(data) - allowed
+        if unknown:
+            raise ValueError(f"unknown offline episode key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+        return cls(**data)
+
+    @classmethod
+    def coerce(cls, episode: Any) -> OfflineEpisode:
+        """
+        Accept an :class:`OfflineEpisode`, a mapping with its field names, or any object with the
+        attributes ``observations, actions, rewards, terminations, truncations`` (e.g. an episode of
+        :mod:`sb3_ua2c.offline`).
+        """
+        if isinstance(episode, cls):
+            return episode
+        if isinstance(episode, Mapping):
+            return cls.from_mapping(episode)
+        try:
+            return cls(
+                observations=episode.observations,
+                actions=episode.actions,
+                rewards=episode.rewards,
+                terminations=episode.terminations,
+                truncations=episode.truncations,
+                next_observations=getattr(episode, "next_observations", None),
+            )
+        except AttributeError as exc:
+            raise ValueError(f"not an offline episode: {type(episode).__name__} lacks {exc.name!r}") from exc
+
+
+class _Steps:
+    """Per-step storage with shape ``(capacity, n_envs, ...)``."""
+
+    def __init__(self, capacity: int, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, plans: bool):
+        self.capacity, self.n_envs = capacity, n_envs
+        self.obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
+        self.next_obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
+        self.actions = np.zeros((capacity, n_envs, action_dim), dtype=np.float32)
+        self.rewards = np.zeros((capacity, n_envs), dtype=np.float32)
+        self.terminated = np.zeros((capacity, n_envs), dtype=bool)
+        #: index of the step inside its episode (0 at the first step)
+        self.episode_step = np.zeros((capacity, n_envs), dtype=np.int64)
+        #: window length ``L`` of a sample starting here; 0 = not a valid sample start
+        self.horizon = np.zeros((capacity, n_envs), dtype=np.int64)
+        self.bootstrap = np.zeros((capacity, n_envs), dtype=bool)
+        self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
+
+    def grow(self, capacity: int) -> None:
+        for name in ("obs", "next_obs", "actions", "rewards", "terminated", "episode_step", "horizon", "bootstrap"):
+            old = getattr(self, name)
+            new = np.zeros((capacity,) + old.shape[1:], dtype=old.dtype)
+            new[: old.shape[0]] = old
+            setattr(self, name, new)
+        self.capacity = capacity
+
+
+class ChunkReplayBuffer(BaseBuffer):
+    """
+    Replay buffer for chunked off-policy learning (online ring + offline episodes).
+
+    :param buffer_size: capacity of the online ring (steps per env)
+    :param observation_space: Box observation space
+    :param action_space: Box action space
+    :param device: torch device of the sampled tensors
+    :param n_envs: number of parallel environments
+    :param chunk_size: ``k``
+    :param history_len: ``ℓ``
+    :param offline_ratio: fraction of each batch drawn from the offline part when both parts hold data
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        chunk_size: int = 5,
+        history_len: int = 4,
+        offline_ratio: float = 0.5,
+    ) -> None:
+        super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
+        if buffer_size < chunk_size + history_len:
+            raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
+        if not 0.0 <= offline_ratio <= 1.0:
+            raise ValueError(f"offline_ratio must be in [0, 1], got {offline_ratio!r}")
+        self.chunk_size, self.history_len, self.offline_ratio = chunk_size, history_len, offline_ratio
+        self.obs_dim = int(np.prod(self.obs_shape))
+        self.online = _Steps(buffer_size, n_envs, self.obs_dim, self.action_dim, chunk_size, plans=True)
+        self.offline = _Steps(0, 1, self.obs_dim, self.action_dim, chunk_size, plans=False)
+        self.offline_size = 0
+        self._next_episode_step = np.zeros(n_envs, dtype=np.int64)
+        #: per env: start position of the open plan (-1 = none), its ``L_t`` and the steps executed
+        self._plan_start = np.full(n_envs, -1, dtype=np.int64)
+        self._plan_target = np.zeros(n_envs, dtype=np.int64)
+        self._plan_count = np.zeros(n_envs, dtype=np.int64)
+
+    # ------------------------------------------------------------------ online part
+    def add(  # type: ignore[override]
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        episode_start: np.ndarray,
+        new_plan: np.ndarray,
+        plans: np.ndarray,
+        plan_lengths: np.ndarray,
+    ) -> None:
+        """
+        Store one step of every environment.
+
+        :param obs: ``o_t``, shape ``(n_envs, *obs_shape)``
+        :param next_obs: ``o_{t+1}`` (the terminal observation at an episode end), same shape
+        :param action: executed normalised action, shape ``(n_envs, action_dim)``
+        :param reward: shape ``(n_envs,)``
+        :param terminated: episode terminated after this step, shape ``(n_envs,)``
+        :param truncated: episode truncated (time limit) after this step, shape ``(n_envs,)``
+        :param episode_start: ``o_t`` is the first observation of an episode, shape ``(n_envs,)``
+        :param new_plan: a plan starts at this step, shape ``(n_envs,)``
+        :param plans: current plans, shape ``(n_envs, k, action_dim)``
+        :param plan_lengths: ``L_t`` of the current plans, shape ``(n_envs,)``
+        """
+        s, p, n = self.online, self.pos, self.n_envs
+        episode_start = np.asarray(episode_start, dtype=bool).reshape(n)
+        new_plan = np.asarray(new_plan, dtype=bool).reshape(n)
+        terminated = np.asarray(terminated, dtype=bool).reshape(n)
+        done = terminated | np.asarray(truncated, dtype=bool).reshape(n)
+        # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
+        self._close_plans(new_plan & (self._plan_start >= 0), np.zeros(n, dtype=bool))
+        s.obs[p] = np.asarray(obs, dtype=np.float32).reshape(n, -1)
+        s.next_obs[p] = np.asarray(next_obs, dtype=np.float32).reshape(n, -1)
+        s.actions[p] = np.asarray(action, dtype=np.float32).reshape(n, -1)
+        s.rewards[p] = np.asarray(reward, dtype=np.float32).reshape(n)
+        s.terminated[p] = terminated
+        self._next_episode_step[episode_start] = 0
+        s.episode_step[p] = self._next_episode_step
+        self._next_episode_step += 1
+        s.horizon[p] = 0
+        s.bootstrap[p] = False
+        assert s.plans is not None
+        s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
+        self._plan_start[new_plan] = p
+        self._plan_target[new_plan] = np.asarray(plan_lengths).reshape(n)[new_plan]
+        self._plan_count[new_plan] = 0
+        has_plan = self._plan_start >= 0
+        self._plan_count[has_plan] += 1
+        self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
+        self.pos += 1
+        if self.pos == self.buffer_size:
+            self.full = True
+            self.pos = 0
+
+    def _close_plans(self, mask: np.ndarray, terminated: np.ndarray) -> None:
+        if not mask.any():
+            return
+        envs = np.flatnonzero(mask)
+        starts = self._plan_start[envs]
+        self.online.horizon[starts, envs] = self._plan_count[envs]
+        self.online.bootstrap[starts, envs] = ~terminated[envs]
+        self._plan_start[envs] = -1
+
+    def reset(self) -> None:
+        super().reset()
+        self._plan_start[:] = -1
+        self.online.horizon[:] = 0
+
+    # ------------------------------------------------------------------ offline part
+    def add_offline_episodes(self, episodes: Iterable[Any]) -> int:
+        """
+        Append whole logged episodes; every step becomes a sample start with the logged actions as the
+        chunk (Eq. 4): ``L = min(k, steps to the episode end)``, bootstrap unless the episode
+        terminated inside the window.
+
+        :param episodes: episodes accepted by :meth:`OfflineEpisode.coerce` (actions normalised)
+        :return: number of steps added
+        """
+        added = 0
+        for i, ep in enumerate(episodes):
+            added += self._add_offline_episode(OfflineEpisode.coerce(ep), i)
+        return added
+
+    def _add_offline_episode(self, ep: OfflineEpisode, index: int) -> int:
+        actions = np.asarray(ep.actions, dtype=np.float32)
+        t_len = actions.shape[0]
+        if t_len == 0:
+            raise ValueError(f"offline episode {index} is empty")
+        obs = np.asarray(ep.observations, dtype=np.float32)
+        if ep.next_observations is None:
+            if obs.shape[0] != t_len + 1:
+                raise ValueError(
+                    f"offline episode {index}: observations must have T+1={t_len + 1} rows when "
+                    f"next_observations is omitted, got {obs.shape[0]}"
+                )
+            next_obs, obs = obs[1:], obs[:-1]
+        else:
+            next_obs = np.asarray(ep.next_observations, dtype=np.float32)
+        fields = {
+            "observations": (obs.reshape(obs.shape[0], -1).shape, (t_len, self.obs_dim)),
+            "next_observations": (next_obs.reshape(next_obs.shape[0], -1).shape, (t_len, self.obs_dim)),
+            "actions": (actions.reshape(t_len, -1).shape, (t_len, self.action_dim)),
+            "rewards": (np.shape(ep.rewards), (t_len,)),
+            "terminations": (np.shape(ep.terminations), (t_len,)),
+            "truncations": (np.shape(ep.truncations), (t_len,)),
+        }
+        for name, (got, want) in fields.items():
+            if got != want:
+                raise ValueError(f"offline episode {index}: {name} has shape {got}, expected {want}")
+        if np.abs(actions).max() > 1.0 + 1e-6:
+            raise ValueError(f"offline episode {index}: actions must be normalised to [-1, 1]")
+        term = np.asarray(ep.terminations, dtype=bool)
+        trunc = np.asarray(ep.truncations, dtype=bool)
+        if (term[:-1] | trunc[:-1]).any():
+            raise ValueError(f"offline episode {index}: only the last step may be terminated or truncated")
+        s, start = self.offline, self.offline_size
+        if start + t_len > s.capacity:
+            s.grow(max(2 * s.capacity, start + t_len, 1024))
+        sl = slice(start, start + t_len)
+        s.obs[sl, 0] = obs.reshape(t_len, -1)
+        s.next_obs[sl, 0] = next_obs.reshape(t_len, -1)
+        s.actions[sl, 0] = actions.reshape(t_len, -1)
+        s.rewards[sl, 0] = np.asarray(ep.rewards, dtype=np.float32)
+        s.terminated[sl, 0] = term
+        steps = np.arange(t_len)
+        s.episode_step[sl, 0] = steps
+        horizon = np.minimum(self.chunk_size, t_len - steps)
+        s.horizon[sl, 0] = horizon
+        # the window ends at the last step of the episode iff steps + horizon == t_len
+        s.bootstrap[sl, 0] = ~((steps + horizon == t_len) & term[-1])
+        self.offline_size += t_len
+        return t_len
+
+    # ------------------------------------------------------------------ sampling
+    def size(self) -> int:
+        """Number of stored online steps per env (SB3 convention)."""
+        return super().size()
+
+    def _online_starts(self) -> np.ndarray:
+        size = self.buffer_size if self.full else self.pos
+        valid = self.online.horizon[:size] > 0  # (size, n_envs)
+        if self.full:
+            # the oldest steps may have lost their history to overwriting
+            age = (np.arange(size) - self.pos) % self.buffer_size
+            lookback = np.minimum(self.online.episode_step[:size], self.history_len - 1)
+            valid &= lookback <= age[:, None]
+        return np.flatnonzero(valid)
+
+    def n_samples(self) -> tuple[int, int]:
+        """Number of sample starts available ``(online, offline)``."""
+        return int(self._online_starts().size), int(self.offline_size)
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ChunkReplaySamples:  # type: ignore[override]
+        """
+        Sample ``batch_size`` chunk transitions; a fraction ``offline_ratio`` comes from the offline part
+        when both parts hold data.
+
+        :param batch_size: number of samples
+        :param env: optional ``VecNormalize`` to normalise observations and rewards
+        :return: a batch of chunk transitions
+        """
+        online = self._online_starts()
+        n_off_avail = self.offline_size
+        if online.size == 0 and n_off_avail == 0:
+            raise ValueError("the replay buffer holds no complete chunk transition yet")
+        if online.size == 0:
+            n_off = batch_size
+        elif n_off_avail == 0:
+            n_off = 0
+        else:
+            n_off = int(round(self.offline_ratio * batch_size))
+        parts = []
+        if n_off > 0:
+            t = np.random.randint(0, n_off_avail, size=n_off)
+            parts.append(self._gather(self.offline, t, np.zeros(n_off, dtype=np.int64), env))
+        if batch_size - n_off > 0:
+            flat = online[np.random.randint(0, online.size, size=batch_size - n_off)]
+            t, e = np.divmod(flat, self.n_envs)
+            parts.append(self._gather(self.online, t, e, env))
+        arrays = parts[0] if len(parts) == 1 else [np.concatenate(x) for x in zip(*parts, strict=True)]
+        return ChunkReplaySamples(*(self.to_torch(a) for a in arrays))
+
+    def _history(
+        self, s: _Steps, base: np.ndarray, count: np.ndarray, env: np.ndarray, last: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Observation and action windows ending at ``o_base``: ``o_{base-ℓ+1..base}``, ``a_{base-ℓ..base-1}``,
+        with ``count`` earlier steps available in the episode (repeat-first-obs / zero-action padding).
+        If ``last`` is given, ``o_base`` is ``next_obs[last]`` (the window after the sample's last step).
+        """
+        ell, cap = self.history_len, s.capacity
+        off = np.arange(ell - 1, -1, -1)  # offsets from base, oldest first
+        back = np.minimum(off[None, :], count[:, None])  # (B, ℓ)
+        obs = s.obs[(base[:, None] - back) % cap, env[:, None]]  # (B, ℓ, obs_dim)
+        if last is not None:
+            obs[:, -1] = s.next_obs[last, env]
+        j = off + 1  # action offsets ℓ..1
+        act = s.actions[(base[:, None] - j[None, :]) % cap, env[:, None]]  # (B, ℓ, action_dim)
+        act *= (j[None, :] <= count[:, None])[..., None]
+        return obs, act
+
+    def _gather(
+        self, s: _Steps, t: np.ndarray, env: np.ndarray, vec_env: VecNormalize | None
+    ) -> list[np.ndarray]:
+        k, cap = self.chunk_size, s.capacity
+        horizon = s.horizon[t, env]  # (B,)
+        u = np.arange(k)
+        idx = (t[:, None] + u[None, :]) % cap  # (B, k)
+        inside = u[None, :] < horizon[:, None]  # (B, k)
+        rewards = s.rewards[idx, env[:, None]] * inside
+        actions = s.actions[idx, env[:, None]]  # (B, k, action_dim)
+        tail = s.plans[t, env] if s.plans is not None else np.zeros_like(actions)
+        chunks = np.where(inside[..., None], actions, tail)
+        last = (t + horizon - 1) % cap
+        obs_h, act_h = self._history(s, t, s.episode_step[t, env], env, None)
+        next_obs_h, next_act_h = self._history(s, last + 1, s.episode_step[last, env] + 1, env, last)
+        if vec_env is not None:
+            obs_h = self._normalize_obs(obs_h, vec_env).astype(np.float32)
+            next_obs_h = self._normalize_obs(next_obs_h, vec_env).astype(np.float32)
+            rewards = self._normalize_reward(rewards, vec_env).astype(np.float32) * inside
+        return [
+            obs_h,
+            act_h,
+            chunks.astype(np.float32),
+            rewards.astype(np.float32),
+            horizon.astype(np.float32),
+            s.bootstrap[t, env].astype(np.float32),
+            next_obs_h,
+            next_act_h,
+        ]
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
+        raise NotImplementedError("use ChunkReplayBuffer.sample()")

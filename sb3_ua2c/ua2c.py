@@ -1,0 +1,652 @@
+"""UA2C as a Stable-Baselines3 off-policy algorithm: rollouts with adaptive chunk execution, chunk-level
+training (Eq. 2, 3, 4, 8), offline episodes and Phase-1 pre-training from the buffer.
+
+Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
+Mixed Traffic", §3.
+"""
+
+from __future__ import annotations
+
+import inspect
+import io
+import math
+import pathlib
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
+from stable_baselines3.common.utils import configure_logger, polyak_update, safe_mean, should_collect_more_steps
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ua2c.buffers import ChunkReplayBuffer, OfflineEpisode
+from sb3_ua2c.chunking import (
+    AdaptiveChunkExecutor,
+    ExecutorStep,
+    PlanResult,
+    chunk_critic_loss,
+    chunk_target,
+    normalize_discrete_dims,
+)
+from sb3_ua2c.flow import actor_loss, estimate_terminal, interpolate
+from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
+
+SelfUA2C = TypeVar("SelfUA2C", bound="UA2C")
+
+
+@dataclass(frozen=True)
+class UA2CConfig:
+    """
+    Chunking hyperparameters of UA2C (validated; a bad value raises ``ValueError`` naming it).
+
+    :param chunk_size: chunk length ``k`` (1 = one-step baseline)
+    :param history_len: history length ``ℓ``
+    :param flow_steps: Euler steps ``N`` when acting
+    :param target_flow_steps: Euler steps for the target candidates of Eq. 4 / 8
+    :param n_candidates: chunks ``S`` sampled per replanning (Eq. 7)
+    :param n_target_candidates: candidates ``Q`` for the target max (Eq. 4 / 8)
+    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
+    :param q_weight: ``lambda`` of Eq. 2
+    :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
+    """
+
+    chunk_size: int = 5
+    history_len: int = 4
+    flow_steps: int = 10
+    target_flow_steps: int = 2
+    n_candidates: int = 32
+    n_target_candidates: int = 4
+    entropy_threshold: float = 0.0
+    q_weight: float = 1.0
+    offline_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("chunk_size", "history_len", "flow_steps", "target_flow_steps", "n_candidates", "n_target_candidates"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("entropy_threshold", "q_weight", "offline_ratio"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+        if math.isinf(self.entropy_threshold) and self.entropy_threshold < 0:
+            raise ValueError("entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)")
+        if not 0.0 <= self.q_weight < math.inf:
+            raise ValueError(f"q_weight must be finite and >= 0, got {self.q_weight!r}")
+        if not 0.0 <= self.offline_ratio <= 1.0:
+            raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
+
+
+_POLICY_KWARGS_SET_BY_UA2C = {
+    "chunk_size",
+    "history_len",
+    "flow_steps",
+    "n_candidates",
+    "entropy_threshold",
+    "discrete_dims",
+}
+
+
+class UA2C(OffPolicyAlgorithm):
+    """
+    UA2C: uncertainty-aware adaptive action chunking with a flow-matching chunk actor and twin
+    Transformer chunk critics.
+
+    Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
+    Mixed Traffic" (§3, Eq. 2-4, 7, 8).
+
+    Rollouts sample ``n_candidates`` chunks, keep the one with the highest ``min_j Q_j``, execute
+    its reliable prefix ``L_t`` (Eq. 7) and replan; each executed plan is one replay sample whose
+    target is Eq. 8 (``L = L_t``). Offline episodes added with :meth:`add_offline_episodes` give
+    k-step windows from any start with the logged actions (Eq. 4). ``entropy_threshold=inf`` is
+    fixed chunk execution and ``chunk_size=1`` the one-step baseline, on the same code path.
+
+    Design choices where the paper is silent: the history is padded at the episode start by
+    repeating the first observation (zero past actions); the actor term of Eq. 2 averages the flow
+    error over chunk entries and divides the value term by the batch mean ``|Q|``; targets use the
+    current actor for the candidates and ``target_flow_steps`` Euler steps; ``H_u`` sums per-dim
+    entropies (Gaussian for continuous dims, empirical categorical for ``discrete_action_dims``).
+    ``predict(deterministic=True)`` draws the candidates' noise from a fixed seed. During the
+    ``learning_starts`` warm-up, plans are uniform random chunks executed in full.
+
+    :param policy: the policy model to use (``"MlpPolicy"`` or :class:`UA2CPolicy`)
+    :param env: the environment to learn from (if registered in Gym, can be str)
+    :param learning_rate: learning rate for Adam (actor and critics), constant or schedule
+    :param buffer_size: size of the online replay ring (steps per env)
+    :param learning_starts: steps of uniform random chunks before learning starts
+    :param batch_size: minibatch size of each gradient step (chunk transitions)
+    :param tau: Polyak coefficient of the target critics
+    :param gamma: discount factor (per environment step; a chunk of length ``L`` is discounted by ``gamma^L``)
+    :param train_freq: update the model every ``train_freq`` steps (int or ``(n, "step"|"episode")``)
+    :param gradient_steps: gradient steps after each rollout; ``-1`` (default) = one per plan started
+        during the rollout, i.e. one update per new chunk sample (SB3's ``-1`` counts env steps)
+    :param action_noise: optional exploration noise added to the executed actions
+    :param replay_buffer_class: must be ``None`` or :class:`ChunkReplayBuffer`
+    :param replay_buffer_kwargs: extra arguments of the replay buffer
+    :param chunk_size: chunk length ``k``
+    :param history_len: history length ``ℓ`` (observations and past actions)
+    :param flow_steps: Euler steps ``N`` when acting
+    :param target_flow_steps: Euler steps for the target candidates (cheaper than acting)
+    :param n_candidates: chunks ``S`` sampled per replanning
+    :param n_target_candidates: candidate chunks ``Q`` in the target max (Eq. 4 / 8)
+    :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = fixed chunk execution)
+    :param q_weight: ``lambda``, weight of the value term in Eq. 2
+    :param discrete_action_dims: ``{action index: category values}`` of categorical action dims,
+        encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
+        with thresholds ±1/3)
+    :param offline_ratio: fraction of each batch drawn from offline episodes (when any are stored)
+    :param stats_window_size: window size for the rollout logging
+    :param tensorboard_log: the log location for tensorboard (if None, no logging)
+    :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
+        ``critic_n_layers``, ``critic_n_heads``, ``critic_ff_dim``, ``n_critics``, ``activation_fn``,
+        ``optimizer_class``, ``optimizer_kwargs``)
+    :param verbose: verbosity level: 0 no output, 1 info, 2 debug
+    :param seed: seed for the pseudo random generators
+    :param device: device (cpu, cuda, ...) on which the code should be run
+    :param _init_setup_model: whether or not to build the network at the creation of the instance
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    policy: UA2CPolicy
+    replay_buffer: ChunkReplayBuffer  # type: ignore[assignment]
+
+    def __init__(
+        self,
+        policy: str | type[UA2CPolicy],
+        env: GymEnv | str | None,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1000,
+        batch_size: int = 256,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = -1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | type[ChunkReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        chunk_size: int = 5,
+        history_len: int = 4,
+        flow_steps: int = 10,
+        target_flow_steps: int = 2,
+        n_candidates: int = 32,
+        n_target_candidates: int = 4,
+        entropy_threshold: float = 0.0,
+        q_weight: float = 1.0,
+        discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
+        offline_ratio: float = 0.5,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        self.config = UA2CConfig(
+            chunk_size=chunk_size,
+            history_len=history_len,
+            flow_steps=flow_steps,
+            target_flow_steps=target_flow_steps,
+            n_candidates=n_candidates,
+            n_target_candidates=n_target_candidates,
+            entropy_threshold=float(entropy_threshold) if isinstance(entropy_threshold, int | np.integer) else entropy_threshold,
+            q_weight=q_weight,
+            offline_ratio=offline_ratio,
+        )
+        if replay_buffer_class not in (None, ChunkReplayBuffer):
+            raise ValueError(f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}")
+        _check_policy_kwargs(policy_kwargs)
+        for name, value, low in [("batch_size", batch_size, 1), ("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0)]:
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if not 0.0 <= gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
+        if not 0.0 < tau <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {tau!r}")
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            train_freq,
+            gradient_steps,
+            action_noise,
+            replay_buffer_class=ChunkReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            supported_action_spaces=None,
+            support_multi_env=True,
+        )
+        self.chunk_size = self.config.chunk_size
+        self.history_len = self.config.history_len
+        self.flow_steps = self.config.flow_steps
+        self.target_flow_steps = self.config.target_flow_steps
+        self.n_candidates = self.config.n_candidates
+        self.n_target_candidates = self.config.n_target_candidates
+        self.entropy_threshold = float(self.config.entropy_threshold)
+        self.q_weight = float(self.config.q_weight)
+        self.offline_ratio = float(self.config.offline_ratio)
+        self.discrete_action_dims = (
+            None if discrete_action_dims is None else {int(k): [float(v) for v in vals] for k, vals in dict(discrete_action_dims).items()}
+        )
+        if self.env is not None:
+            _check_spaces(self.observation_space, self.action_space)
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------------ setup
+    def _setup_model(self) -> None:
+        _check_spaces(self.observation_space, self.action_space)
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        action_dim = int(np.prod(self.action_space.shape))
+        discrete_dims = normalize_discrete_dims(self.discrete_action_dims, action_dim)
+        if self.replay_buffer is None:
+            self.replay_buffer = ChunkReplayBuffer(
+                self.buffer_size,
+                self.observation_space,
+                self.action_space,
+                device=self.device,
+                n_envs=self.n_envs,
+                chunk_size=self.chunk_size,
+                history_len=self.history_len,
+                offline_ratio=self.offline_ratio,
+                **self.replay_buffer_kwargs,
+            )
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space,
+            self.action_space,
+            self.lr_schedule,
+            chunk_size=self.chunk_size,
+            history_len=self.history_len,
+            flow_steps=self.flow_steps,
+            n_candidates=self.n_candidates,
+            entropy_threshold=self.entropy_threshold,
+            discrete_dims=discrete_dims,
+            **self.policy_kwargs,
+        )
+        self.policy = self.policy.to(self.device)
+        self._create_aliases()
+        self._convert_train_freq()
+        self._executor: AdaptiveChunkExecutor | None = None
+        self._plan_lengths: deque[float] = deque(maxlen=1000)
+        self._plan_entropy: deque[np.ndarray] = deque(maxlen=1000)
+
+    def _create_aliases(self) -> None:
+        self.actor = self.policy.actor
+        self.critic = self.policy.critic
+        self.critic_target = self.policy.critic_target
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "actor", "critic", "critic_target", "_executor", "_plan_lengths", "_plan_entropy"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "actor.optimizer", "critic.optimizer"], []
+
+    def load_replay_buffer(
+        self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
+    ) -> None:
+        """
+        Load a :class:`ChunkReplayBuffer` saved with :meth:`save_replay_buffer`.
+
+        :param path: path to the pickled replay buffer
+        :param truncate_last_traj: unused (kept for SB3 compatibility)
+        """
+        buffer = load_from_pkl(path, self.verbose)
+        if not isinstance(buffer, ChunkReplayBuffer):
+            raise ValueError(f"expected a ChunkReplayBuffer, got {type(buffer).__name__}")
+        buffer.device = self.device
+        self.replay_buffer = buffer
+
+    # ------------------------------------------------------------------ offline data
+    def add_offline_episodes(self, episodes: Iterable[Any], actions_normalized: bool = False) -> int:
+        """
+        Add logged episodes to the offline part of the replay buffer (sampled as k-step windows with
+        the logged actions as the chunk, Eq. 4; mixed into each batch with ``offline_ratio``).
+
+        :param episodes: :class:`~sb3_ua2c.buffers.OfflineEpisode` objects, mappings or objects with the
+            fields ``observations, actions, rewards, terminations, truncations[, next_observations]``
+            (e.g. the episodes of a :class:`sb3_ua2c.offline.OfflineDataset`)
+        :param actions_normalized: ``True`` if the actions are already in [-1, 1] (else they are in
+            the env's action units and are rescaled with the policy's ``scale_action``)
+        :return: number of steps added
+        """
+
+        def convert(ep: Any) -> OfflineEpisode:
+            episode = OfflineEpisode.coerce(ep)
+            if actions_normalized:
+                return episode
+            actions = np.asarray(episode.actions, dtype=np.float32)
+            scaled = self.policy.scale_action(actions.reshape(actions.shape[0], -1))
+            return OfflineEpisode(
+                episode.observations,
+                np.clip(scaled, -1.0, 1.0),
+                episode.rewards,
+                episode.terminations,
+                episode.truncations,
+                episode.next_observations,
+            )
+
+        return self.replay_buffer.add_offline_episodes(convert(ep) for ep in episodes)
+
+    def pretrain(
+        self: SelfUA2C, n_gradient_steps: int, batch_size: int | None = None, log_interval: int = 1000
+    ) -> SelfUA2C:
+        """
+        Phase 1: train actor and critics from the replay buffer (typically offline episodes only)
+        without any environment interaction. Uses the same :meth:`train` step as online learning.
+
+        :param n_gradient_steps: number of gradient steps
+        :param batch_size: minibatch size (default: ``self.batch_size``)
+        :param log_interval: dump the logger every ``log_interval`` gradient steps
+        :return: this model
+        """
+        if isinstance(n_gradient_steps, bool) or not isinstance(n_gradient_steps, int | np.integer) or n_gradient_steps < 0:
+            raise ValueError(f"n_gradient_steps must be an integer >= 0, got {n_gradient_steps!r}")
+        if log_interval < 1:
+            raise ValueError(f"log_interval must be >= 1, got {log_interval!r}")
+        n_online, n_offline = self.replay_buffer.n_samples()
+        if n_online + n_offline == 0:
+            raise ValueError("pretrain needs data: add offline episodes with add_offline_episodes() first")
+        if not hasattr(self, "_logger"):
+            self.set_logger(configure_logger(self.verbose, self.tensorboard_log, "pretrain"))
+        done = 0
+        while done < n_gradient_steps:
+            steps = min(log_interval, n_gradient_steps - done)
+            self.train(gradient_steps=steps, batch_size=batch_size or self.batch_size)
+            done += steps
+            self.logger.record("pretrain/gradient_steps", done)
+            self.logger.dump(step=self._n_updates)
+        return self
+
+    # ------------------------------------------------------------------ rollouts
+    def _random_plan(self, obs_history: np.ndarray, action_history: np.ndarray) -> PlanResult:
+        m = obs_history.shape[0]
+        chunks = np.random.uniform(-1.0, 1.0, size=(m, self.chunk_size, self.policy.action_dim)).astype(np.float32)
+        return PlanResult(chunks, np.full(m, self.chunk_size), np.full((m, self.chunk_size), np.nan, dtype=np.float32))
+
+    def _get_executor(self, n_envs: int) -> AdaptiveChunkExecutor:
+        if self._executor is None or self._executor.n_envs != n_envs:
+            self._executor = AdaptiveChunkExecutor(
+                n_envs, self.policy.obs_dim, self.policy.action_dim, self.chunk_size, self.history_len
+            )
+        return self._executor
+
+    def collect_rollouts(
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        train_freq: TrainFreq,
+        replay_buffer: ReplayBuffer,
+        action_noise: ActionNoise | None = None,
+        learning_starts: int = 0,
+        log_interval: int | None = None,
+    ) -> RolloutReturn:
+        """
+        Collect experience with adaptive chunk execution and store it in the chunk replay buffer.
+
+        :param env: the training environment
+        :param callback: callback called at each step
+        :param train_freq: how much experience to collect
+        :param replay_buffer: the :class:`ChunkReplayBuffer`
+        :param action_noise: optional exploration noise added to executed actions
+        :param learning_starts: steps of random chunks before the policy acts
+        :param log_interval: log every ``log_interval`` episodes
+        :return: the rollout summary
+        """
+        self.policy.set_training_mode(False)
+        num_collected_steps, num_collected_episodes = 0, 0
+        assert isinstance(env, VecEnv), "You must pass a VecEnv"
+        assert isinstance(replay_buffer, ChunkReplayBuffer)
+        assert train_freq.frequency > 0, "Should at least collect one step or episode."
+        if env.num_envs > 1 and train_freq.unit.value != "step":
+            raise ValueError("train_freq must be in steps when using several environments")
+        executor = self._get_executor(env.num_envs)
+        n_envs = env.num_envs
+
+        def policy_plan(obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
+            return self.policy.plan(obs_h, act_h, deterministic=False)
+
+        callback.on_rollout_start()
+        continue_training = True
+        n_new_plans = 0
+        while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
+            warmup = self.num_timesteps < learning_starts
+            noise = None
+            if action_noise is not None and not warmup:
+                noise = np.asarray(action_noise(), dtype=np.float32).reshape(-1, self.policy.action_dim)
+            assert self._last_obs is not None and not isinstance(self._last_obs, dict)
+            episode_start = np.asarray(self._last_episode_starts, dtype=bool).reshape(n_envs)
+            step = executor.act(
+                np.asarray(self._last_obs).reshape(n_envs, -1),
+                episode_start,
+                self._random_plan if warmup else policy_plan,
+                noise,
+            )
+            n_new_plans += int(step.new_plan.sum())
+            if not warmup:
+                self._record_plans(step)
+            actions = self.policy.unscale_action(step.actions).reshape((n_envs, *self.action_space.shape))
+            new_obs, rewards, dones, infos = env.step(actions)
+
+            self.num_timesteps += n_envs
+            num_collected_steps += 1
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return RolloutReturn(n_new_plans, num_collected_episodes, continue_training=False)
+
+            self._update_info_buffer(infos, dones)
+            self._store_chunk_transition(replay_buffer, step, episode_start, new_obs, rewards, dones, infos)
+            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
+            self._on_step()
+            for idx, done in enumerate(dones):
+                if done:
+                    num_collected_episodes += 1
+                    self._episode_num += 1
+                    if action_noise is not None:
+                        kwargs = dict(indices=[idx]) if n_envs > 1 else {}
+                        action_noise.reset(**kwargs)
+                    if log_interval is not None and self._episode_num % log_interval == 0:
+                        self.dump_logs()
+        callback.on_rollout_end()
+        # ``episode_timesteps`` is what SB3's learn() uses for ``gradient_steps=-1``: UA2C counts plans
+        return RolloutReturn(n_new_plans, num_collected_episodes, continue_training)
+
+    def _record_plans(self, step: ExecutorStep) -> None:
+        for i in np.flatnonzero(step.new_plan):
+            self._plan_lengths.append(float(step.plan_lengths[i]))
+            self._plan_entropy.append(step.entropy[i])
+
+    def _store_chunk_transition(
+        self,
+        replay_buffer: ChunkReplayBuffer,
+        step: ExecutorStep,
+        episode_start: np.ndarray,
+        new_obs: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """Store one step (original, unnormalised observations and rewards, as SB3 does)."""
+        if self._vec_normalize_env is not None:
+            new_obs_ = self._vec_normalize_env.get_original_obs()
+            reward_ = self._vec_normalize_env.get_original_reward()
+        else:
+            self._last_original_obs, new_obs_, reward_ = self._last_obs, new_obs, rewards
+        next_obs = np.array(new_obs_, dtype=np.float32, copy=True)
+        truncated = np.zeros(len(dones), dtype=bool)
+        for i, done in enumerate(dones):
+            if not done:
+                continue
+            truncated[i] = bool(infos[i].get("TimeLimit.truncated", False))
+            terminal = infos[i].get("terminal_observation")
+            if terminal is not None:
+                if self._vec_normalize_env is not None:
+                    terminal = self._vec_normalize_env.unnormalize_obs(terminal)
+                next_obs[i] = terminal
+        dones = np.asarray(dones, dtype=bool)
+        replay_buffer.add(
+            self._last_original_obs,  # type: ignore[arg-type]
+            next_obs,
+            step.actions,
+            reward_,
+            dones & ~truncated,
+            truncated,
+            episode_start,
+            step.new_plan,
+            step.plans,
+            step.plan_lengths,
+        )
+        self._last_obs = new_obs
+        self._last_episode_starts = dones
+        if self._vec_normalize_env is not None:
+            self._last_original_obs = new_obs_
+
+    def dump_logs(self) -> None:
+        if self._plan_lengths:
+            entropy = np.stack(list(self._plan_entropy))  # (plans, k)
+            self.logger.record("rollout/executed_length", safe_mean(list(self._plan_lengths)))
+            self.logger.record("rollout/entropy_mean", float(np.mean(entropy)))
+            self.logger.record("rollout/entropy_first", float(np.mean(entropy[:, 0])))
+            self.logger.record("rollout/entropy_last", float(np.mean(entropy[:, -1])))
+        super().dump_logs()
+
+    @property
+    def last_executed_length(self) -> float:
+        """Mean ``L_t`` of the recent training plans (``nan`` before the first policy plan)."""
+        return float(np.mean(self._plan_lengths)) if self._plan_lengths else math.nan
+
+    # ------------------------------------------------------------------ training
+    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+        """
+        ``gradient_steps`` updates of the critics (Eq. 3 with targets Eq. 4 / 8), the actor (Eq. 2)
+        and the Polyak targets, each on ``batch_size`` chunk transitions.
+        """
+        n_online, n_offline = self.replay_buffer.n_samples()
+        if n_online + n_offline == 0:
+            return
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        critic_losses, actor_losses, flow_losses, q_terms, q_values = [], [], [], [], []
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            stats = self._gradient_step(data)
+            critic_losses.append(stats["critic_loss"])
+            actor_losses.append(stats["actor_loss"])
+            flow_losses.append(stats["flow_loss"])
+            q_terms.append(stats["q_term"])
+            q_values.append(stats["q_mean"])
+        self.policy.set_training_mode(False)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        if critic_losses:
+            self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
+            self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
+            self.logger.record("train/flow_loss", float(np.mean(flow_losses)))
+            self.logger.record("train/q_term", float(np.mean(q_terms)))
+            self.logger.record("train/q_mean", float(np.mean(q_values)))
+
+    def _gradient_step(self, data: Any) -> dict[str, float]:
+        policy = self.policy
+        b = data.chunks.shape[0]
+        obs_flat = data.observation_history.reshape(b, -1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
+        with th.no_grad():
+            next_cond = self.actor.condition(policy.flatten_history(data.next_observation_history, data.next_action_history))
+            candidates = policy.sample_chunks(next_cond, self.n_target_candidates, self.target_flow_steps)
+            next_q = self.critic_target(data.next_observation_history.reshape(b, -1), candidates.clamp(-1.0, 1.0))
+            next_value = next_q.min(dim=0).values.max(dim=1).values  # (n, B, Q) -> (B,)
+            target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
+        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(-1)  # (n, B, 1) -> (n, B)
+        critic_loss = chunk_critic_loss(q, target)
+        self.critic.optimizer.zero_grad()
+        critic_loss.backward()
+        self.critic.optimizer.step()
+
+        x1 = data.chunks
+        x0 = th.randn_like(x1)
+        tau = th.rand(b, device=x1.device)
+        x_tau = interpolate(x0, x1, tau)
+        cond = self.actor.condition(policy.flatten_history(data.observation_history, data.action_history))
+        velocity = self.actor(x_tau, tau, cond)
+        x_hat = estimate_terminal(x_tau, tau, velocity)
+        self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
+        q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)  # (B,)
+        self.critic.requires_grad_(True)
+        loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight)
+        self.actor.optimizer.zero_grad()
+        loss.backward()
+        self.actor.optimizer.step()
+        polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        return {
+            "critic_loss": critic_loss.item(),
+            "actor_loss": loss.item(),
+            "q_mean": q.mean().item(),
+            **info,
+        }
+
+    def learn(
+        self: SelfUA2C,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "UA2C",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfUA2C:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+
+def _check_spaces(observation_space: spaces.Space | None, action_space: spaces.Space | None) -> None:
+    if action_space is not None and not isinstance(action_space, spaces.Box):
+        raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
+    if observation_space is not None and not isinstance(observation_space, spaces.Box):
+        raise ValueError(f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}")
+    if isinstance(action_space, spaces.Box) and not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+        raise ValueError("UA2C needs a bounded Box action space (finite low and high)")
+
+
+def _check_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> None:
+    if not policy_kwargs:
+        return
+    allowed = set(inspect.signature(UA2CPolicy.__init__).parameters) - {
+        "self",
+        "observation_space",
+        "action_space",
+        "lr_schedule",
+    }
+    for key in policy_kwargs:
+        if key in _POLICY_KWARGS_SET_BY_UA2C:
+            raise ValueError(f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead")
+        if key not in allowed - _POLICY_KWARGS_SET_BY_UA2C:
+            raise ValueError(f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed - _POLICY_KWARGS_SET_BY_UA2C)}")
+
+
+__all__ = ["UA2C", "UA2CConfig"]

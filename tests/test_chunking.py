@@ -1,0 +1,194 @@
+"""Chunk execution maths (Eq. 7), chunk targets (Eq. 3, 4, 8) and the adaptive-chunk executor."""
+
+import math
+
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_ua2c.chunking import (
+    ENTROPY_EPS,
+    AdaptiveChunkExecutor,
+    PlanResult,
+    categorical_entropy,
+    categorize,
+    chunk_critic_loss,
+    chunk_entropy,
+    chunk_target,
+    discounted_chunk_return,
+    executable_prefix_length,
+    gaussian_entropy,
+    normalize_discrete_dims,
+)
+
+LOG_2PIE = math.log(2 * math.pi * math.e)
+
+
+def test_gaussian_entropy_of_known_samples():
+    # S=2 samples (0, 2) at one position: unbiased variance 2
+    samples = th.tensor([0.0, 2.0]).reshape(2, 1, 1)
+    h = gaussian_entropy(samples)
+    assert h.shape == (1, 1)
+    assert h.item() == pytest.approx(0.5 * (LOG_2PIE + math.log(2.0 + ENTROPY_EPS)), rel=1e-6)
+
+
+def test_gaussian_entropy_zero_variance_is_finite():
+    samples = th.full((8, 3, 1), 0.3)
+    h = gaussian_entropy(samples)
+    assert th.allclose(h, th.full((3, 1), 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))))
+    # a single candidate has variance 0 by definition
+    assert th.allclose(gaussian_entropy(th.ones(1, 2, 1)), th.full((2, 1), 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))))
+
+
+def test_categorize_uses_equal_width_bins():
+    # 3 categories over [-1, 1]: thresholds at -1/3 and +1/3 (the traffic env's lane change)
+    a = th.tensor([-1.0, -0.34, -0.33, 0.0, 0.33, 0.34, 1.0, 5.0, -5.0])
+    assert categorize(a, 3).tolist() == [0, 0, 1, 1, 1, 2, 2, 2, 0]
+
+
+def test_categorical_entropy_hand_computed():
+    cats = th.tensor([0, 1, 2, 2]).reshape(4, 1)  # p = (1/4, 1/4, 1/2)
+    assert categorical_entropy(cats, 3).item() == pytest.approx(1.5 * math.log(2.0))
+    assert categorical_entropy(th.zeros(5, 1, dtype=th.long), 3).item() == pytest.approx(0.0)
+
+
+def test_chunk_entropy_mixed_discrete_and_continuous():
+    # S=4 candidates, k=2, action_dim=2: dim 0 continuous, dim 1 categorical with 3 values
+    samples = th.zeros(4, 2, 2)
+    samples[:, 0, 0] = th.tensor([0.0, 0.0, 2.0, 2.0])  # variance 4/3
+    samples[:, 0, 1] = th.tensor([-0.9, 0.0, 0.9, 0.9])  # p = (1/4, 1/4, 1/2)
+    samples[:, 1, 0] = 0.5  # zero variance
+    samples[:, 1, 1] = 0.0  # one category
+    h = chunk_entropy(samples, {1: 3})
+    expected0 = 0.5 * (LOG_2PIE + math.log(4 / 3 + ENTROPY_EPS)) + 1.5 * math.log(2.0)
+    expected1 = 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))
+    assert h.shape == (2,)
+    assert h.tolist() == pytest.approx([expected0, expected1], rel=1e-5)
+
+
+def test_chunk_entropy_sums_continuous_dims_and_batches():
+    samples = th.tensor([0.0, 2.0]).reshape(2, 1, 1).expand(2, 1, 3)  # 3 identical dims
+    h = chunk_entropy(samples.unsqueeze(0).expand(5, 2, 1, 3))  # batch of 5
+    assert h.shape == (5, 1)
+    assert th.allclose(h, th.full((5, 1), 1.5 * (LOG_2PIE + math.log(2.0 + ENTROPY_EPS))))
+
+
+@pytest.mark.parametrize(
+    ("entropy", "threshold", "expected"),
+    [
+        ([0.9, 0.8, 0.7, 0.6], 0.5, 1),  # all above -> at least one action
+        ([0.1, 0.2, 0.3, 0.4], 0.5, 4),  # all below -> the whole chunk
+        ([0.1, 0.2, 0.9, 0.1], 0.5, 2),  # first crossing in the middle; later positions do not count
+        ([0.5, 0.5, 0.6, 0.1], 0.5, 2),  # equality is reliable
+        ([9.0, 9.0, 9.0, 9.0], math.inf, 4),  # delta = inf is fixed chunking
+        ([0.1, math.nan, 0.1, 0.1], 0.5, 1),  # NaN is unreliable
+    ],
+)
+def test_executable_prefix_length(entropy, threshold, expected):
+    assert executable_prefix_length(th.tensor(entropy), threshold).item() == expected
+
+
+def test_executable_prefix_length_batched():
+    h = th.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    assert executable_prefix_length(h, 0.5).tolist() == [2, 1, 3]
+
+
+def test_chunk_target_full_window_eq4():
+    r = th.tensor([[1.0, 1.0, 1.0]])
+    # 1 + 0.5 + 0.25 + 0.5^3 * 8 = 2.75
+    y = chunk_target(r, th.tensor([3]), th.tensor([1.0]), th.tensor([8.0]), gamma=0.5)
+    assert y.item() == pytest.approx(2.75)
+
+
+def test_chunk_target_terminal_and_truncation_inside_window():
+    r = th.tensor([[1.0, 1.0, 7.0], [1.0, 1.0, 7.0], [2.0, 4.0, 8.0]])
+    horizon = th.tensor([2, 2, 1])
+    mask = th.tensor([0.0, 1.0, 1.0])
+    v = th.tensor([8.0, 8.0, 10.0])
+    y = chunk_target(r, horizon, mask, v, gamma=0.5)
+    # terminal after 2 steps: 1 + 0.5, no bootstrap, reward after the end ignored
+    # time-limit truncation after 2 steps: 1 + 0.5 + 0.25 * 8
+    # adaptive prefix L_t = 1 (Eq. 8): 2 + 0.5 * 10
+    assert y.tolist() == pytest.approx([1.5, 3.5, 7.0])
+    assert discounted_chunk_return(r, horizon, 0.5).tolist() == pytest.approx([1.5, 1.5, 2.0])
+
+
+def test_chunk_critic_loss_hand_computed():
+    q = th.tensor([[1.0, 2.0], [3.0, 4.0]])  # (n_critics, batch)
+    y = th.tensor([1.0, 1.0])
+    # critic 1: mean(0, 1) = 0.5 ; critic 2: mean(4, 9) = 6.5
+    assert chunk_critic_loss(q, y).item() == pytest.approx(7.0)
+
+
+def test_normalize_discrete_dims():
+    assert normalize_discrete_dims(None, 2) == {}
+    assert normalize_discrete_dims({1: [-1, 0, 1]}, 2) == {1: 3}
+    with pytest.raises(ValueError, match="action index 2"):
+        normalize_discrete_dims({2: [-1, 1]}, 2)
+    with pytest.raises(ValueError, match="at least 2"):
+        normalize_discrete_dims({0: [1]}, 2)
+    with pytest.raises(ValueError, match="increasing"):
+        normalize_discrete_dims({0: [1, 0]}, 2)
+    with pytest.raises(ValueError, match="mapping"):
+        normalize_discrete_dims([1], 2)
+
+
+class ScriptedPlanner:
+    """Returns chunks whose entries encode the plan number; records the histories it saw."""
+
+    def __init__(self, k: int, lengths: list[int]):
+        self.k, self.lengths, self.calls = k, list(lengths), []
+
+    def __call__(self, obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
+        m = obs_h.shape[0]
+        self.calls.append((obs_h.copy(), act_h.copy()))
+        n = len(self.calls)
+        chunks = (10 * n + np.arange(self.k, dtype=np.float32)).reshape(1, self.k, 1).repeat(m, 0) / 100
+        lengths = np.array([self.lengths.pop(0) for _ in range(m)])
+        return PlanResult(chunks, lengths, np.zeros((m, self.k), dtype=np.float32))
+
+
+def test_executor_replans_after_the_prefix_and_pads_history():
+    ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    planner = ScriptedPlanner(3, [2, 3])
+    obs = [np.array([[float(i)]]) for i in range(6)]
+    acts, new = [], []
+    for t in range(4):
+        step = ex.act(obs[t], np.array([t == 0]), planner)
+        acts.append(step.actions.item())
+        new.append(bool(step.new_plan[0]))
+    # plan 1 (L=2) plays 0.10, 0.11; plan 2 (L=3) starts at t=2
+    assert acts == pytest.approx([0.10, 0.11, 0.20, 0.21])
+    assert new == [True, False, True, False]
+    # first plan: history padded with o_0 and zero actions
+    assert planner.calls[0][0].ravel().tolist() == [0.0, 0.0]
+    assert planner.calls[0][1].ravel().tolist() == [0.0, 0.0]
+    # second plan at t=2: o_1, o_2 and a_0, a_1
+    assert planner.calls[1][0].ravel().tolist() == [1.0, 2.0]
+    assert planner.calls[1][1].ravel().tolist() == pytest.approx([0.10, 0.11])
+
+
+def test_executor_replans_at_episode_start_and_state_round_trip():
+    ex = AdaptiveChunkExecutor(n_envs=2, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    planner = ScriptedPlanner(3, [3, 3, 3])
+    ex.act(np.array([[1.0], [2.0]]), np.array([True, True]), planner)
+    state = ex.state
+    # env 1 starts a new episode: only it replans, its history restarts from the new observation
+    step = ex.act(np.array([[3.0], [4.0]]), np.array([False, True]), planner)
+    assert step.new_plan.tolist() == [False, True]
+    assert planner.calls[-1][0].ravel().tolist() == [4.0, 4.0]
+    assert step.actions.ravel().tolist() == pytest.approx([0.11, 0.20])
+    # a copy rebuilt from the saved state behaves identically
+    other = AdaptiveChunkExecutor(n_envs=2, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    other.load_state(state)
+    again = other.act(np.array([[3.0], [4.0]]), np.array([False, True]), ScriptedPlanner(3, [3]))
+    assert again.actions[0, 0] == pytest.approx(0.11)
+    with pytest.raises(ValueError, match="plan has shape"):
+        other.load_state((state[0], state[1], np.zeros((2, 4, 1)), state[3], state[4]))
+
+
+def test_executor_noise_is_clipped_and_recorded_in_history():
+    ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=1, chunk_size=2, history_len=1)
+    step = ex.act(np.zeros((1, 1)), np.array([True]), ScriptedPlanner(2, [2]), noise=np.array([[5.0]]))
+    assert step.actions.item() == 1.0
+    assert ex.action_history.item() == 1.0

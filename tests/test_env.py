@@ -1,0 +1,426 @@
+"""MixedTraffic-v0 on SUMO: API contracts, determinism, reward terms in controlled situations, safety guards."""
+
+import subprocess
+import sys
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import envs
+from envs.mdp import SLOT_FEATURES, STYLES
+from envs.mixed_traffic import AV_ID, MixedTrafficEnv
+from envs.sumo import SumoProcessBusyError
+
+pytest.importorskip("libsumo")
+
+A_MAX, A_MIN, DT = 3.0, -4.5, 0.2
+
+
+@pytest.fixture
+def make_env():
+    """Factory of envs that are all closed at teardown (libsumo: one live simulation per process)."""
+    created = []
+
+    def factory(**kwargs):
+        env = gym.make("MixedTraffic-v0", **kwargs)
+        created.append(env)
+        return env
+
+    yield factory
+    for env in created:
+        env.close()
+
+
+def act(accel=0.0, lane_change=0.0):
+    return np.array([accel, lane_change], dtype=np.float32)
+
+
+def drive_to_accel_lane(env, x_min=420.0):
+    """Keep speed until the AV is on the acceleration lane past ``x_min``; return the last info."""
+    for _ in range(200):
+        _, _, terminated, truncated, info = env.step(act())
+        assert not (terminated or truncated)
+        if info["av_lane"] == -1 and info["av_x"] >= x_min:
+            return info
+    raise AssertionError("the AV never reached the acceleration lane")
+
+
+def test_registered_and_spaces(make_env):
+    env = make_env()
+    assert isinstance(env.unwrapped, MixedTrafficEnv)
+    assert env.action_space.shape == (2,) and env.observation_space.shape == (20,)
+    np.testing.assert_array_equal(env.action_space.low, [A_MIN, -1.0])
+    np.testing.assert_array_equal(env.action_space.high, [A_MAX, 1.0])
+
+
+def test_gymnasium_and_sb3_check_env(make_env):
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = make_env(render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # SB3 recommends a [-1, 1] action box; ours is in m/s²
+        # gymnasium's render and close sub-checks build a second env in this process, which
+        # libsumo cannot host: they are covered by test_render_rgb_array and test_close_is_idempotent.
+        gym_check_env(env.unwrapped, skip_render_check=True, skip_close_check=True)
+        sb3_check_env(env.unwrapped, warn=False)
+
+
+def test_close_is_idempotent(make_env):
+    env = make_env()
+    env.close()
+    env.close()
+    env = make_env()
+    env.reset(seed=0)
+    env.close()
+    env.close()
+
+
+def test_random_rollout_obs_finite_and_info_contract(make_env):
+    env = make_env()
+    obs, info = env.reset(seed=0)
+    env.action_space.seed(0)
+    rng_steps = 0
+    for _ in range(300):
+        assert obs.dtype == np.float32 and env.observation_space.contains(obs) and np.all(np.isfinite(obs))
+        slots = info["slots"]
+        assert len(slots["ids"]) == 6 and slots["styles"].dtype == np.int64 and slots["styles"].shape == (6,)
+        assert slots["features"].dtype == np.float32 and slots["features"].shape == (6, len(SLOT_FEATURES))
+        assert slots["present"].dtype == bool
+        styles = env.unwrapped.hdv_styles()
+        assert len(styles) <= 34 and set(styles.values()) <= {0, 1, 2}
+        for k in range(6):
+            vid = slots["ids"][k]
+            if slots["present"][k]:
+                assert styles[vid] == slots["styles"][k]
+                dp, lane_offset = slots["features"][k, 0], slots["features"][k, 4]
+                assert (dp >= 0) if k < 3 else (dp < 0)
+                assert lane_offset == [1, 0, -1][k % 3]  # l_1/f_1 left (+1), l_2/f_2 current, l_3/f_3 right
+                assert 0.0 <= slots["features"][k, 5] <= 100.0
+            else:
+                assert vid == "" and slots["styles"][k] == -1 and not slots["features"][k].any()
+        assert set(info["reward_terms"]) == set(info["reward_terms_raw"]) == {
+            "speed", "leader_distance", "follower_distance", "merge", "jerk", "lane_change", "collision"}
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert reward == pytest.approx(sum(info["reward_terms"].values()))
+        # follower / leader terms follow from the reported slots (same formula as by hand)
+        f2, l2 = info["slots"]["features"][4], info["slots"]["features"][1]
+        expected_f = -min(1.0, max(0.0, 1 - (-f2[0] - 5.0) / (2.0 + f2[3]))) if info["slots"]["present"][4] else 0.0
+        expected_l = (-min(1.0, max(0.0, 1 - (l2[0] - 5.0) / (2.0 + info["av_speed"])))
+                      if info["slots"]["present"][1] else 0.0)
+        if not info["left_network"]:
+            assert info["reward_terms_raw"]["follower_distance"] == pytest.approx(expected_f, abs=1e-5)
+            assert info["reward_terms_raw"]["leader_distance"] == pytest.approx(expected_l, abs=1e-5)
+        rng_steps += 1
+        if terminated or truncated:
+            obs, info = env.reset()
+    assert rng_steps == 300
+
+
+def test_determinism_same_seed_bit_identical(make_env):
+    env = make_env()
+    actions = np.random.default_rng(3).uniform([A_MIN, -1.0], [A_MAX, 1.0], size=(150, 2)).astype(np.float32)
+
+    def rollout():
+        out = []
+        for a in actions:
+            obs, reward, terminated, truncated, info = env.step(a)
+            out.append((obs.copy(), reward, info["slots"]["ids"]))
+            if terminated or truncated:
+                break
+        return out
+
+    obs_a, _ = env.reset(seed=7)
+    traj_a = rollout()
+    env.reset()  # another episode in between must not matter
+    rollout()
+    obs_b, _ = env.reset(seed=7)
+    traj_b = rollout()
+    assert np.array_equal(obs_a, obs_b) and len(traj_a) == len(traj_b)
+    for (oa, ra, ia), (ob, rb, ib) in zip(traj_a, traj_b, strict=True):
+        assert np.array_equal(oa, ob) and ra == rb and ia == ib
+    obs_c, _ = env.reset(seed=8)
+    assert not np.array_equal(obs_a, obs_c)
+
+
+def test_fast_reset_equals_reload(make_env):
+    """reset() without a seed reuses the simulation; it must give what a reload gives."""
+    from gymnasium.utils import seeding
+
+    env = make_env()
+    u = env.unwrapped
+    actions = [act(0.5 * np.sin(t / 7.0), 0.0) for t in range(120)]
+    u.reset(seed=11)
+    ref = [u.step(a)[0].copy() for a in actions]
+    u.np_random, _ = seeding.np_random(11)
+    u.reset()  # soft path, same np_random state as reset(seed=11)
+    soft = [u.step(a)[0].copy() for a in actions]
+    assert all(np.array_equal(a, b) for a, b in zip(ref, soft, strict=True))
+
+
+def test_speed_jerk_terms_by_hand(make_env):
+    env = make_env(num_hdvs=0)
+    _, info = env.reset(seed=1)
+    v0 = info["av_speed"]
+    assert 15.0 <= v0 <= 20.0
+    _, r, _, _, info = env.step(act(1.0))
+    assert info["av_speed"] == pytest.approx(v0 + 0.2, abs=1e-9)
+    raw = info["reward_terms_raw"]
+    assert raw["speed"] == pytest.approx(1 - abs(v0 + 0.2 - 25.0) / 25.0, abs=1e-9)
+    # a: 0 -> 1 in 0.2 s: j = 5 m/s^3, j_max = 7.5 / 0.2 = 37.5
+    assert info["jerk"] == pytest.approx(5.0, abs=1e-6)
+    assert raw["jerk"] == pytest.approx(-((5.0 / 37.5) ** 2), abs=1e-9)
+    assert raw["leader_distance"] == raw["follower_distance"] == raw["lane_change"] == raw["collision"] == 0.0
+    assert r == pytest.approx(raw["speed"] + 0.5 * raw["jerk"], abs=1e-9)
+    np.testing.assert_allclose(info["applied_action"], [1.0, 0.0], atol=1e-5)
+    _, _, _, _, info = env.step(act(-2.0))
+    assert info["jerk"] == pytest.approx(-15.0, abs=1e-6)
+    assert info["reward_terms_raw"]["jerk"] == pytest.approx(-0.16, abs=1e-9)
+    # out-of-range acceleration is clipped to a_max
+    _, _, _, _, info = env.step(act(100.0))
+    assert info["applied_action"][0] == pytest.approx(A_MAX, abs=1e-5)
+
+
+def test_merge_and_lane_change_terms_by_hand(make_env):
+    env = make_env(num_hdvs=0)
+    env.reset(seed=2)
+    # a left change on the ramp edge is impossible: nothing happens, no penalty
+    _, _, _, _, info = env.step(act(0.0, -1.0))
+    assert info["av_lane"] == -1 and info["lane_change"] == 0 and info["reward_terms_raw"]["lane_change"] == 0.0
+    info = drive_to_accel_lane(env)
+    x_before = info["av_x"]
+    _, r, _, _, info = env.step(act(0.0, -1.0))  # merge (left)
+    assert info["av_lane"] == 0 and info["lane_change"] == -1 and info["merge_done"]
+    remaining = 650.0 - info["av_x"]
+    assert info["av_x"] > x_before
+    assert info["reward_terms_raw"]["merge"] == pytest.approx(0.5 + 0.5 * remaining / 250.0, abs=1e-9)
+    assert info["reward_terms"]["merge"] == pytest.approx(10.0 * (0.5 + 0.5 * remaining / 250.0), abs=1e-9)
+    assert info["reward_terms_raw"]["lane_change"] == 0.0  # the merge is not "unnecessary"
+    np.testing.assert_allclose(info["applied_action"], [0.0, -1.0], atol=1e-5)
+    _, _, _, _, info = env.step(act(0.0, -0.9))  # discretionary change left: lane 1
+    assert info["av_lane"] == 1 and info["lane_change"] == -1
+    assert info["reward_terms_raw"]["lane_change"] == -1.0 and info["reward_terms"]["lane_change"] == -0.5
+    assert info["reward_terms_raw"]["merge"] == 0.0  # paid once
+    _, _, _, _, info = env.step(act(0.0, 0.9))  # right: back to lane 0
+    assert info["av_lane"] == 0 and info["lane_change"] == 1 and info["reward_terms_raw"]["lane_change"] == -1.0
+    _, _, _, _, info = env.step(act(0.0, 0.9))  # right of lane 0 after the merge area: no lane
+    if info["av_x"] >= 650.0:
+        assert info["av_lane"] == 0 and info["lane_change"] == 0 and info["reward_terms_raw"]["lane_change"] == 0.0
+
+
+def test_lane_end_is_a_collision(make_env):
+    env = make_env(num_hdvs=0)
+    env.reset(seed=3)
+    for _ in range(300):
+        _, r, terminated, truncated, info = env.step(act(1.0))
+        if terminated:
+            break
+    assert terminated and not truncated
+    assert info["collision"] and info["collision_type"] == "lane_end"
+    assert info["reward_terms"]["collision"] == -100.0 and r < -90.0
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(act())
+
+
+def test_driving_into_leader_collides_with_penalty(make_env):
+    env = make_env(num_hdvs=0)
+    u = env.unwrapped
+    env.reset(seed=4)
+    drive_to_accel_lane(env, x_min=400.0)
+    _, _, _, _, info = env.step(act(0.0, -1.0))
+    assert info["av_lane"] == 0
+    # a stopped car 45 m ahead on the AV's lane
+    merge_pos = info["av_x"] - 400.0
+    u.sim.add_vehicle("blocker", "r_merge", "neutral", f"{merge_pos + 45.0:.2f}", "1", "0")
+    _, _, _, _, info = env.step(act(0.0))
+    u.sim.libsumo.vehicle.setSpeed("blocker", 0.0)
+    saw_penalty = False
+    for _ in range(100):
+        _, r, terminated, truncated, info = env.step(act(A_MAX))
+        if terminated:
+            break
+        slots = info["slots"]
+        if not slots["present"][1]:  # still more than V = 30 m ahead
+            assert info["reward_terms_raw"]["leader_distance"] == 0.0
+            continue
+        assert slots["ids"][1] == "blocker" and slots["styles"][1] == -1  # not an HDV of the scenario
+        gap = slots["features"][1, 0] - 5.0
+        expected = -min(1.0, max(0.0, 1.0 - gap / (2.0 + 1.0 * info["av_speed"])))
+        assert info["reward_terms_raw"]["leader_distance"] == pytest.approx(expected, abs=1e-5)
+        saw_penalty |= expected < -0.1
+    assert saw_penalty
+    assert terminated and info["collision"] and info["collision_type"] == "vehicle"
+    assert info["reward_terms_raw"]["collision"] == -1.0 and info["reward_terms"]["collision"] == -100.0
+
+
+def test_follower_distance_term(make_env):
+    env = make_env(num_hdvs=0)
+    u = env.unwrapped
+    env.reset(seed=5)
+    drive_to_accel_lane(env, x_min=400.0)
+    _, _, _, _, info = env.step(act(0.0, -1.0))
+    merge_pos = info["av_x"] - 400.0
+    u.sim.add_vehicle("chaser", "r_merge", "aggressive", f"{merge_pos - 14.0:.2f}", "1", "max")
+    seen = []
+    for _ in range(10):
+        _, _, _, _, info = env.step(act(0.0))
+        if info["slots"]["present"][4]:
+            f2 = info["slots"]["features"][4]
+            gap = -f2[0] - 5.0
+            expected = -min(1.0, max(0.0, 1.0 - gap / (2.0 + 1.0 * f2[3])))
+            assert info["reward_terms_raw"]["follower_distance"] == pytest.approx(expected, abs=1e-5)
+            assert info["reward_terms"]["follower_distance"] == pytest.approx(0.5 * expected, abs=1e-5)
+            seen.append(expected)
+    assert seen and min(seen) < -0.05
+
+
+@pytest.mark.parametrize("bad", [[np.nan, 0.0], [0.0, np.inf], [1.0, 0.0, 0.0], [[1.0, 0.0]], "fast"])
+def test_bad_actions_raise(make_env, bad):
+    env = make_env()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.unwrapped.step(bad)
+
+
+def test_bad_kwargs_and_options_raise(make_env):
+    with pytest.raises(ValueError, match="num_hdv"):
+        gym.make("MixedTraffic-v0", num_hdv=3)
+    with pytest.raises(ValueError, match="render_mode"):
+        gym.make("MixedTraffic-v0", render_mode="human")
+    env = make_env()
+    with pytest.raises(ValueError, match="reload"):
+        env.reset(seed=0, options={"reload": True})
+    with pytest.raises(RuntimeError, match="reset"):
+        env.unwrapped.step(act())
+
+
+def test_second_env_in_process_raises(make_env):
+    env = make_env()
+    env.reset(seed=0)
+    with pytest.raises(SumoProcessBusyError, match="SubprocVecEnv"):
+        gym.make("MixedTraffic-v0")
+    obs, *_ = env.step(act())  # the first env is intact
+    assert np.all(np.isfinite(obs))
+    env.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        env.reset()
+    other = make_env()  # allowed once the first is closed
+    other.reset(seed=0)
+
+
+def test_dummy_vec_env_of_two_refused():
+    from stable_baselines3.common.env_util import make_vec_env
+
+    with pytest.raises(SumoProcessBusyError):
+        make_vec_env("MixedTraffic-v0", n_envs=2)
+
+
+def test_subproc_vec_env_steps_independently():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    actions = [act(0.4 * np.cos(t / 5.0), 0.0) for t in range(25)]
+    reference = []
+    for seed in (0, 1):  # in-process reference trajectories, one env at a time
+        env = gym.make("MixedTraffic-v0")
+        obs, _ = env.reset(seed=seed)
+        traj = [obs] + [env.step(a)[0] for a in actions]
+        env.close()
+        reference.append(np.array(traj))
+    vec = make_vec_env("MixedTraffic-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
+    try:
+        traj = [vec.reset()]
+        for a in actions:
+            obs, _, dones, _ = vec.step(np.stack([a, a]))
+            assert not dones.any()
+            traj.append(obs)
+        traj = np.array(traj)  # (steps, n_envs, 20)
+    finally:
+        vec.close()
+    assert not np.array_equal(traj[:, 0], traj[:, 1])
+    np.testing.assert_array_equal(traj[:, 0], reference[0])
+    np.testing.assert_array_equal(traj[:, 1], reference[1])
+
+
+def test_style_headways_are_ordered(make_env):
+    """Measured time headways of car-following HDVs: aggressive < neutral < conservative."""
+    env = make_env(ego_controller="sumo")
+    u = env.unwrapped
+    env.reset(seed=0)
+    veh = u.sim.libsumo.vehicle
+    min_gap = {0: 3.5, 1: 2.5, 2: 1.0}
+    headways = {0: [], 1: [], 2: []}
+    for _ in range(200):
+        _, _, terminated, truncated, _ = env.step(act())
+        for vid, style in u.hdv_styles().items():
+            speed = veh.getSpeed(vid)
+            leader = veh.getLeader(vid, 60.0)
+            if speed > 10.0 and leader and leader[0]:
+                headways[style].append((leader[1] + min_gap[style]) / speed)
+        if terminated or truncated:
+            break
+    med = [float(np.median(headways[s])) for s in range(3)]
+    assert all(len(headways[s]) > 50 for s in range(3)), [len(h) for h in headways.values()]
+    assert med[2] < med[1] < med[0], dict(zip(STYLES, med, strict=True))
+
+
+def test_sumo_controller_reports_applied_action(make_env):
+    env = make_env()
+    _, info = env.reset(seed=6, options={"ego_controller": "sumo"})
+    assert info["ego_controller"] == "sumo"
+    merged = False
+    for _ in range(200):
+        prev_speed = info["av_speed"]
+        _, _, terminated, truncated, info = env.step(act(A_MIN, 1.0))  # ignored under SUMO control
+        accel = (info["av_speed"] - prev_speed) / DT
+        assert info["applied_action"][0] == pytest.approx(np.clip(accel, A_MIN, A_MAX), abs=1e-4)
+        assert info["applied_action"][1] == info["lane_change"]
+        assert env.action_space.contains(info["applied_action"])
+        merged |= info["lane_change"] == -1 and info["merge_done"]
+        if terminated or truncated:
+            break
+    assert merged and not info["collision"]
+    # back to agent control for the next episode by default
+    _, info = env.reset(seed=6)
+    assert info["ego_controller"] == "agent"
+    env.unwrapped.set_ego_controller("sumo")
+    assert env.unwrapped.ego_controller == "sumo"
+    with pytest.raises(ValueError, match="controller"):
+        env.unwrapped.set_ego_controller("robot")
+
+
+def test_render_rgb_array(make_env):
+    from envs.rendering import HEIGHT, WIDTH
+    from envs.scenario import STYLE_COLORS
+
+    env = make_env(render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(act())
+    frame = env.render()
+    assert frame.shape == (HEIGHT, WIDTH, 3) and frame.dtype == np.uint8
+    colours = {tuple(c) for c in frame.reshape(-1, 3)}
+    assert (220, 30, 30) in colours  # the AV
+    assert sum(c in colours for c in STYLE_COLORS.values()) >= 2  # HDVs coloured by style
+    assert AV_ID == "av"
+
+
+def test_import_without_sumo_and_clear_error():
+    code = (
+        "import sys; sys.modules['libsumo'] = None\n"
+        "import envs, sb3_ua2c, gymnasium as gym\n"
+        "from envs.sumo import SumoNotInstalledError\n"
+        "try:\n"
+        "    gym.make('MixedTraffic-v0')\n"
+        "except SumoNotInstalledError as e:\n"
+        "    print('OK', e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("OK") and "pip install eclipse-sumo libsumo" in out.stdout
+
+
+def test_envs_package_exports():
+    assert envs.STYLES == STYLES
+    assert envs.MixedTrafficEnv is MixedTrafficEnv

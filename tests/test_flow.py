@@ -1,0 +1,96 @@
+"""Flow-matching maths (Eq. 2) against hand-computed values."""
+
+import math
+
+import pytest
+import torch as th
+
+from sb3_ua2c.flow import (
+    actor_loss,
+    estimate_terminal,
+    euler_sample,
+    flow_matching_loss,
+    interpolate,
+    target_velocity,
+)
+
+
+def chunk(*values: float) -> th.Tensor:
+    """One chunk of k=len(values) one-dimensional actions: shape (1, k, 1)."""
+    return th.tensor(values, dtype=th.float32).reshape(1, -1, 1)
+
+
+def test_interpolate_hand_computed():
+    x0, x1 = chunk(0.0, 2.0), chunk(1.0, 4.0)
+    x_tau = interpolate(x0, x1, th.tensor([0.25]))
+    # (1 - 0.25) * 0 + 0.25 * 1 = 0.25 ; 0.75 * 2 + 0.25 * 4 = 2.5
+    assert th.allclose(x_tau, chunk(0.25, 2.5))
+    assert th.equal(interpolate(x0, x1, th.tensor([0.0])), x0)
+    assert th.equal(interpolate(x0, x1, th.tensor([1.0])), x1)
+
+
+def test_interpolate_per_sample_tau():
+    x0 = th.zeros(2, 1, 1)
+    x1 = th.ones(2, 1, 1)
+    out = interpolate(x0, x1, th.tensor([0.1, 0.7]))
+    assert th.allclose(out.flatten(), th.tensor([0.1, 0.7]))
+
+
+def test_tau_shape_mismatch_raises():
+    with pytest.raises(ValueError, match="tau"):
+        interpolate(th.zeros(2, 3, 1), th.zeros(2, 3, 1), th.zeros(3))
+
+
+def test_terminal_estimate_hand_computed():
+    # x̂1 = 0.25 + (1 - 0.25) * 2 = 1.75
+    out = estimate_terminal(chunk(0.25), th.tensor([0.25]), chunk(2.0))
+    assert th.allclose(out, chunk(1.75))
+
+
+def test_terminal_estimate_exact_for_the_straight_path():
+    x0, x1 = chunk(-1.0, 0.5, 3.0), chunk(2.0, 0.0, -1.0)
+    tau = th.tensor([0.3])
+    x_hat = estimate_terminal(interpolate(x0, x1, tau), tau, target_velocity(x0, x1))
+    assert th.allclose(x_hat, x1, atol=1e-6)
+
+
+def test_flow_matching_loss_hand_computed():
+    # target velocity (1, 1); prediction (1, 2): squared errors (0, 1), mean 0.5
+    loss = flow_matching_loss(chunk(1.0, 2.0), chunk(0.0, 0.0), chunk(1.0, 1.0))
+    assert loss.item() == pytest.approx(0.5)
+
+
+def test_euler_constant_and_linear_fields():
+    x0 = chunk(1.0, -2.0)
+    # constant velocity 3: any number of steps reaches x0 + 3
+    assert th.allclose(euler_sample(lambda x, t: th.full_like(x, 3.0), x0, 4), x0 + 3.0)
+    # v = -x with 2 steps: x * (1 - 1/2) * (1 - 1/2)
+    assert th.allclose(euler_sample(lambda x, t: -x, x0, 2), 0.25 * x0)
+    # v = tau with 2 steps (tau = 0, 0.5): x0 + 0.5 * 0 + 0.5 * 0.5
+    assert th.allclose(euler_sample(lambda x, t: th.ones_like(x) * t, x0, 2), x0 + 0.25)
+
+
+def test_euler_rejects_zero_steps():
+    with pytest.raises(ValueError, match="n_steps"):
+        euler_sample(lambda x, t: x, chunk(0.0), 0)
+
+
+def test_actor_loss_hand_computed():
+    v, x0, x1 = chunk(1.0, 2.0), chunk(0.0, 0.0), chunk(1.0, 1.0)
+    q = th.tensor([-2.0, -4.0])
+    loss, info = actor_loss(v, x0, x1, q, q_weight=0.5)
+    # flow 0.5 ; q_scale = mean|q| = 3 ; q_term = -mean(q) / 3 = 1 ; loss = 0.5 + 0.5 * 1
+    assert info["flow_loss"] == pytest.approx(0.5)
+    assert info["q_scale"] == pytest.approx(3.0)
+    assert info["q_term"] == pytest.approx(1.0)
+    assert loss.item() == pytest.approx(1.0)
+
+
+def test_actor_loss_value_gradient_only_through_q():
+    v = chunk(0.0).requires_grad_(True)
+    q = th.tensor([2.0, 6.0], requires_grad=True)
+    loss, _ = actor_loss(v, chunk(0.0), chunk(0.0), q, q_weight=2.0)
+    loss.backward()
+    # d/dq_i of -2 * mean(q) / 4 = -2 / (2 * 4) = -0.25 (the scale is detached)
+    assert th.allclose(q.grad, th.tensor([-0.25, -0.25]))
+    assert math.isclose(v.grad.item(), 0.0)
