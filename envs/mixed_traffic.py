@@ -395,6 +395,8 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.render_mode is None:
             gym.logger.warn("render() called without render_mode; use render_mode='rgb_array'")
             return None
+        if not self.sim.running:
+            raise RuntimeError("call reset() before render()")
         from envs.rendering import draw_frame
 
         av = self._av
@@ -414,7 +416,7 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def hdv_styles(self) -> dict[str, int]:
         """Every HDV id currently in the simulation → its style label (index into ``STYLES``)."""
-        if self._needs_reset and not self._styles:
+        if not self.sim.running or not self._styles:
             return {}
         return {vid: self._styles[vid] for vid in self.sim.vehicle_ids() if vid in self._styles}
 
@@ -617,7 +619,11 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
                 continue
             x, lane, speed, vid = xs[i], gs[i], speeds[i], ids[i]
             leader = self.sim.leader(vid, GAP_CAP)
-            gap = GAP_CAP if leader is None else leader[1] + self._min_gaps[self._styles[vid]]
+            if leader is None:
+                gap = GAP_CAP
+            else:
+                style = self._styles.get(vid)
+                gap = leader[1] + (self._min_gaps[style] if style is not None else self.sim.min_gap(vid))
             dv[k] = speed - av.speed
             dp[k] = x - av.x
             features[k] = (dp[k], dv[k], self.sim.acceleration(vid), speed, lane - av.lane,

@@ -212,21 +212,26 @@ class SumoSimulation:
 
     @property
     def time(self) -> float:
+        self._check_running()
         return float(self.libsumo.simulation.getTime())
 
     def departed_ids(self) -> tuple[str, ...]:
+        self._check_running()
         return self.libsumo.simulation.getDepartedIDList()
 
     def arrived_ids(self) -> tuple[str, ...]:
+        self._check_running()
         return self.libsumo.simulation.getArrivedIDList()
 
     def colliding_ids(self) -> tuple[str, ...]:
         return self.libsumo.simulation.getCollidingVehiclesIDList()
 
     def pending_ids(self) -> tuple[str, ...]:
+        self._check_running()
         return self.libsumo.simulation.getPendingVehicles()
 
     def vehicle_ids(self) -> tuple[str, ...]:
+        self._check_running()
         return self.libsumo.vehicle.getIDList()
 
     def subscribe_context(self, vehicle_id: str, radius: float) -> None:
@@ -234,6 +239,7 @@ class SumoSimulation:
 
         Must be called when ``vehicle_id`` is on the road (not pending).
         """
+        self._check_running()
         self.libsumo.vehicle.subscribeContext(vehicle_id, CMD_GET_VEHICLE_VARIABLE, float(radius), VEHICLE_VARS)
 
     def context_results(self, vehicle_id: str) -> dict[str, dict[int, Any]]:
@@ -242,12 +248,17 @@ class SumoSimulation:
 
     def lane_positions(self) -> list[tuple[str, str, float]]:
         """``(vehicle id, lane id, lane position)`` of every vehicle on the road (slow; for drawing)."""
+        self._check_running()
         veh = self.libsumo.vehicle
         return [(vid, veh.getLaneID(vid), veh.getLanePosition(vid)) for vid in veh.getIDList()]
 
     def acceleration(self, vehicle_id: str) -> float:
         """Acceleration of ``vehicle_id`` during the last step [m/s²]."""
         return float(self.libsumo.vehicle.getAcceleration(vehicle_id))
+
+    def min_gap(self, vehicle_id: str) -> float:
+        """Standstill gap ``minGap`` of ``vehicle_id``'s type [m]."""
+        return float(self.libsumo.vehicle.getMinGap(vehicle_id))
 
     def leader(self, vehicle_id: str, distance: float) -> tuple[str, float] | None:
         """``(leader id, gap − minGap [m])`` within ``distance`` on the vehicle's lanes, else ``None``.
@@ -264,6 +275,7 @@ class SumoSimulation:
         self, vehicle_id: str, route_id: str, type_id: str, depart_pos: str, depart_lane: str, depart_speed: str
     ) -> None:
         """Insert a vehicle at the next step (``depart*`` are SUMO depart attribute strings)."""
+        self._check_running()
         self.libsumo.vehicle.add(
             vehicle_id, route_id, typeID=type_id, departPos=depart_pos,
             departLane=depart_lane, departSpeed=depart_speed,
@@ -293,11 +305,13 @@ class SumoSimulation:
         own bounds); lane-change mode 0: no autonomous lane change and no safety check on
         commanded ones (an unsafe lane change can collide).
         """
+        self._check_running()
         self.libsumo.vehicle.setSpeedMode(vehicle_id, 32)
         self.libsumo.vehicle.setLaneChangeMode(vehicle_id, 0)
 
     def set_sumo_control(self, vehicle_id: str) -> None:
         """Let SUMO's own car-following and lane-change models drive ``vehicle_id``."""
+        self._check_running()
         self.libsumo.vehicle.setSpeed(vehicle_id, -1.0)
         self.libsumo.vehicle.setSpeedMode(vehicle_id, 31)
         self.libsumo.vehicle.setLaneChangeMode(vehicle_id, 1621)

@@ -58,7 +58,8 @@ class VelocityField(nn.Module):
         self.chunk_size, self.action_dim = chunk_size, action_dim
         chunk_dim = chunk_size * action_dim
         self.history_layer = nn.Linear(history_dim, net_arch[0])
-        self.chunk_layer = nn.Linear(chunk_dim + 1, net_arch[0], bias=False)
+        self.chunk_layer = nn.Linear(chunk_dim, net_arch[0], bias=False)
+        self.time_weight = nn.Parameter(th.empty(net_arch[0]).uniform_(-1.0, 1.0))
         layers: list[nn.Module] = [activation_fn()]
         for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
             layers += [nn.Linear(n_in, n_out), activation_fn()]
@@ -75,16 +76,16 @@ class VelocityField(nn.Module):
     def forward(self, x: th.Tensor, tau: th.Tensor, cond: th.Tensor) -> th.Tensor:
         """
         :param x: chunks, shape ``(batch, *extra, k, action_dim)``
-        :param tau: flow times, shape ``(batch, *extra)`` or a scalar tensor
+        :param tau: flow times, shape ``(batch,)`` or a scalar tensor (shared by all chunks)
         :param cond: history features from :meth:`condition`, shape ``(batch, hidden)``
         :return: velocities, same shape as ``x``
         """
-        lead = x.shape[:-2]
-        flat = x.reshape(*lead, -1)  # (batch, *extra, k, action_dim) -> (batch, *extra, k*action_dim)
-        tau = tau.to(x.dtype).expand(lead).unsqueeze(-1)  # (batch, *extra, 1)
-        # (batch, hidden) -> (batch, 1.., hidden), broadcast over the extra (candidate) dims
-        cond = cond.reshape(cond.shape[:1] + (1,) * (len(lead) - 1) + cond.shape[1:])
-        h = self.chunk_layer(th.cat([flat, tau], dim=-1)) + cond
+        b = x.shape[0]
+        n_extra = x.ndim - 3
+        # the first layer is W_x x + w_tau tau + W_h h (+ b): the history/time part once per history
+        cond = cond + tau.to(x.dtype).reshape(-1, 1) * self.time_weight  # (batch, hidden)
+        cond = cond.reshape(b, *([1] * n_extra), -1)  # broadcast over the candidate dims
+        h = self.chunk_layer(x.flatten(-2)) + cond  # (batch, *extra, k, action_dim) -> (batch, *extra, hidden)
         return self.trunk(h).reshape(x.shape)
 
 

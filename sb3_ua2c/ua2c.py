@@ -20,6 +20,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -214,6 +215,9 @@ class UA2C(OffPolicyAlgorithm):
             raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
         if not 0.0 < tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {tau!r}")
+        env = maybe_make_env(env, verbose)
+        if env is not None:
+            _check_spaces(env.observation_space, env.action_space)
         super().__init__(
             policy,
             env,
@@ -250,8 +254,6 @@ class UA2C(OffPolicyAlgorithm):
         self.discrete_action_dims = (
             None if discrete_action_dims is None else {int(k): [float(v) for v in vals] for k, vals in dict(discrete_action_dims).items()}
         )
-        if self.env is not None:
-            _check_spaces(self.observation_space, self.action_space)
         if _init_setup_model:
             self._setup_model()
 

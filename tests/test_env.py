@@ -74,8 +74,10 @@ def test_close_is_idempotent(make_env):
     env.close()
     env = make_env()
     env.reset(seed=0)
+    assert len(env.unwrapped.hdv_styles()) == 34
     env.close()
     env.close()
+    assert env.unwrapped.hdv_styles() == {}  # no libsumo call on a closed simulation
 
 
 def test_random_rollout_obs_finite_and_info_contract(make_env):
@@ -228,14 +230,16 @@ def test_driving_into_leader_collides_with_penalty(make_env):
     env = make_env(num_hdvs=0)
     u = env.unwrapped
     env.reset(seed=4)
-    drive_to_accel_lane(env, x_min=400.0)
+    # a stopped car on highway lane 0 at x = 550 m (merge edge, SUMO lane 1), inserted on the empty road
+    u.sim.add_vehicle("blocker", "r_merge", "neutral", "150", "1", "0")
+    env.step(act(0.0))
+    veh = u.sim.libsumo.vehicle
+    assert "blocker" in u.sim.vehicle_ids()
+    veh.setSpeed("blocker", 0.0)
+    veh.setLaneChangeMode("blocker", 0)
+    drive_to_accel_lane(env, x_min=420.0)
     _, _, _, _, info = env.step(act(0.0, -1.0))
-    assert info["av_lane"] == 0
-    # a stopped car 45 m ahead on the AV's lane
-    merge_pos = info["av_x"] - 400.0
-    u.sim.add_vehicle("blocker", "r_merge", "neutral", f"{merge_pos + 45.0:.2f}", "1", "0")
-    _, _, _, _, info = env.step(act(0.0))
-    u.sim.libsumo.vehicle.setSpeed("blocker", 0.0)
+    assert info["av_lane"] == 0 and info["av_x"] < 520.0
     saw_penalty = False
     for _ in range(100):
         _, r, terminated, truncated, info = env.step(act(A_MAX))
@@ -259,10 +263,16 @@ def test_follower_distance_term(make_env):
     env = make_env(num_hdvs=0)
     u = env.unwrapped
     env.reset(seed=5)
-    drive_to_accel_lane(env, x_min=400.0)
+    drive_to_accel_lane(env, x_min=440.0)
     _, _, _, _, info = env.step(act(0.0, -1.0))
     merge_pos = info["av_x"] - 400.0
-    u.sim.add_vehicle("chaser", "r_merge", "aggressive", f"{merge_pos - 14.0:.2f}", "1", "max")
+    assert merge_pos > 30.0  # the chaser starts 25 m behind, still on the merge edge
+    u.sim.add_vehicle("chaser", "r_merge", "aggressive", f"{merge_pos - 25.0:.2f}", "1", "max")
+    env.step(act(0.0))
+    veh = u.sim.libsumo.vehicle
+    veh.setSpeedMode("chaser", 0)  # closes in at 4 m/s on the AV's lane, ignoring the AV
+    veh.setLaneChangeMode("chaser", 0)
+    veh.setSpeed("chaser", info["av_speed"] + 4.0)
     seen = []
     for _ in range(10):
         _, _, _, _, info = env.step(act(0.0))
@@ -288,7 +298,7 @@ def test_bad_kwargs_and_options_raise(make_env):
     with pytest.raises(ValueError, match="num_hdv"):
         gym.make("MixedTraffic-v0", num_hdv=3)
     with pytest.raises(ValueError, match="render_mode"):
-        gym.make("MixedTraffic-v0", render_mode="human")
+        MixedTrafficEnv(render_mode="rgb")  # raised before any simulator is started
     env = make_env()
     with pytest.raises(ValueError, match="reload"):
         env.reset(seed=0, options={"reload": True})
@@ -314,7 +324,7 @@ def test_dummy_vec_env_of_two_refused():
     from stable_baselines3.common.env_util import make_vec_env
 
     with pytest.raises(SumoProcessBusyError):
-        make_vec_env("MixedTraffic-v0", n_envs=2)
+        make_vec_env("envs:MixedTraffic-v0", n_envs=2)
 
 
 def test_subproc_vec_env_steps_independently():
@@ -329,7 +339,8 @@ def test_subproc_vec_env_steps_independently():
         traj = [obs] + [env.step(a)[0] for a in actions]
         env.close()
         reference.append(np.array(traj))
-    vec = make_vec_env("MixedTraffic-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
+    # "envs:" makes gymnasium import the package (and so register the id) in each worker process
+    vec = make_vec_env("envs:MixedTraffic-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
     try:
         traj = [vec.reset()]
         for a in actions:

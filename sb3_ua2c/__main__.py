@@ -1,0 +1,255 @@
+"""Command line of sb3-ua2c: ``python -m sb3_ua2c <command>`` (console script: ``ua2c``).
+
+Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
+``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
+classifier: collect / train / evaluate). Each run writes into its own run directory
+(``--run-dir``, default ``runs/<command>-<date>-<time>``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+DEFAULT_RUNS = Path("runs")
+
+
+def _json_arg(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
+
+
+def _float_arg(text: str) -> float:
+    value = float(text)  # accepts "inf"
+    if math.isnan(value):
+        raise argparse.ArgumentTypeError("NaN is not a valid value")
+    return value
+
+
+def _run_dir(args: argparse.Namespace) -> Path:
+    if args.run_dir is not None:
+        path = Path(args.run_dir)
+    else:
+        path = DEFAULT_RUNS / f"{args.command}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _behaviour(args: argparse.Namespace):
+    from sb3_ua2c.offline import BehaviourConfig
+
+    return BehaviourConfig(
+        sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob,
+        accel_noise=args.accel_noise, lane_change_prob=args.lane_change_prob,
+    )
+
+
+def cmd_collect(args: argparse.Namespace) -> int:
+    from sb3_ua2c.offline import collect_dataset
+
+    out = Path(args.out) if args.out else _run_dir(args) / "dataset"
+    ds = collect_dataset(
+        out, args.episodes, env_kwargs=args.env_kwargs, style_classifier=args.style_classifier,
+        behaviour=_behaviour(args), seed=args.seed, progress_bar=not args.no_progress, overwrite=args.overwrite,
+    )
+    print(f"dataset: {out} ({len(ds)} episodes, {ds.total_steps} steps, mean return {ds.metadata['mean_return']:.2f})")
+    return 0
+
+
+def cmd_pretrain(args: argparse.Namespace) -> int:
+    from sb3_ua2c.pipeline import pretrain
+
+    out = Path(args.out) if args.out else _run_dir(args) / "pretrained.zip"
+    path = pretrain(
+        args.dataset, out, args.steps, seed=args.seed, algo_kwargs=args.hyperparams,
+        progress_bar=not args.no_progress, verbose=args.verbose,
+    )
+    print(f"checkpoint: {path}")
+    return 0
+
+
+def cmd_finetune(args: argparse.Namespace) -> int:
+    from sb3_ua2c.pipeline import finetune
+
+    out = Path(args.out) if args.out else _run_dir(args) / "finetuned.zip"
+    path = finetune(
+        args.checkpoint, out, args.timesteps, dataset=args.dataset,
+        env_settings_=_settings_from_args(args), offline_ratio=args.offline_ratio,
+        entropy_threshold=args.entropy_threshold, seed=args.seed, progress_bar=not args.no_progress,
+    )
+    print(f"checkpoint: {path}")
+    return 0
+
+
+def _settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    if getattr(args, "dataset", None):
+        from sb3_ua2c.offline import load_dataset
+        from sb3_ua2c.pipeline import env_settings
+
+        return env_settings(load_dataset(args.dataset))
+    return {"env_id": "MixedTraffic-v0", "env_kwargs": args.env_kwargs, "style_classifier": args.style_classifier}
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from sb3_ua2c.pipeline import evaluate, format_table, summarize, write_json
+
+    settings = _settings_from_args(args)
+    rows, raw = {}, {}
+    for ckpt in args.checkpoint:
+        results = evaluate(
+            ckpt, n_episodes=args.episodes, seeds=tuple(args.seeds), env_settings_=settings,
+            entropy_threshold=args.entropy_threshold, deterministic=not args.stochastic,
+        )
+        rows[Path(ckpt).stem] = summarize(results)
+        raw[str(ckpt)] = results
+    print(format_table(rows))
+    out = Path(args.json) if args.json else _run_dir(args) / "evaluation.json"
+    write_json(out, {"summary": rows, "episodes": raw, "seeds": args.seeds, "episodes_per_seed": args.episodes})
+    print(f"results: {out}")
+    return 0
+
+
+#: Embedded defaults of ``main``: a few minutes on 2 cores.
+MAIN_BUDGET = {
+    "full": {"episodes": 40, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 5},
+    "quick": {"episodes": 4, "pretrain_steps": 30, "finetune_steps": 200, "eval_episodes": 1},
+}
+
+
+def cmd_main(args: argparse.Namespace) -> int:
+    from sb3_ua2c.offline import collect_dataset
+    from sb3_ua2c.pipeline import (
+        env_settings,
+        evaluate,
+        finetune,
+        format_table,
+        pretrain,
+        summarize,
+        write_json,
+    )
+
+    budget = MAIN_BUDGET["quick" if args.quick else "full"]
+    run = _run_dir(args)
+    progress = not args.no_progress
+    t0 = time.time()
+    print(f"[1/4] collect {budget['episodes']} episodes of SUMO-driven data -> {run / 'dataset'}")
+    ds = collect_dataset(run / "dataset", budget["episodes"], seed=args.seed, progress_bar=progress, overwrite=True)
+    print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
+    pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress)
+    print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
+    fine = finetune(pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress)
+    print(f"[4/4] evaluate on {budget['eval_episodes']} held-out episodes")
+    settings = env_settings(ds)
+    rows, raw = {}, {}
+    for name, ckpt in (("pretrained", pre), ("finetuned", fine)):
+        results = evaluate(ckpt, n_episodes=budget["eval_episodes"], seeds=(args.seed + 100,), env_settings_=settings)
+        rows[name], raw[name] = summarize(results), results
+    rows["dataset"] = {
+        "reward": ds.metadata["mean_return"], "cumulative_jerk": math.nan, "collision": math.nan,
+        "merge_success": math.nan, "mean_speed": math.nan, "mean_executed_length": math.nan,
+    }
+    print(format_table(rows))
+    write_json(run / "summary.json", {"summary": rows, "episodes": raw, "budget": budget, "seconds": time.time() - t0})
+    print(f"run directory: {run}  ({time.time() - t0:.0f} s)")
+    return 0
+
+
+def cmd_style(argv: list[str]) -> int:
+    from sb3_ua2c import style
+
+    return int(style.main(argv) or 0)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m sb3_ua2c", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--run-dir", default=None, help="output directory (default: runs/<command>-<date>-<time>)")
+        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+    def env_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--env-kwargs", type=_json_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
+        p.add_argument("--style-classifier", default=None,
+                       help="append the driving-style context c_t (Eq. 6): a classifier path or 'default'")
+
+    p = sub.add_parser("collect", help="collect an offline dataset (local Minari) with a human-like behaviour policy")
+    common(p)
+    env_args(p)
+    p.add_argument("--out", default=None, help="dataset directory (default: <run-dir>/dataset)")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--sumo-fraction", type=float, default=0.8, help="fraction of episodes driven by SUMO's model")
+    p.add_argument("--perturb-prob", type=float, default=0.1, help="per-step takeover probability in SUMO episodes")
+    p.add_argument("--accel-noise", type=float, default=1.0, help="takeover acceleration noise std [m/s^2]")
+    p.add_argument("--lane-change-prob", type=float, default=0.02, help="per-step random lane-change probability")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_collect)
+
+    p = sub.add_parser("pretrain", help="Phase 1: pre-train UA2C from a dataset")
+    common(p)
+    p.add_argument("--dataset", required=True, help="dataset directory")
+    p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/pretrained.zip)")
+    p.add_argument("--steps", type=int, default=20_000, help="gradient steps")
+    p.add_argument("--hyperparams", type=_json_arg, default={},
+                   help='UA2C arguments as JSON, e.g. \'{"chunk_size": 1}\' for the one-step baseline')
+    p.add_argument("--verbose", type=int, default=0)
+    p.set_defaults(func=cmd_pretrain)
+
+    p = sub.add_parser("finetune", help="Phase 2: online adaptation from a pre-trained checkpoint")
+    common(p)
+    env_args(p)
+    p.add_argument("--checkpoint", required=True)
+    p.add_argument("--dataset", default=None, help="offline data kept in the replay buffer (also defines the env)")
+    p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/finetuned.zip)")
+    p.add_argument("--timesteps", type=int, default=50_000)
+    p.add_argument("--offline-ratio", type=float, default=None)
+    p.add_argument("--entropy-threshold", type=_float_arg, default=None, help="δ of Eq. 7; 'inf' = fixed chunks")
+    p.set_defaults(func=cmd_finetune)
+
+    p = sub.add_parser("evaluate", help="evaluate checkpoints: reward, jerk, collisions, merges, mean L_t")
+    common(p)
+    env_args(p)
+    p.add_argument("--checkpoint", required=True, nargs="+")
+    p.add_argument("--dataset", default=None, help="take the env configuration from this dataset")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per seed")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--entropy-threshold", type=_float_arg, default=None)
+    p.add_argument("--stochastic", action="store_true", help="fresh candidate noise at every plan")
+    p.add_argument("--json", default=None, help="results file (default: <run-dir>/evaluation.json)")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("main", help="collect -> pretrain -> finetune -> evaluate, end to end with embedded defaults")
+    common(p)
+    p.add_argument("--quick", action="store_true", help="a tiny budget (seconds), for smoke tests")
+    p.set_defaults(func=cmd_main)
+
+    sub.add_parser("style", help="driving-style classifier: collect / train / evaluate (see 'style --help')",
+                   add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "style":
+        return cmd_style(argv[1:])
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError, FileExistsError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

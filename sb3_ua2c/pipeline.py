@@ -1,0 +1,298 @@
+"""Offline-to-online stages: Phase 1 pre-training, Phase 2 online adaptation, evaluation.
+
+Every stage rebuilds the environment from the dataset's metadata (``env_id``, ``env_kwargs``,
+``style_classifier``), so the data, the checkpoint and the online env always share their spaces.
+Checkpoints are standard SB3 ``.zip`` files (``UA2C.load`` opens them), written to a temporary
+file and renamed, so an interrupted run never leaves a half-written checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_ua2c.offline import OfflineDataset, OfflineDatasetError, check_spaces_match, load_dataset, make_env
+from sb3_ua2c.ua2c import UA2C
+
+#: UA2C arguments for ``MixedTraffic-v0`` (the lane change, action dim 1, is categorical).
+TRAFFIC_DEFAULTS: dict[str, Any] = {"discrete_action_dims": {1: [-1.0, 0.0, 1.0]}}
+
+
+def env_settings(dataset: OfflineDataset) -> dict[str, Any]:
+    """``make_env`` arguments recorded in a dataset's metadata."""
+    meta = dataset.metadata
+    return {
+        "env_id": meta.get("env_id", "MixedTraffic-v0"),
+        "env_kwargs": dict(meta.get("env_kwargs") or {}),
+        "style_classifier": meta.get("style_classifier"),
+    }
+
+
+def save_atomic(model: UA2C, path: str | os.PathLike) -> Path:
+    """Save ``model`` to ``path`` (``.zip`` added if missing) through a temporary file and a rename."""
+    path = Path(path)
+    if path.suffix != ".zip":
+        path = path.with_suffix(path.suffix + ".zip") if path.suffix else path.with_suffix(".zip")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".zip", dir=path.parent)
+    os.close(fd)
+    try:
+        model.save(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def load_checkpoint(path: str | os.PathLike, env: Any, **overrides: Any) -> UA2C:
+    """``UA2C.load`` with a readable error for a missing or foreign checkpoint and a space check."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        model = UA2C.load(path, env=None, device="cpu", **overrides)
+    except Exception as exc:  # zipfile / pickle errors of a damaged or foreign file
+        raise ValueError(f"checkpoint {path} is not a loadable UA2C .zip: {exc}") from exc
+    check_spaces_match(model.observation_space, model.action_space, env, what=f"checkpoint {path}")
+    model.set_env(env)
+    return model
+
+
+def pretrain(
+    dataset: str | os.PathLike | OfflineDataset,
+    out: str | os.PathLike,
+    n_gradient_steps: int,
+    seed: int = 0,
+    algo_kwargs: dict[str, Any] | None = None,
+    progress_bar: bool = False,
+    verbose: int = 0,
+) -> Path:
+    """Phase 1: pre-train UA2C from an offline dataset alone (Eq. 2, Eq. 3 with the Eq. 4 target).
+
+    The chunk length is fixed (``chunk_size``); ``chunk_size=1`` gives the one-step baseline on
+    the same data and code path.
+
+    :param dataset: dataset directory or a loaded :class:`~sb3_ua2c.offline.OfflineDataset`
+    :param out: checkpoint path (``.zip``)
+    :param n_gradient_steps: gradient steps
+    :param seed: seed of the networks and minibatch sampling
+    :param algo_kwargs: UA2C constructor arguments (defaults: :data:`TRAFFIC_DEFAULTS` for MixedTraffic)
+    :return: the checkpoint path
+    """
+    ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
+    settings = env_settings(ds)
+    kwargs = {**(TRAFFIC_DEFAULTS if settings["env_id"] == "MixedTraffic-v0" else {}), **(algo_kwargs or {})}
+    env = make_env(**settings)
+    try:
+        ds.check_compatible(env)
+        model = UA2C("MlpPolicy", env, seed=seed, verbose=verbose, device="cpu", **kwargs)
+        model.add_offline_episodes(ds.episodes)
+        _pretrain_with_progress(model, n_gradient_steps, progress_bar)
+        return save_atomic(model, out)
+    finally:
+        env.close()
+
+
+def _pretrain_with_progress(model: UA2C, n_gradient_steps: int, progress_bar: bool) -> None:
+    if not progress_bar:
+        model.pretrain(n_gradient_steps)
+        return
+    from tqdm.auto import tqdm
+
+    chunk = max(1, n_gradient_steps // 50)
+    with tqdm(total=n_gradient_steps, desc="pretrain", unit="step") as bar:
+        done = 0
+        while done < n_gradient_steps:
+            steps = min(chunk, n_gradient_steps - done)
+            model.pretrain(steps, log_interval=steps)
+            done += steps
+            bar.update(steps)
+
+
+def finetune(
+    checkpoint: str | os.PathLike,
+    out: str | os.PathLike,
+    total_timesteps: int,
+    dataset: str | os.PathLike | OfflineDataset | None = None,
+    env_settings_: dict[str, Any] | None = None,
+    offline_ratio: float | None = None,
+    entropy_threshold: float | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+    callback: Any = None,
+) -> Path:
+    """Phase 2: online adaptation from a pre-trained checkpoint with adaptive execution (Eq. 7, 8).
+
+    The first update starts exactly from the loaded weights; learning starts at once
+    (``learning_starts=0``: the pre-trained policy acts from the first step). Offline episodes of
+    ``dataset`` stay in the replay buffer and make up ``offline_ratio`` of each minibatch.
+
+    :param checkpoint: pre-trained ``.zip``
+    :param out: fine-tuned checkpoint path
+    :param total_timesteps: online environment steps
+    :param dataset: offline data kept in the replay buffer (its metadata also defines the env)
+    :param env_settings_: ``make_env`` arguments when no dataset is given
+    :param offline_ratio: override the checkpoint's offline mixing ratio
+    :param entropy_threshold: override δ (``inf`` = fixed chunk execution)
+    :param seed: seed of the online phase
+    :param callback: SB3 callback(s) passed to ``learn``
+    :return: the fine-tuned checkpoint path
+    """
+    ds = None
+    if dataset is not None:
+        ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
+    settings = env_settings(ds) if ds is not None else dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
+    overrides: dict[str, Any] = {"learning_starts": 0}
+    if offline_ratio is not None:
+        overrides["offline_ratio"] = offline_ratio
+    if entropy_threshold is not None:
+        overrides["entropy_threshold"] = entropy_threshold
+    env = make_env(**settings)
+    try:
+        model = load_checkpoint(checkpoint, env, **overrides)
+        model.set_random_seed(seed)
+        if ds is not None:
+            ds.check_compatible(env)
+            model.add_offline_episodes(ds.episodes)
+        model.learn(total_timesteps, callback=callback, progress_bar=progress_bar, reset_num_timesteps=True)
+        return save_atomic(model, out)
+    finally:
+        env.close()
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """What :func:`evaluate` measures per episode (``MixedTraffic-v0`` info keys)."""
+
+    seed: int
+    reward: float
+    length: int
+    cumulative_jerk: float  # Σ_t |jerk_t| [m/s³], the smoothness cost of Fig. 2(b)
+    collision: bool
+    merge_success: bool
+    mean_speed: float  # [m/s]
+    mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
+
+
+def evaluate(
+    checkpoint: str | os.PathLike | UA2C,
+    n_episodes: int = 5,
+    seeds: tuple[int, ...] = (0,),
+    env_settings_: dict[str, Any] | None = None,
+    entropy_threshold: float | None = None,
+    deterministic: bool = True,
+) -> list[EpisodeMetrics]:
+    """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
+
+    Episode ``i`` of seed ``s`` is reset with seed ``1000 * s + i`` (the same scenarios for every
+    checkpoint evaluated with the same seeds).
+
+    :param checkpoint: a ``.zip`` path or a model
+    :param n_episodes: episodes per seed
+    :param seeds: evaluation seeds
+    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
+    :param entropy_threshold: override δ for execution
+    :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
+    """
+    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
+    env = make_env(**settings)
+    try:
+        if isinstance(checkpoint, UA2C):
+            model = checkpoint
+            check_spaces_match(model.observation_space, model.action_space, env, what="the model")
+        else:
+            model = load_checkpoint(checkpoint, env)
+        if entropy_threshold is not None:
+            model.entropy_threshold = model.policy.entropy_threshold = float(entropy_threshold)
+        results = []
+        for s in seeds:
+            for i in range(n_episodes):
+                results.append(_run_episode(model, env, 1000 * int(s) + i, deterministic))
+        return results
+    finally:
+        env.close()
+
+
+def _run_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+    obs, info = env.reset(seed=seed)
+    state, start = None, np.ones(1, dtype=bool)
+    total, jerk, speeds, lengths = 0.0, 0.0, [], []
+    collision = merged = False
+    steps = 0
+    done = False
+    while not done:
+        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+        if int(state.plan_position[0]) == 1:  # a plan was made at this step
+            lengths.append(int(state.plan_length[0]))
+        start = np.zeros(1, dtype=bool)
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += float(reward)
+        jerk += abs(float(info.get("jerk", 0.0)))
+        speeds.append(float(info.get("av_speed", math.nan)))
+        collision |= bool(info.get("collision", False))
+        merged |= bool(info.get("merge_done", False))
+        steps += 1
+        done = terminated or truncated
+    return EpisodeMetrics(
+        seed=seed, reward=total, length=steps, cumulative_jerk=jerk, collision=collision,
+        merge_success=merged, mean_speed=float(np.nanmean(speeds)), mean_executed_length=float(np.mean(lengths)),
+    )
+
+
+SUMMARY_KEYS = ("reward", "cumulative_jerk", "collision", "merge_success", "mean_speed", "mean_executed_length")
+
+
+def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
+    """Means over episodes (collision and merge as rates) plus the episode count."""
+    if not results:
+        raise ValueError("no episodes to summarize")
+    out = {key: float(np.mean([float(getattr(r, key)) for r in results])) for key in SUMMARY_KEYS}
+    out["episodes"] = len(results)
+    return out
+
+
+def format_table(rows: dict[str, dict[str, float]]) -> str:
+    """A plain-text table, one row per method."""
+    headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
+    lines = [" | ".join(f"{h:>12}" for h in headers)]
+    lines.append("-|-".join("-" * 12 for _ in headers))
+    for name, s in rows.items():
+        values = (s["reward"], s["cumulative_jerk"], s["collision"], s["merge_success"], s["mean_speed"], s["mean_executed_length"])
+        lines.append(" | ".join([f"{name:>12}"] + [f"{v:12.3f}" for v in values]))
+    return "\n".join(lines)
+
+
+def write_json(path: str | os.PathLike, payload: Any) -> Path:
+    """Write JSON atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True, default=_json_default))
+    os.replace(tmp, path)
+    return path
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, EpisodeMetrics):
+        return asdict(obj)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+__all__ = [
+    "TRAFFIC_DEFAULTS", "EpisodeMetrics", "OfflineDatasetError", "evaluate", "finetune", "format_table",
+    "load_checkpoint", "pretrain", "save_atomic", "summarize", "write_json",
+]

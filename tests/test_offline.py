@@ -1,0 +1,258 @@
+"""Offline datasets, Phase 1 / Phase 2 stages and the command line (issue: offline-to-online)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_ua2c import UA2C
+from sb3_ua2c.chunking import discounted_chunk_return
+from sb3_ua2c.offline import (
+    BehaviourConfig,
+    Episode,
+    OfflineDatasetError,
+    collect_dataset,
+    load_dataset,
+    write_dataset,
+)
+
+PENDULUM_OBS = gym.spaces.Box(-8.0, 8.0, (3,), np.float32)
+PENDULUM_ACT = gym.spaces.Box(-2.0, 2.0, (1,), np.float32)
+#: a short MixedTraffic episode (4 s = 20 steps) keeps SUMO tests fast
+SHORT_ENV = {"time_limit": 4.0}
+
+
+def hand_episode(t_len: int = 4, terminated: bool = True) -> Episode:
+    """o_t = [t, 0, 0] (so a sample's history names its start), r_t = t + 1, a_t = 0.5 (env units)."""
+    obs = np.zeros((t_len + 1, 3), dtype=np.float32)
+    obs[:, 0] = np.arange(t_len + 1)
+    end = np.zeros(t_len, dtype=bool)
+    end[-1] = True
+    return Episode(
+        observations=obs,
+        actions=np.full((t_len, 1), 0.5, dtype=np.float32),
+        rewards=np.arange(1, t_len + 1, dtype=np.float64),
+        terminations=end if terminated else np.zeros(t_len, dtype=bool),
+        truncations=np.zeros(t_len, dtype=bool) if terminated else end,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# dataset files
+# ---------------------------------------------------------------------------------------------
+def test_dataset_round_trip(tmp_path: Path) -> None:
+    episodes = [hand_episode(4), hand_episode(3, terminated=False)]
+    path = write_dataset(episodes, tmp_path / "ds", PENDULUM_OBS, PENDULUM_ACT, metadata={"behaviour": "hand", "seed": 7})
+    ds = load_dataset(path)
+    assert len(ds) == 2 and ds.total_steps == 7
+    assert ds.metadata == {"behaviour": "hand", "seed": 7}
+    assert ds.observation_space == PENDULUM_OBS and ds.action_space == PENDULUM_ACT
+    for got, want in zip(ds, episodes, strict=True):
+        np.testing.assert_array_equal(got.observations, want.observations)
+        np.testing.assert_array_equal(got.actions, want.actions)
+        np.testing.assert_array_equal(got.rewards, want.rewards)
+        np.testing.assert_array_equal(got.terminations, want.terminations)
+        np.testing.assert_array_equal(got.truncations, want.truncations)
+    with pytest.raises(FileExistsError, match="already exists"):
+        write_dataset(episodes, path, PENDULUM_OBS, PENDULUM_ACT)
+
+
+def test_missing_and_corrupt_datasets_raise(tmp_path: Path) -> None:
+    with pytest.raises(OfflineDatasetError, match="no dataset at"):
+        load_dataset(tmp_path / "nothing")
+    path = write_dataset([hand_episode()], tmp_path / "ds", PENDULUM_OBS, PENDULUM_ACT)
+    for f in (path / "data").iterdir():
+        if f.suffix in (".hdf5", ".h5"):
+            f.write_bytes(b"not an hdf5 file")
+    with pytest.raises(OfflineDatasetError, match="corrupt or unreadable"):
+        load_dataset(path)
+
+
+def test_interrupted_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import minari
+
+    def boom(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(minari, "create_dataset_from_buffers", boom)
+    with pytest.raises(KeyboardInterrupt):
+        write_dataset([hand_episode()], tmp_path / "ds", PENDULUM_OBS, PENDULUM_ACT)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_episodes_and_behaviour_raise() -> None:
+    with pytest.raises(OfflineDatasetError, match="T\\+1=3"):
+        Episode(np.zeros((2, 3)), np.zeros((2, 1)), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool))
+    with pytest.raises(OfflineDatasetError, match="NaN"):
+        Episode(np.zeros((3, 3)), np.full((2, 1), np.nan), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool))
+    with pytest.raises(ValueError, match="perturb_prob"):
+        BehaviourConfig(perturb_prob=1.5)
+    with pytest.raises(ValueError, match="noise"):
+        BehaviourConfig.from_dict({"noise": 1.0})
+
+
+# ---------------------------------------------------------------------------------------------
+# chunk transitions (Eq. 4) from a hand-made episode
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("terminated", [True, False])
+def test_chunk_transitions_from_hand_made_episode(terminated: bool) -> None:
+    model = UA2C("MlpPolicy", "Pendulum-v1", chunk_size=3, history_len=2, gamma=0.5, seed=0)
+    assert model.add_offline_episodes([hand_episode(4, terminated)]) == 4
+    batch = model.replay_buffer.sample(64)
+    start = batch.observation_history[:, -1, 0].long()  # o_t = [t, 0, 0]
+    expected = {  # t: (rewards r_{t:t+2} zero past L, L, bootstrap)
+        0: ([1, 2, 3], 3, 1.0),
+        1: ([2, 3, 4], 3, 0.0 if terminated else 1.0),
+        2: ([3, 4, 0], 2, 0.0 if terminated else 1.0),
+        3: ([4, 0, 0], 1, 0.0 if terminated else 1.0),
+    }
+    seen = set()
+    for i, t in enumerate(start.tolist()):
+        rewards, horizon, bootstrap = expected[t]
+        assert batch.rewards[i].tolist() == rewards
+        assert batch.horizons[i].item() == horizon
+        assert batch.bootstrap[i].item() == bootstrap
+        # history o_{t-1:t} padded with o_0 at the start; next history ends at o_{t+L}
+        assert batch.observation_history[i, :, 0].tolist() == [max(t - 1, 0), t]
+        assert batch.next_observation_history[i, -1, 0].item() == t + horizon
+        # actions 0.5 in [-2, 2] are 0.25 normalised
+        assert th.allclose(batch.chunks[i, :horizon], th.full((horizon, 1), 0.25))
+        seen.add(t)
+    assert seen == {0, 1, 2, 3}
+    # discounted return of the first window: 1 + 0.5·2 + 0.25·3 = 2.75
+    ret = discounted_chunk_return(th.tensor([[1.0, 2.0, 3.0]]), th.tensor([3.0]), 0.5)
+    assert ret.item() == pytest.approx(2.75)
+
+
+# ---------------------------------------------------------------------------------------------
+# SUMO: collection, Phase 1, Phase 2, mismatches, command line
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def traffic_dataset(tmp_path_factory: pytest.TempPathFactory):
+    path = tmp_path_factory.mktemp("data") / "ds"
+    return collect_dataset(path, 3, env_kwargs=SHORT_ENV, seed=3, behaviour=BehaviourConfig(sumo_fraction=2 / 3))
+
+
+def test_collected_dataset_records_the_performed_actions(traffic_dataset) -> None:
+    ds = traffic_dataset
+    assert len(ds) == 3 and ds.total_steps == 60  # 3 episodes x 4 s / 0.2 s
+    assert ds.metadata["env_kwargs"] == SHORT_ENV and ds.metadata["seed"] == 3
+    assert ds.metadata["behaviour_config"]["sumo_fraction"] == pytest.approx(2 / 3)
+    for ep in ds:
+        assert ep.observations.shape == (21, 20) and ep.actions.shape == (20, 2)
+        assert np.all(ep.actions[:, 0] >= -4.5) and np.all(ep.actions[:, 0] <= 3.0)
+        assert set(np.unique(ep.actions[:, 1])) <= {-1.0, 0.0, 1.0}
+        assert ep.truncations[-1] and not ep.terminations.any()
+    # same seed, same data
+    again = collect_dataset(ds.path.parent / "again", 3, env_kwargs=SHORT_ENV, seed=3,
+                            behaviour=BehaviourConfig(sumo_fraction=2 / 3))
+    for a, b in zip(ds, again, strict=True):
+        np.testing.assert_array_equal(a.observations, b.observations)
+        np.testing.assert_array_equal(a.actions, b.actions)
+
+
+TINY = {
+    "chunk_size": 3, "history_len": 2, "n_candidates": 4, "n_target_candidates": 2, "flow_steps": 2,
+    "batch_size": 16,
+    "policy_kwargs": {"net_arch": [32, 32], "critic_embed_dim": 16, "critic_n_layers": 1, "critic_n_heads": 2,
+                      "critic_ff_dim": 32},
+}
+
+
+def _params(model: UA2C) -> dict[str, th.Tensor]:
+    return {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
+
+
+def test_pretrain_then_finetune_starts_from_loaded_weights(traffic_dataset, tmp_path: Path) -> None:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from sb3_ua2c.offline import make_env
+    from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain
+
+    ckpt = pretrain(traffic_dataset, tmp_path / "pre", 5, seed=0, algo_kwargs=TINY)
+    assert ckpt == tmp_path / "pre.zip" and ckpt.is_file()
+    env = make_env(env_kwargs=SHORT_ENV)
+    try:
+        saved = _params(load_checkpoint(ckpt, env))
+    finally:
+        env.close()
+    assert saved, "the checkpoint holds the policy"
+
+    class StartsFromCheckpoint(BaseCallback):
+        checked = False
+
+        def _on_training_start(self) -> None:
+            for name, value in self.model.policy.state_dict().items():
+                assert th.equal(value, saved[name]), name
+            StartsFromCheckpoint.checked = True
+
+        def _on_step(self) -> bool:
+            return True
+
+    out = finetune(ckpt, tmp_path / "fine.zip", 30, dataset=traffic_dataset, callback=StartsFromCheckpoint())
+    assert StartsFromCheckpoint.checked
+    env = make_env(env_kwargs=SHORT_ENV)
+    try:
+        tuned = load_checkpoint(out, env)
+    finally:
+        env.close()
+    assert tuned.num_timesteps == 30
+    assert any(not th.equal(v, saved[k]) for k, v in tuned.policy.state_dict().items()), "online updates ran"
+
+
+def test_mismatched_dataset_or_checkpoint_raises(traffic_dataset, tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import evaluate, finetune, pretrain
+
+    pendulum_ds = load_dataset(write_dataset([hand_episode()], tmp_path / "pend", PENDULUM_OBS, PENDULUM_ACT,
+                                             metadata={"env_id": "MixedTraffic-v0", "env_kwargs": SHORT_ENV}))
+    with pytest.raises(OfflineDatasetError, match="observation_space"):
+        pretrain(pendulum_ds, tmp_path / "x.zip", 1, algo_kwargs=TINY)
+    pendulum_model = UA2C("MlpPolicy", "Pendulum-v1", **TINY)
+    pendulum_model.save(tmp_path / "pendulum.zip")
+    with pytest.raises(OfflineDatasetError, match="checkpoint .* has observation_space"):
+        finetune(tmp_path / "pendulum.zip", tmp_path / "y.zip", 10, dataset=traffic_dataset)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        evaluate(tmp_path / "missing.zip", env_settings_={"env_kwargs": SHORT_ENV})
+    (tmp_path / "junk.zip").write_bytes(b"junk")
+    with pytest.raises(ValueError, match="not a loadable UA2C"):
+        evaluate(tmp_path / "junk.zip", env_settings_={"env_kwargs": SHORT_ENV})
+    assert not (tmp_path / "x.zip").exists() and not (tmp_path / "y.zip").exists()
+
+
+def test_evaluate_reports_every_metric(traffic_dataset, tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import evaluate, pretrain, summarize
+
+    ckpt = pretrain(traffic_dataset, tmp_path / "pre.zip", 2, algo_kwargs={**TINY, "entropy_threshold": float("inf")})
+    results = evaluate(ckpt, n_episodes=1, seeds=(0, 1), env_settings_={"env_kwargs": SHORT_ENV})
+    assert [r.seed for r in results] == [0, 1000]
+    for r in results:
+        assert r.length == 20 and np.isfinite(r.reward) and r.cumulative_jerk >= 0
+        # δ = inf executes whole chunks: L_t = k = 3 for every plan
+        assert r.mean_executed_length == 3.0
+    summary = summarize(results)
+    assert summary["episodes"] == 2 and summary["mean_executed_length"] == 3.0
+
+
+def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
+    from sb3_ua2c.__main__ import main
+
+    assert main(["main", "--quick", "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert set(summary["summary"]) == {"pretrained", "finetuned", "dataset"}
+    for name in ("pretrained.zip", "finetuned.zip", "dataset/data"):
+        assert (tmp_path / "run" / name).exists()
+
+
+def test_cli_bad_input_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from sb3_ua2c.__main__ import main
+
+    assert main(["pretrain", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "m.zip")]) == 2
+    assert "no dataset at" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["finetune", "--checkpoint", "x.zip", "--env-kwargs", "[1, 2]"])
+    assert "expected a JSON object" in capsys.readouterr().err

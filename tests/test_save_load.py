@@ -1,0 +1,191 @@
+"""Save/load round trips, set_parameters, resuming from loaded weights, determinism, bad arguments."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.evaluation import evaluate_policy
+
+from sb3_ua2c import UA2C
+from sb3_ua2c.buffers import ChunkReplayBuffer
+
+TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
+FAST = dict(
+    policy_kwargs=TINY,
+    learning_starts=50,
+    batch_size=16,
+    buffer_size=1000,
+    flow_steps=3,
+    n_candidates=4,
+    n_target_candidates=2,
+)
+
+
+def params(model: UA2C) -> dict[str, th.Tensor]:
+    return {k: v.clone() for k, v in model.policy.state_dict().items()}
+
+
+def rollout_actions(model: UA2C, n: int = 12) -> np.ndarray:
+    """Deterministic actions of ``n`` consecutive steps carrying the executor state."""
+    env = gym.make("Pendulum-v1")
+    obs, _ = env.reset(seed=3)
+    state, start, out = None, np.array([True]), []
+    for _ in range(n):
+        action, state = model.predict(obs, state=state, episode_start=start, deterministic=True)
+        out.append(action)
+        obs, *_ = env.step(action)
+        start = np.array([False])
+    return np.array(out)
+
+
+def test_save_load_same_actions_and_hyperparameters(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=-0.5, **FAST)
+    model.learn(120)
+    before = rollout_actions(model)
+    model.save(tmp_path / "ua2c.zip")
+    loaded = UA2C.load(tmp_path / "ua2c.zip")
+    assert (loaded.chunk_size, loaded.history_len, loaded.entropy_threshold) == (4, 3, -0.5)
+    assert loaded.policy.critic_kwargs["embed_dim"] == 16
+    for k, v in params(model).items():
+        assert th.equal(v, loaded.policy.state_dict()[k]), k
+    np.testing.assert_array_equal(rollout_actions(loaded), before)
+    # optimizer states are restored as well
+    assert loaded.actor.optimizer.state_dict()["state"].keys() == model.actor.optimizer.state_dict()["state"].keys()
+
+
+def test_deterministic_predict_is_a_function_of_the_history():
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    obs = np.array([1.0, 0.0, 0.5], np.float32)
+    a1, _ = model.predict(obs, deterministic=True)
+    a2, _ = model.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(a1, a2)
+
+
+def test_set_parameters_and_resume_from_loaded_weights(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).learn(100)
+    model.save(tmp_path / "m.zip")
+    saved = params(model)
+    other = UA2C("MlpPolicy", "Pendulum-v1", seed=1, **FAST)
+    other.set_parameters(str(tmp_path / "m.zip"))
+    for k, v in saved.items():
+        assert th.equal(v, other.policy.state_dict()[k]), k
+    # load with an env and keep learning: the first update starts from the loaded weights
+    resumed = UA2C.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"), learning_starts=1000)
+    resumed.learn(30, reset_num_timesteps=False)  # still warm-up for the fresh buffer: no update
+    for k, v in saved.items():
+        assert th.equal(v, resumed.policy.state_dict()[k]), k
+    n_updates = resumed._n_updates
+    resumed.learning_starts = 0
+    resumed.learn(60, reset_num_timesteps=False)
+    assert resumed._n_updates > n_updates
+    assert any(not th.equal(v, resumed.policy.state_dict()[k]) for k, v in saved.items())
+
+
+def test_replay_buffer_save_load(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).learn(80)
+    model.save_replay_buffer(tmp_path / "buffer.pkl")
+    fresh = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    fresh.load_replay_buffer(tmp_path / "buffer.pkl")
+    assert isinstance(fresh.replay_buffer, ChunkReplayBuffer)
+    assert fresh.replay_buffer.n_samples() == model.replay_buffer.n_samples()
+
+
+def test_same_seed_gives_bit_identical_weights():
+    a = UA2C("MlpPolicy", "Pendulum-v1", seed=7, **FAST).learn(120)
+    b = UA2C("MlpPolicy", "Pendulum-v1", seed=7, **FAST).learn(120)
+    c = UA2C("MlpPolicy", "Pendulum-v1", seed=8, **FAST).learn(120)
+    pa, pb, pc = params(a), params(b), params(c)
+    assert all(th.equal(pa[k], pb[k]) for k in pa)
+    assert not all(th.equal(pa[k], pc[k]) for k in pa)
+
+
+def test_offline_episodes_and_pretrain_without_env_interaction():
+    env = gym.make("Pendulum-v1")
+    episodes = []
+    for seed in range(2):
+        obs, _ = env.reset(seed=seed)
+        rows = dict(observations=[obs], actions=[], rewards=[], terminations=[], truncations=[])
+        done = False
+        while not done:
+            action = env.action_space.sample()
+            obs, reward, term, trunc, _ = env.step(action)
+            for key, value in zip(("actions", "rewards", "terminations", "truncations"), (action, reward, term, trunc), strict=True):
+                rows[key].append(value)
+            rows["observations"].append(obs)
+            done = term or trunc
+        episodes.append({k: np.array(v) for k, v in rows.items()})
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, offline_ratio=0.5, **FAST)
+    assert model.add_offline_episodes(episodes) == 400
+    stored = model.replay_buffer.offline.actions[:200, 0, 0]
+    np.testing.assert_allclose(stored, episodes[0]["actions"][:, 0] / 2.0, atol=1e-6)  # Pendulum torque in [-2, 2]
+    before = params(model)
+    model.pretrain(5, log_interval=2)
+    assert model._n_updates == 5 and model.num_timesteps == 0
+    assert any(not th.equal(v, model.policy.state_dict()[k]) for k, v in before.items())
+    with pytest.raises(ValueError, match="n_gradient_steps"):
+        model.pretrain(-1)
+    with pytest.raises(ValueError, match="needs data"):
+        UA2C("MlpPolicy", "Pendulum-v1", **FAST).pretrain(1)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(chunk_size=0), "chunk_size"),
+        (dict(history_len=1.5), "history_len"),
+        (dict(flow_steps=-1), "flow_steps"),
+        (dict(n_candidates=0), "n_candidates"),
+        (dict(n_target_candidates=0), "n_target_candidates"),
+        (dict(target_flow_steps=0), "target_flow_steps"),
+        (dict(entropy_threshold=math.nan), "entropy_threshold"),
+        (dict(entropy_threshold=-math.inf), "entropy_threshold"),
+        (dict(entropy_threshold="high"), "entropy_threshold"),
+        (dict(q_weight=-1.0), "q_weight"),
+        (dict(offline_ratio=2.0), "offline_ratio"),
+        (dict(discrete_action_dims={3: [-1, 0, 1]}), "discrete_action_dims"),
+        (dict(batch_size=0), "batch_size"),
+        (dict(gamma=1.5), "gamma"),
+        (dict(policy_kwargs=dict(critic_embed_dim=0)), "critic_embed_dim"),
+        (dict(policy_kwargs=dict(critic_embed_dim=30, critic_n_heads=4)), "critic_n_heads"),
+        (dict(policy_kwargs=dict(n_layers=2)), "n_layers"),
+        (dict(policy_kwargs=dict(chunk_size=2)), "chunk_size"),
+        (dict(replay_buffer_class=dict), "replay_buffer_class"),
+    ],
+)
+def test_bad_hyperparameters_raise_value_error(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        UA2C("MlpPolicy", "Pendulum-v1", **kwargs)
+
+
+class DictObsEnv(gym.Env):
+    observation_space = spaces.Dict({"x": spaces.Box(-1, 1, (2,))})
+    action_space = spaces.Box(-1, 1, (1,))
+
+    def reset(self, *, seed=None, options=None):
+        return {"x": np.zeros(2, np.float32)}, {}
+
+    def step(self, action):
+        return {"x": np.zeros(2, np.float32)}, 0.0, False, False, {}
+
+
+@pytest.mark.parametrize(
+    ("env", "match"),
+    [
+        ("CartPole-v1", "Box action spaces only, got Discrete"),
+        (DictObsEnv(), "Box observation spaces only, got Dict"),
+    ],
+)
+def test_unsupported_spaces_raise(env, match):
+    with pytest.raises(ValueError, match=match):
+        UA2C("MlpPolicy", env)
+
+
+def test_evaluate_policy_after_load(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    model.save(tmp_path / "m")
+    loaded = UA2C.load(tmp_path / "m")
+    mean, _ = evaluate_policy(loaded, gym.make("Pendulum-v1"), n_eval_episodes=1, warn=False)
+    assert -2000.0 < mean < 0.0
