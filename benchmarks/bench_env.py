@@ -107,6 +107,25 @@ def bench_highway_env(steps: int, seed: int) -> tuple[float, float] | None:
     return steps / elapsed, sim_dt
 
 
+def reward_breakdown(steps: int, seed: int) -> tuple[dict[str, float], int, int]:
+    """Mean weighted reward term per step of a random policy, episodes, and collisions."""
+    env = gym.make("MixedTraffic-v0").unwrapped
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    totals: dict[str, float] = {}
+    episodes = collisions = 0
+    for _ in range(steps):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        for name, value in info["reward_terms"].items():
+            totals[name] = totals.get(name, 0.0) + value
+        if terminated or truncated:
+            episodes += 1
+            collisions += int(info["collision"])
+            env.reset()
+    env.close()
+    return {name: value / steps for name, value in totals.items()}, episodes, collisions
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=6000)
@@ -132,6 +151,9 @@ def main() -> None:
     print(f"bare libsumo simulationStep, same scenario  : {bare_step_sps:8.0f} steps/s "
           f"({bare_sps:.0f} steps/s incl. resets)")
     print(f"env overhead: env step time / bare step time = {bare_step_sps / env_step_sps:.2f}x")
+    terms, n_eps, n_col = reward_breakdown(args.steps // 2, args.seed)
+    print(f"random policy, mean weighted reward term per step ({n_eps} episodes, {n_col} collisions):")
+    print("  " + ", ".join(f"{name} {value:+.3f}" for name, value in terms.items()))
     hw = bench_highway_env(args.highway_steps, args.seed)
     if hw is None:
         print("highway-env not installed: merge-v0 comparison skipped")

@@ -130,10 +130,10 @@ def observation_vector(
     speed: float,
     x: float,
     road_length: float,
-    dv: np.ndarray,
-    dp: np.ndarray,
-    density: np.ndarray,
-    zeta: np.ndarray,
+    dv: Sequence[float],
+    dp: Sequence[float],
+    density: Sequence[float],
+    zeta: Sequence[float],
     window: float,
     zeta_cap: float,
 ) -> np.ndarray:
@@ -155,14 +155,18 @@ def observation_vector(
     :param zeta_cap: ζ scale [m].
     :return: (20,) float32.
     """
-    obs = np.empty(20, dtype=np.float32)
-    obs[0] = speed / SPEED_SCALE
-    obs[1] = x / road_length
-    obs[2:8] = dv / SPEED_SCALE
-    obs[8:14] = dp / window
-    obs[14:17] = density / JAM_DENSITY
-    obs[17:20] = zeta / zeta_cap
-    np.clip(obs, OBS_LOW, OBS_HIGH, out=obs)
+    obs = np.array(
+        [speed / SPEED_SCALE, x / road_length]
+        + [float(d) / SPEED_SCALE for d in dv]
+        + [float(d) / window for d in dp]
+        + [float(r) / JAM_DENSITY for r in density]
+        + [float(z) / zeta_cap for z in zeta],
+        dtype=np.float32,
+    )
+    if obs.shape != (20,):
+        raise ValueError(f"dv, dp need 6 entries and density, zeta 3; got an observation of shape {obs.shape}")
+    np.maximum(obs, OBS_LOW, out=obs)  # (much cheaper than np.clip on 20 numbers)
+    np.minimum(obs, OBS_HIGH, out=obs)
     return obs
 
 

@@ -8,9 +8,11 @@ second live instance with an error that points to ``SubprocVecEnv``. The claim i
 :meth:`SumoSimulation.close` (or when the instance is garbage collected) and is ignored in a
 forked child process, which starts its own simulation.
 
-Crashes of the interpreter known for libsumo are avoided here: no call is made on a vehicle
-that is not on the road (calls on pending vehicles can segfault), lane indices are passed as
-Python ``int`` (numpy integers are rejected), and every call after :meth:`close` raises.
+Crashes of the interpreter known for libsumo are avoided here: no neighbour/leader query is
+made on a vehicle before it is on the road (``getNeighbors`` on a pending vehicle segfaults;
+only setters such as the speed factor are applied to pending vehicles), lane indices are passed
+as Python ``int`` (numpy integers are rejected), and every call after :meth:`close` raises
+instead of reaching libsumo.
 
 Importing this module never fails; :func:`import_libsumo` raises :class:`SumoNotInstalledError`
 with installation instructions when SUMO is missing.
@@ -88,12 +90,6 @@ def netconvert_binary() -> str:
     raise SumoNotInstalledError("netconvert not found. " + INSTALL_HINT)
 
 
-def _release(pid: int, ident: int) -> None:
-    global _owner
-    if _owner is not None and _owner[0] == pid and id(_owner[1]()) in (ident, id(None)):
-        _owner = None
-
-
 class SumoSimulation:
     """One libsumo simulation of a network, restarted per episode with :meth:`load`.
 
@@ -117,8 +113,8 @@ class SumoSimulation:
                 "stable_baselines3.common.vec_env.SubprocVecEnv (e.g. make_vec_env(..., "
                 "vec_env_cls=SubprocVecEnv))."
             )
+        # A weak reference: an instance that was garbage collected frees the process too.
         _owner = (os.getpid(), weakref.ref(self))
-        weakref.finalize(self, _release, os.getpid(), id(self))
         self.net_file, self.route_file = str(net_file), str(route_file)
         self.step_length = float(step_length)
         self.extra_args = list(extra_args)

@@ -99,7 +99,9 @@ class OfflineEpisode:
 class _Steps:
     """Per-step storage with shape ``(capacity, n_envs, ...)``."""
 
-    def __init__(self, capacity: int, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, plans: bool):
+    def __init__(
+        self, capacity: int, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, plans: bool
+    ):
         self.capacity, self.n_envs = capacity, n_envs
         self.obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
         self.next_obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
@@ -114,7 +116,16 @@ class _Steps:
         self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
 
     def grow(self, capacity: int) -> None:
-        for name in ("obs", "next_obs", "actions", "rewards", "terminated", "episode_step", "horizon", "bootstrap"):
+        for name in (
+            "obs",
+            "next_obs",
+            "actions",
+            "rewards",
+            "terminated",
+            "episode_step",
+            "horizon",
+            "bootstrap",
+        ):
             old = getattr(self, name)
             new = np.zeros((capacity,) + old.shape[1:], dtype=old.dtype)
             new[: old.shape[0]] = old
@@ -340,10 +351,10 @@ class ChunkReplayBuffer(BaseBuffer):
             n_off = int(round(self.offline_ratio * batch_size))
         parts = []
         if n_off > 0:
-            t = np.random.randint(0, n_off_avail, size=n_off)
+            t = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
             parts.append(self._gather(self.offline, t, np.zeros(n_off, dtype=np.int64), env))
         if batch_size - n_off > 0:
-            flat = online[np.random.randint(0, online.size, size=batch_size - n_off)]
+            flat = online[np.random.randint(0, online.size, size=batch_size - n_off)]  # noqa: NPY002 - as above
             t, e = np.divmod(flat, self.n_envs)
             parts.append(self._gather(self.online, t, e, env))
         arrays = parts[0] if len(parts) == 1 else [np.concatenate(x) for x in zip(*parts, strict=True)]

@@ -41,6 +41,8 @@ def normalize_discrete_dims(
         )
     out: dict[int, int] = {}
     for dim, values in discrete_action_dims.items():
+        if isinstance(dim, str) and dim.isdigit():  # JSON (saved models, CLI) turns int keys into strings
+            dim = int(dim)
         if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or not 0 <= int(dim) < action_dim:
             raise ValueError(f"discrete_action_dims: action index {dim!r} is not in [0, {action_dim})")
         vals = [float(v) for v in values]
@@ -169,8 +171,13 @@ def chunk_target(
     :param gamma: discount factor
     :return: targets ``y``, shape ``(batch,)``
     """
-    discount = th.pow(th.as_tensor(gamma, dtype=rewards.dtype, device=rewards.device), horizon.to(rewards.dtype))
-    return discounted_chunk_return(rewards, horizon, gamma) + bootstrap_mask.to(rewards.dtype) * discount * next_value
+    discount = th.pow(
+        th.as_tensor(gamma, dtype=rewards.dtype, device=rewards.device), horizon.to(rewards.dtype)
+    )
+    return (
+        discounted_chunk_return(rewards, horizon, gamma)
+        + bootstrap_mask.to(rewards.dtype) * discount * next_value
+    )
 
 
 class PlanResult(NamedTuple):

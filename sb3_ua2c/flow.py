@@ -17,7 +17,9 @@ VelocityFn = Callable[[th.Tensor, th.Tensor], th.Tensor]
 def _expand_tau(tau: th.Tensor, like: th.Tensor) -> th.Tensor:
     """Reshape ``tau`` of shape ``like.shape[:tau.ndim]`` so that it broadcasts over ``like``."""
     if tau.shape != like.shape[: tau.ndim]:
-        raise ValueError(f"tau of shape {tuple(tau.shape)} does not match the leading dims of {tuple(like.shape)}")
+        raise ValueError(
+            f"tau of shape {tuple(tau.shape)} does not match the leading dims of {tuple(like.shape)}"
+        )
     # (batch,) -> (batch, 1, 1) for chunks of shape (batch, k, action_dim)
     return tau.reshape(tau.shape + (1,) * (like.ndim - tau.ndim))
 

@@ -85,7 +85,9 @@ class VelocityField(nn.Module):
         # the first layer is W_x x + w_tau tau + W_h h (+ b): the history/time part once per history
         cond = cond + tau.to(x.dtype).reshape(-1, 1) * self.time_weight  # (batch, hidden)
         cond = cond.reshape(b, *([1] * n_extra), -1)  # broadcast over the candidate dims
-        h = self.chunk_layer(x.flatten(-2)) + cond  # (batch, *extra, k, action_dim) -> (batch, *extra, hidden)
+        h = (
+            self.chunk_layer(x.flatten(-2)) + cond
+        )  # (batch, *extra, k, action_dim) -> (batch, *extra, hidden)
         return self.trunk(h).reshape(x.shape)
 
 
@@ -142,14 +144,22 @@ class _EnsembleBlock(nn.Module):
         n, b, t, d = x.shape
         h = d // self.n_heads
         flat = x.reshape(n, b * t, d)  # (n, B, T, d) -> (n, B*T, d)
-        qkv = self.qkv(self.norm1(flat))
-        # (n, B*T, 3d) -> (3, n*B, heads, T, d/heads)
-        qkv = qkv.reshape(n, b, t, 3, self.n_heads, h).permute(3, 0, 1, 4, 2, 5).reshape(3, n * b, self.n_heads, t, h)
+        qkv = self.qkv(self.norm1(flat))  # (n, B*T, 3d)
         # explicit attention: for a dozen tokens it is faster on CPU than the fused SDPA kernels
-        scores = th.matmul(qkv[0], qkv[1].transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, heads, T, T)
-        att = th.matmul(_softmax(scores), qkv[2])
-        # (n*B, heads, T, d/heads) -> (n, B*T, d)
-        att = att.reshape(n, b, self.n_heads, t, h).permute(0, 1, 3, 2, 4).reshape(n, b * t, d)
+        if self.n_heads == 1:  # no head permutes: (n, B*T, 3d) -> 3 x (n*B, T, d)
+            q, k, v = qkv.reshape(n * b, t, 3 * d).split(d, dim=-1)
+        else:  # (n, B*T, 3d) -> 3 x (n*B, heads, T, d/heads)
+            q, k, v = (
+                qkv.reshape(n, b, t, 3, self.n_heads, h)
+                .permute(3, 0, 1, 4, 2, 5)
+                .reshape(3, n * b, self.n_heads, t, h)
+            )
+        scores = th.matmul(q, k.transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, [heads,] T, T)
+        att = th.matmul(_softmax(scores), v)
+        if self.n_heads == 1:
+            att = att.reshape(n, b * t, d)
+        else:  # (n*B, heads, T, d/heads) -> (n, B*T, d)
+            att = att.reshape(n, b, self.n_heads, t, h).permute(0, 1, 3, 2, 4).reshape(n, b * t, d)
         flat = flat + self.out(att)
         flat = flat + self.ff2(self.act(self.ff1(self.norm2(flat))))
         return flat.reshape(n, b, t, d)
@@ -183,7 +193,7 @@ class ChunkCritics(nn.Module):
         n_critics: int = 2,
         embed_dim: int = 64,
         n_layers: int = 1,
-        n_heads: int = 4,
+        n_heads: int = 1,
         ff_dim: int = 128,
         activation_fn: type[nn.Module] = nn.SiLU,
     ) -> None:
@@ -207,9 +217,9 @@ class ChunkCritics(nn.Module):
         b, c, k, a = chunks.shape
         n, d = self.n_critics, self.embed_dim
         obs_tok = self.obs_token(obs_history)  # (B, ℓ*obs_dim) -> (n, B, d)
-        obs_tok = obs_tok.unsqueeze(2).expand(n, b, c, d).reshape(n, b * c, 1, d)
-        act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b * c, k, d)
-        x = th.cat([obs_tok, act_tok], dim=2) + self.position  # (n, B*C, 1+k, d)
+        obs_tok = obs_tok.reshape(n, b, 1, 1, d).expand(n, b, c, 1, d)  # shared by the C candidates
+        act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b, c, k, d)
+        x = th.cat([obs_tok, act_tok], dim=3).reshape(n, b * c, k + 1, d) + self.position  # (n, B*C, 1+k, d)
         for block in self.blocks:
             x = block(x)
         q = self.head(self.norm(x[:, :, 0]))  # (n, B*C, d) -> (n, B*C, 1)
@@ -255,7 +265,7 @@ class UA2CPolicy(BasePolicy):
         net_arch: list[int] | None = None,
         critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
-        critic_n_heads: int = 2,
+        critic_n_heads: int = 1,
         critic_ff_dim: int = 64,
         n_critics: int = 2,
         activation_fn: type[nn.Module] = nn.SiLU,
@@ -265,7 +275,9 @@ class UA2CPolicy(BasePolicy):
         if not isinstance(action_space, spaces.Box):
             raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
         if not isinstance(observation_space, spaces.Box):
-            raise ValueError(f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}")
+            raise ValueError(
+                f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}"
+            )
         super().__init__(
             observation_space,
             action_space,
@@ -285,7 +297,9 @@ class UA2CPolicy(BasePolicy):
             if int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if critic_embed_dim % critic_n_heads:
-            raise ValueError(f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}")
+            raise ValueError(
+                f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
+            )
         if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
             raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
         self.chunk_size, self.history_len = chunk_size, history_len
@@ -311,7 +325,9 @@ class UA2CPolicy(BasePolicy):
 
     def _build(self, lr_schedule: Schedule) -> None:
         history_dim = self.history_len * (self.obs_dim + self.action_dim)
-        self.actor = VelocityField(history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn)
+        self.actor = VelocityField(
+            history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn
+        )
         critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
         self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
         self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
@@ -460,13 +476,17 @@ class UA2CPolicy(BasePolicy):
         vectorized = obs.shape != self.observation_space.shape
         obs = obs.reshape(-1, self.obs_dim)
         n_envs = obs.shape[0]
-        executor = AdaptiveChunkExecutor(n_envs, self.obs_dim, self.action_dim, self.chunk_size, self.history_len)
+        executor = AdaptiveChunkExecutor(
+            n_envs, self.obs_dim, self.action_dim, self.chunk_size, self.history_len
+        )
         if episode_start is None:
             episode_start = np.zeros(n_envs, dtype=bool) if state is not None else np.ones(n_envs, dtype=bool)
         if state is not None:
             executor.load_state(state)
         step = executor.act(
-            obs, np.asarray(episode_start, dtype=bool).reshape(n_envs), lambda o, a: self.plan(o, a, deterministic)
+            obs,
+            np.asarray(episode_start, dtype=bool).reshape(n_envs),
+            lambda o, a: self.plan(o, a, deterministic),
         )
         if step.new_plan.any():
             if self.last_plan_lengths.shape != (n_envs,):

@@ -19,15 +19,20 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.save_util import load_from_pkl
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
-from stable_baselines3.common.utils import configure_logger, polyak_update, safe_mean, should_collect_more_steps
+from stable_baselines3.common.utils import (
+    configure_logger,
+    polyak_update,
+    safe_mean,
+    should_collect_more_steps,
+)
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer, OfflineEpisode
@@ -72,7 +77,14 @@ class UA2CConfig:
     offline_ratio: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("chunk_size", "history_len", "flow_steps", "target_flow_steps", "n_candidates", "n_target_candidates"):
+        for name in (
+            "chunk_size",
+            "history_len",
+            "flow_steps",
+            "target_flow_steps",
+            "n_candidates",
+            "n_target_candidates",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -81,7 +93,9 @@ class UA2CConfig:
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
                 raise ValueError(f"{name} must be a number, got {value!r}")
         if math.isinf(self.entropy_threshold) and self.entropy_threshold < 0:
-            raise ValueError("entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)")
+            raise ValueError(
+                "entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)"
+            )
         if not 0.0 <= self.q_weight < math.inf:
             raise ValueError(f"q_weight must be finite and >= 0, got {self.q_weight!r}")
         if not 0.0 <= self.offline_ratio <= 1.0:
@@ -201,14 +215,22 @@ class UA2C(OffPolicyAlgorithm):
             target_flow_steps=target_flow_steps,
             n_candidates=n_candidates,
             n_target_candidates=n_target_candidates,
-            entropy_threshold=float(entropy_threshold) if isinstance(entropy_threshold, int | np.integer) else entropy_threshold,
+            entropy_threshold=float(entropy_threshold)
+            if isinstance(entropy_threshold, int | np.integer)
+            else entropy_threshold,
             q_weight=q_weight,
             offline_ratio=offline_ratio,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
-            raise ValueError(f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}")
+            raise ValueError(
+                f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}"
+            )
         _check_policy_kwargs(policy_kwargs)
-        for name, value, low in [("batch_size", batch_size, 1), ("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0)]:
+        for name, value, low in [
+            ("batch_size", batch_size, 1),
+            ("buffer_size", buffer_size, 1),
+            ("learning_starts", learning_starts, 0),
+        ]:
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         if not 0.0 <= gamma <= 1.0:
@@ -252,7 +274,9 @@ class UA2C(OffPolicyAlgorithm):
         self.q_weight = float(self.config.q_weight)
         self.offline_ratio = float(self.config.offline_ratio)
         self.discrete_action_dims = (
-            None if discrete_action_dims is None else {int(k): [float(v) for v in vals] for k, vals in dict(discrete_action_dims).items()}
+            None
+            if discrete_action_dims is None
+            else {int(k): [float(v) for v in vals] for k, vals in dict(discrete_action_dims).items()}
         )
         if _init_setup_model:
             self._setup_model()
@@ -301,7 +325,15 @@ class UA2C(OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor", "critic", "critic_target", "_executor", "_plan_lengths", "_plan_entropy"]
+        return [
+            *super()._excluded_save_params(),
+            "actor",
+            "critic",
+            "critic_target",
+            "_executor",
+            "_plan_lengths",
+            "_plan_entropy",
+        ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "actor.optimizer", "critic.optimizer"], []
@@ -364,7 +396,11 @@ class UA2C(OffPolicyAlgorithm):
         :param log_interval: dump the logger every ``log_interval`` gradient steps
         :return: this model
         """
-        if isinstance(n_gradient_steps, bool) or not isinstance(n_gradient_steps, int | np.integer) or n_gradient_steps < 0:
+        if (
+            isinstance(n_gradient_steps, bool)
+            or not isinstance(n_gradient_steps, int | np.integer)
+            or n_gradient_steps < 0
+        ):
             raise ValueError(f"n_gradient_steps must be an integer >= 0, got {n_gradient_steps!r}")
         if log_interval < 1:
             raise ValueError(f"log_interval must be >= 1, got {log_interval!r}")
@@ -385,8 +421,12 @@ class UA2C(OffPolicyAlgorithm):
     # ------------------------------------------------------------------ rollouts
     def _random_plan(self, obs_history: np.ndarray, action_history: np.ndarray) -> PlanResult:
         m = obs_history.shape[0]
-        chunks = np.random.uniform(-1.0, 1.0, size=(m, self.chunk_size, self.policy.action_dim)).astype(np.float32)
-        return PlanResult(chunks, np.full(m, self.chunk_size), np.full((m, self.chunk_size), np.nan, dtype=np.float32))
+        # NumPy's global RNG, seeded by SB3's set_random_seed like its own warm-up sampling
+        chunks = np.random.uniform(-1.0, 1.0, size=(m, self.chunk_size, self.policy.action_dim))  # noqa: NPY002
+        chunks = chunks.astype(np.float32)
+        return PlanResult(
+            chunks, np.full(m, self.chunk_size), np.full((m, self.chunk_size), np.nan, dtype=np.float32)
+        )
 
     def _get_executor(self, n_envs: int) -> AdaptiveChunkExecutor:
         if self._executor is None or self._executor.n_envs != n_envs:
@@ -574,9 +614,13 @@ class UA2C(OffPolicyAlgorithm):
         b = data.chunks.shape[0]
         obs_flat = data.observation_history.reshape(b, -1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
         with th.no_grad():
-            next_cond = self.actor.condition(policy.flatten_history(data.next_observation_history, data.next_action_history))
+            next_cond = self.actor.condition(
+                policy.flatten_history(data.next_observation_history, data.next_action_history)
+            )
             candidates = policy.sample_chunks(next_cond, self.n_target_candidates, self.target_flow_steps)
-            next_q = self.critic_target(data.next_observation_history.reshape(b, -1), candidates.clamp(-1.0, 1.0))
+            next_q = self.critic_target(
+                data.next_observation_history.reshape(b, -1), candidates.clamp(-1.0, 1.0)
+            )
             next_value = next_q.min(dim=0).values.max(dim=1).values  # (n, B, Q) -> (B,)
             target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
         q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(-1)  # (n, B, 1) -> (n, B)
@@ -631,7 +675,9 @@ def _check_spaces(observation_space: spaces.Space | None, action_space: spaces.S
         raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
     if observation_space is not None and not isinstance(observation_space, spaces.Box):
         raise ValueError(f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}")
-    if isinstance(action_space, spaces.Box) and not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+    if isinstance(action_space, spaces.Box) and not (
+        np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))
+    ):
         raise ValueError("UA2C needs a bounded Box action space (finite low and high)")
 
 
@@ -646,9 +692,13 @@ def _check_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> None:
     }
     for key in policy_kwargs:
         if key in _POLICY_KWARGS_SET_BY_UA2C:
-            raise ValueError(f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead")
+            raise ValueError(
+                f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead"
+            )
         if key not in allowed - _POLICY_KWARGS_SET_BY_UA2C:
-            raise ValueError(f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed - _POLICY_KWARGS_SET_BY_UA2C)}")
+            raise ValueError(
+                f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed - _POLICY_KWARGS_SET_BY_UA2C)}"
+            )
 
 
 __all__ = ["UA2C", "UA2CConfig"]

@@ -11,14 +11,25 @@ OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
 ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 
 
+@pytest.fixture(autouse=True)
+def _seed_numpy():
+    np.random.seed(0)  # noqa: NPY002 - the buffer samples with NumPy's global RNG (seeded by SB3)
+
+
 def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5):
-    return ChunkReplayBuffer(size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio)
+    return ChunkReplayBuffer(
+        size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio
+    )
 
 
 def add_step(buf, t, plan=None, length=0, terminated=False, truncated=False, start=False, next_obs=None):
     """Step t of an episode: o_t = t, a_t = 0.1 (t + 1), r_t = t + 1."""
     new_plan = plan is not None
-    plans = np.zeros((1, buf.chunk_size, 1), np.float32) if plan is None else np.array(plan, np.float32).reshape(1, -1, 1)
+    plans = (
+        np.zeros((1, buf.chunk_size, 1), np.float32)
+        if plan is None
+        else np.array(plan, np.float32).reshape(1, -1, 1)
+    )
     buf.add(
         np.array([[t]], np.float32),
         np.array([[t + 1 if next_obs is None else next_obs]], np.float32),
@@ -43,7 +54,6 @@ def rows(samples):
 
 
 def test_online_plans_with_prefix_and_terminal_inside():
-    np.random.seed(0)
     buf = make_buffer()
     add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=2, start=True)
     add_step(buf, 1)
@@ -71,7 +81,6 @@ def test_online_plans_with_prefix_and_terminal_inside():
 
 
 def test_online_truncation_bootstraps_from_terminal_observation():
-    np.random.seed(0)
     buf = make_buffer()
     add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=3, start=True)
     add_step(buf, 1, truncated=True, next_obs=99.0)
@@ -111,7 +120,6 @@ def offline_episode(offset=0.0, terminated=True):
 
 
 def test_offline_windows_from_any_start():
-    np.random.seed(0)
     buf = make_buffer()
     assert buf.add_offline_episodes([offline_episode()]) == 4
     assert buf.n_samples() == (0, 4)
@@ -139,7 +147,6 @@ def test_offline_windows_from_any_start():
 
 
 def test_offline_time_limit_bootstraps():
-    np.random.seed(0)
     buf = make_buffer()
     buf.add_offline_episodes([offline_episode(terminated=False)])
     s = buf.sample(100)
@@ -147,7 +154,6 @@ def test_offline_time_limit_bootstraps():
 
 
 def test_offline_ratio_mixes_batches():
-    np.random.seed(0)
     buf = make_buffer(ratio=0.25)
     buf.add_offline_episodes([offline_episode(offset=100.0)])
     add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=1, start=True)
@@ -172,7 +178,6 @@ def test_offline_episode_validation():
 
 
 def test_several_envs_keep_their_own_episodes():
-    np.random.seed(0)
     buf = make_buffer(n_envs=2)
     for t in range(2):
         buf.add(

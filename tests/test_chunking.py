@@ -37,7 +37,9 @@ def test_gaussian_entropy_zero_variance_is_finite():
     h = gaussian_entropy(samples)
     assert th.allclose(h, th.full((3, 1), 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))))
     # a single candidate has variance 0 by definition
-    assert th.allclose(gaussian_entropy(th.ones(1, 2, 1)), th.full((2, 1), 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))))
+    assert th.allclose(
+        gaussian_entropy(th.ones(1, 2, 1)), th.full((2, 1), 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS)))
+    )
 
 
 def test_categorize_uses_equal_width_bins():

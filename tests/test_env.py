@@ -435,3 +435,23 @@ def test_import_without_sumo_and_clear_error():
 def test_envs_package_exports():
     assert envs.STYLES == STYLES
     assert envs.MixedTrafficEnv is MixedTrafficEnv
+
+
+def test_hdvs_reenter_and_av_leaves_the_road(make_env):
+    """Over a long episode the HDV count holds (leavers re-enter at the start); the AV leaving ends the episode."""
+    env = make_env(time_limit=120.0, ego_controller="sumo")
+    u = env.unwrapped
+    env.reset(seed=0)
+    seen_positions = {}
+    for _ in range(600):
+        _, _, terminated, truncated, info = env.step(act())
+        for vid, lane_id, pos in u.sim.lane_positions():
+            if vid.startswith("hdv_"):
+                seen_positions.setdefault(vid, []).append(lane_id.startswith("hw_in") and pos < 20.0)
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info["left_network"] and not info["collision"]
+    assert info["av_x"] == 1500.0 and info["slots"]["ids"] == ("",) * 6
+    assert len(u.hdv_styles()) + len(u.sim.pending_ids()) == 34
+    reentered = [vid for vid, near_start in seen_positions.items() if any(near_start[10:])]
+    assert len(reentered) >= 5  # vehicles seen again at the highway entry after the start

@@ -169,6 +169,8 @@ def test_reward_config_is_frozen():
         ({"time_limit": 0.0}, "time_limit"),
         ({"target_speed": 40.0}, "target_speed"),
         ({"ego_controller": "human"}, "ego_controller"),
+        ({"num_hdvs": 120}, "num_hdvs=120 do not fit"),
+        ({"hdv_spawn_length": 2000.0}, "hdv_spawn_length"),
         ({"reward": {"speeed": 1.0}}, "speeed"),
         ({"geometry": {"ramp_length": 500.0}}, "ramp_length"),
         ({"geometry": {"lanes": 4}}, "lanes"),
@@ -198,3 +200,22 @@ def test_geometry_rejects_bad_values():
         ScenarioGeometry(ramp_length=500.0)
     with pytest.raises(ValueError, match="speed_limit"):
         ScenarioGeometry(speed_limit=0.0)
+
+
+def test_scenario_cache_dir_override_and_reuse(tmp_path, monkeypatch):
+    pytest.importorskip("sumo")  # netconvert comes with the eclipse-sumo wheel
+    from envs.scenario import CACHE_ENV_VAR, build_scenario, cache_dir
+
+    monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
+    assert cache_dir() == tmp_path
+    files = build_scenario()
+    assert files.net_file.parent.parent == tmp_path and files.net_file.exists() and files.route_file.exists()
+    net = files.net_file.read_text()
+    assert 'id="merge_0"' in net and 'allow="custom1"' in net  # the acceleration lane, AV only
+    assert '<connection from="merge" to="hw_out" fromLane="0"' not in net  # it ends
+    mtime = files.net_file.stat().st_mtime_ns
+    again = build_scenario()
+    assert again.net_file == files.net_file and again.net_file.stat().st_mtime_ns == mtime  # cached
+    assert files.road_x("merge", 10.0) == 410.0 and files.road_x("ramp", 0.0) == 150.0
+    other = build_scenario(ScenarioGeometry(highway_out_length=600.0))
+    assert other.net_file != files.net_file  # keyed by content

@@ -81,7 +81,9 @@ def test_rollout_logs_executed_length_and_entropy():
 
 @pytest.mark.parametrize("chunk_size, entropy_threshold", [(1, 0.0), (4, math.inf), (3, -100.0)])
 def test_one_step_fixed_and_adaptive_share_the_code_path(chunk_size, entropy_threshold):
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=chunk_size, entropy_threshold=entropy_threshold, **FAST)
+    model = UA2C(
+        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=chunk_size, entropy_threshold=entropy_threshold, **FAST
+    )
     model.learn(120)
     lengths = set(model._plan_lengths)
     if chunk_size == 1 or entropy_threshold < 0:
@@ -108,7 +110,9 @@ def test_discrete_action_dims_vectorized_envs_and_action_noise():
 
 
 def test_subproc_vec_env():
-    env = make_vec_env("Pendulum-v1", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork"))
+    env = make_vec_env(
+        "Pendulum-v1", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork")
+    )
     try:
         model = UA2C("MlpPolicy", env, seed=0, **FAST).learn(140)
         assert model.num_timesteps == 140

@@ -42,7 +42,9 @@ def rollout_actions(model: UA2C, n: int = 12) -> np.ndarray:
 
 
 def test_save_load_same_actions_and_hyperparameters(tmp_path):
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=-0.5, **FAST)
+    model = UA2C(
+        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=-0.5, **FAST
+    )
     model.learn(120)
     before = rollout_actions(model)
     model.save(tmp_path / "ua2c.zip")
@@ -53,7 +55,10 @@ def test_save_load_same_actions_and_hyperparameters(tmp_path):
         assert th.equal(v, loaded.policy.state_dict()[k]), k
     np.testing.assert_array_equal(rollout_actions(loaded), before)
     # optimizer states are restored as well
-    assert loaded.actor.optimizer.state_dict()["state"].keys() == model.actor.optimizer.state_dict()["state"].keys()
+    assert (
+        loaded.actor.optimizer.state_dict()["state"].keys()
+        == model.actor.optimizer.state_dict()["state"].keys()
+    )
 
 
 def test_deterministic_predict_is_a_function_of_the_history():
@@ -112,7 +117,11 @@ def test_offline_episodes_and_pretrain_without_env_interaction():
         while not done:
             action = env.action_space.sample()
             obs, reward, term, trunc, _ = env.step(action)
-            for key, value in zip(("actions", "rewards", "terminations", "truncations"), (action, reward, term, trunc), strict=True):
+            for key, value in zip(
+                ("actions", "rewards", "terminations", "truncations"),
+                (action, reward, term, trunc),
+                strict=True,
+            ):
                 rows[key].append(value)
             rows["observations"].append(obs)
             done = term or trunc
@@ -120,7 +129,9 @@ def test_offline_episodes_and_pretrain_without_env_interaction():
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, offline_ratio=0.5, **FAST)
     assert model.add_offline_episodes(episodes) == 400
     stored = model.replay_buffer.offline.actions[:200, 0, 0]
-    np.testing.assert_allclose(stored, episodes[0]["actions"][:, 0] / 2.0, atol=1e-6)  # Pendulum torque in [-2, 2]
+    np.testing.assert_allclose(
+        stored, episodes[0]["actions"][:, 0] / 2.0, atol=1e-6
+    )  # Pendulum torque in [-2, 2]
     before = params(model)
     model.pretrain(5, log_interval=2)
     assert model._n_updates == 5 and model.num_timesteps == 0

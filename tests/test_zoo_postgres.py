@@ -48,14 +48,15 @@ def _worker_command(storage: str, seed: int, log_folder: Path) -> list[str]:
         "--n-trials", str(TRIALS_PER_WORKER),
         "--sampler", "random",
         "--pruner", "none",
-        "-n", "200",
+        "-n", "100",
+        "--env-kwargs", "max_episode_steps:50",  # short evaluation episodes
         "--n-evaluations", "1",
         "--eval-episodes", "1",
         "--no-optim-plots",
         "--num-threads", "1",
         "--seed", str(seed),
         "-f", str(log_folder),
-        # The sweep checks the shared storage, not learning: no gradient step inside 200 steps.
+        # The sweep checks the shared storage, not learning: no gradient step inside 100 steps.
         "-params", "learning_starts:1000000", "buffer_size:1000",
     ]  # fmt: skip
 
@@ -106,3 +107,19 @@ def test_two_workers_share_a_postgres_study(postgres_server, tmp_path):
         params = convert_ua2c_params(t.params)
         assert space.gamma[0] <= params["gamma"] == t.user_attrs["gamma"] <= space.gamma[1]
         assert params["chunk_size"] in space.chunk_size
+
+    # --trial-id retrains with a stored trial's hyperparameters (through the UA2C converter).
+    # (rl-zoo3 ignores --trial-id 0, which is falsy: use trial 1.)
+    from sb3_ua2c import UA2C
+    from sb3_ua2c.zoo import main
+
+    main(["train", "--env", "Pendulum-v1", "--conf-file", str(REPO / "zoo_configs" / "ua2c.yml"),
+          "--storage", storage, "--study-name", "pendulum-sweep", "--trial-id", "1", "-n", "50",
+          "--eval-freq", "-1", "--verbose", "0", "-f", str(tmp_path / "retrain"),
+          "-params", "learning_starts:1000000", "buffer_size:1000"])  # fmt: skip
+    model = UA2C.load(tmp_path / "retrain" / "ua2c" / "Pendulum-v1_1" / "Pendulum-v1.zip")
+    chosen = convert_ua2c_params(study.trials[1].params)
+    assert (model.chunk_size, model.history_len, model.n_candidates) == (
+        chosen["chunk_size"], chosen["history_len"], chosen["n_candidates"],
+    )  # fmt: skip
+    assert model.policy.net_arch == chosen["policy_kwargs"]["net_arch"]

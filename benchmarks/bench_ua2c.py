@@ -1,0 +1,161 @@
+"""UA2C speed and learning benchmarks, each next to SB3 SAC measured in the same run.
+
+    python benchmarks/bench_ua2c.py latency      # replanning (S=32, k=10, N=10) vs SAC predict
+    python benchmarks/bench_ua2c.py throughput   # learn() env steps/s on Pendulum-v1, default hyperparameters
+    python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
+
+Everything runs on one CPU thread. The machine may be shared: read the ratios, not the absolute times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from collections.abc import Callable
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3 import SAC
+from stable_baselines3.common.evaluation import evaluate_policy
+from torch.utils.flop_counter import FlopCounterMode
+
+from sb3_ua2c import UA2C
+
+ENV_ID = "Pendulum-v1"
+
+
+def median_ms(fn: Callable[[], object], repeats: int, warmup: int = 20) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
+def flops(fn: Callable[[], object]) -> int:
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return counter.get_total_flops()
+
+
+def latency(repeats: int) -> None:
+    """One replanning of UA2C (S=32 candidates, k=10, N=10 Euler steps, min-Q selection, entropy,
+    prefix length) next to SAC's predict on the same observation."""
+    env = gym.make(ENV_ID)
+    obs, _ = env.reset(seed=0)
+    ua2c = UA2C("MlpPolicy", ENV_ID, chunk_size=10, n_candidates=32, flow_steps=10, seed=0)
+    sac = SAC("MlpPolicy", ENV_ID, seed=0)
+    policy = ua2c.policy
+    obs_h = np.repeat(obs[None, None], ua2c.history_len, axis=1).astype(np.float32)  # (1, ℓ, obs_dim)
+    act_h = np.zeros((1, ua2c.history_len, policy.action_dim), np.float32)
+    plan_ms = median_ms(lambda: policy.plan(obs_h, act_h), repeats)
+    sac_ms = median_ms(lambda: sac.predict(obs, deterministic=True), repeats)
+    # per env step with the executor state (replans only when the prefix is used up)
+    state = {"s": None}
+
+    def step() -> None:
+        _, state["s"] = ua2c.predict(obs, state=state["s"], episode_start=np.array([False]))
+
+    step_ms = median_ms(step, repeats)
+    obs_t = th.as_tensor(obs_h)
+    act_t = th.as_tensor(act_h)
+    with th.inference_mode():
+        plan_flops = flops(lambda: policy.plan_tensors(obs_t, act_t))
+        sac_flops = flops(lambda: sac.policy.actor(th.as_tensor(obs[None]), deterministic=True))
+    print(f"replanning UA2C (S=32, k=10, N=10): median {plan_ms:.3f} ms, {plan_flops / 1e6:.2f} MFLOP")
+    print(f"UA2C predict() per env step with state: median {step_ms:.3f} ms")
+    print(f"SAC predict: median {sac_ms:.3f} ms, {sac_flops / 1e6:.3f} MFLOP")
+    print(f"ratio replanning / SAC predict: {plan_ms / sac_ms:.1f}x  (goal: replanning <= 2 ms)")
+
+
+def _throughput(model: UA2C | SAC, warm_steps: int, steps: int) -> tuple[float, int]:
+    model.learn(warm_steps)
+    n0 = model._n_updates
+    start = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    return steps / (time.perf_counter() - start), model._n_updates - n0
+
+
+def throughput(steps: int) -> None:
+    """learn() env steps/s including training, at default hyperparameters, after each warm-up."""
+    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0)
+    sac = SAC("MlpPolicy", ENV_ID, seed=0)
+    ua2c_fps, ua2c_updates = _throughput(ua2c, ua2c.learning_starts + 200, steps)
+    sac_fps, sac_updates = _throughput(sac, sac.learning_starts + 200, steps)
+    data = ua2c.replay_buffer.sample(ua2c.batch_size)
+    ua2c_step_ms = median_ms(lambda: ua2c._gradient_step(data), 20, warmup=3)
+    sac_step_ms = median_ms(lambda: sac.train(1, sac.batch_size), 20, warmup=3)
+    ua2c_flops = flops(lambda: ua2c._gradient_step(data))
+    sac_flops = flops(lambda: sac.train(1, sac.batch_size))
+    print(
+        f"UA2C: {ua2c_fps:.1f} env steps/s, {ua2c_updates / steps:.2f} gradient steps per env step, "
+        f"gradient step {ua2c_step_ms:.1f} ms / {ua2c_flops / 1e9:.2f} GFLOP, mean L_t {ua2c.last_executed_length:.2f}"
+    )
+    print(
+        f"SAC:  {sac_fps:.1f} env steps/s, {sac_updates / steps:.2f} gradient steps per env step, "
+        f"gradient step {sac_step_ms:.1f} ms / {sac_flops / 1e9:.2f} GFLOP"
+    )
+    print(f"ratio UA2C / SAC throughput: {ua2c_fps / sac_fps:.2f}  (goal >= 0.5)")
+
+
+def learning(steps: int, seeds: list[int], eval_episodes: int) -> None:
+    """Mean deterministic return after ``steps`` env steps, UA2C and SAC at default hyperparameters."""
+    results: dict[str, list[float]] = {"UA2C": [], "SAC": []}
+    lengths = []
+    for seed in seeds:
+        for name, cls in (("UA2C", UA2C), ("SAC", SAC)):
+            start = time.perf_counter()
+            model = cls("MlpPolicy", ENV_ID, seed=seed)
+            model.learn(steps)
+            eval_env = gym.make(ENV_ID)
+            eval_env.reset(seed=10_000 + seed)
+            mean, std = evaluate_policy(
+                model, eval_env, n_eval_episodes=eval_episodes, deterministic=True, warn=False
+            )
+            results[name].append(float(mean))
+            extra = ""
+            if isinstance(model, UA2C):
+                lengths.append(model.last_executed_length)
+                extra = f", mean L_t {model.last_executed_length:.2f}"
+            print(
+                f"{name} seed {seed}: {mean:.1f} +/- {std:.1f} ({time.perf_counter() - start:.0f} s{extra})",
+                flush=True,
+            )
+    for name, values in results.items():
+        print(
+            f"{name}: mean return after {steps} steps over seeds {seeds}: {np.mean(values):.1f} "
+            f"(min {np.min(values):.1f}, max {np.max(values):.1f})"
+        )
+    print(f"UA2C mean executed length L_t: {np.mean(lengths):.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("part", choices=["latency", "throughput", "learning"])
+    parser.add_argument("--repeats", type=int, default=300, help="latency: timed calls")
+    parser.add_argument(
+        "--steps", type=int, default=None, help="throughput: 1000 timed steps; learning: 20000"
+    )
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    print(f"torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
+    if args.part == "latency":
+        latency(args.repeats)
+    elif args.part == "throughput":
+        throughput(args.steps or 1000)
+    else:
+        learning(args.steps or 20_000, args.seeds, args.eval_episodes)
+
+
+if __name__ == "__main__":
+    main()
