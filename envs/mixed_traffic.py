@@ -126,9 +126,10 @@ class MixedTrafficConfig:
             _check_number(name, key, getattr(self, key), strict=True)
         if not isinstance(self.a_min, (int, float)) or not (math.isfinite(self.a_min) and self.a_min < 0):
             raise ValueError(f"{name}.a_min must be a finite negative number, got {self.a_min!r}")
-        if self.step_length > 0.6:
+        min_tau = min(params["tau"] for params in STYLE_VTYPES.values())
+        if self.step_length > min_tau:
             raise ValueError(
-                f"{name}.step_length must be <= 0.6 s (the smallest HDV time headway), got {self.step_length!r}"
+                f"{name}.step_length must be <= {min_tau:g} s (the smallest HDV time headway), got {self.step_length!r}"
             )
         if self.time_limit < self.step_length:
             raise ValueError(f"{name}.time_limit must be >= step_length, got {self.time_limit!r}")

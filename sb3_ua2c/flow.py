@@ -90,9 +90,9 @@ def euler_sample(velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int) -> th.Ten
         raise ValueError(f"n_steps must be >= 1, got {n_steps}")
     x = x0
     dt = 1.0 / n_steps
+    taus = th.arange(n_steps, dtype=x0.dtype, device=x0.device) * dt
     for i in range(n_steps):
-        tau = th.full((), i * dt, dtype=x0.dtype, device=x0.device)
-        x = x + dt * velocity_fn(x, tau)
+        x = th.add(x, velocity_fn(x, taus[i]), alpha=dt)  # x + dt * v(x, tau_i)
     return x
 
 

@@ -172,7 +172,8 @@ class ChunkCritics(nn.Module):
 
     Token layout (compact): one token for the whole observation history (a linear projection of
     ``ℓ * obs_dim`` numbers) followed by ``k`` action tokens, each with a learned position
-    embedding; the value is read from the history token after the last block.
+    embedding; the value is a learned linear read-out of all ``1 + k`` output tokens, so that every
+    action position keeps its own non-linear path (a chunk return is a sum over its steps).
 
     :param obs_history_dim: ``ℓ * obs_dim``
     :param chunk_size: ``k``
@@ -206,7 +207,7 @@ class ChunkCritics(nn.Module):
             [_EnsembleBlock(n_critics, embed_dim, n_heads, ff_dim, activation_fn) for _ in range(n_layers)]
         )
         self.norm = _EnsembleLayerNorm(n_critics, embed_dim)
-        self.head = _EnsembleLinear(n_critics, embed_dim, 1)
+        self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
 
     def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
         """
@@ -222,8 +223,8 @@ class ChunkCritics(nn.Module):
         x = th.cat([obs_tok, act_tok], dim=3).reshape(n, b * c, k + 1, d) + self.position  # (n, B*C, 1+k, d)
         for block in self.blocks:
             x = block(x)
-        q = self.head(self.norm(x[:, :, 0]))  # (n, B*C, d) -> (n, B*C, 1)
-        return q.reshape(n, b, c)
+        x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, (k + 1) * d)  # (n, B*C, (1+k)*d)
+        return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
 
 
 class UA2CPolicy(BasePolicy):
@@ -286,7 +287,7 @@ class UA2CPolicy(BasePolicy):
             squash_output=True,
             normalize_images=False,
         )
-        net_arch = [256, 256] if net_arch is None else list(net_arch)
+        net_arch = [128, 128] if net_arch is None else list(net_arch)
         for name, value in [
             ("critic_embed_dim", critic_embed_dim),
             ("critic_n_layers", critic_n_layers),

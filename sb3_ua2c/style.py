@@ -274,15 +274,23 @@ class SlotSequences:
                 f"SlotSequences.update: ids and present must have length {self.n_slots}, "
                 f"got {len(ids)} and {present.shape}"
             )
-        same = np.array([bool(p) and ids[m] == self.ids[m] for m, p in enumerate(present)], dtype=bool)
-        # shift every sequence one step left, newest token at index seq_len - 1
-        self.tokens[:, :-1] = self.tokens[:, 1:]
-        self.tokens[:, -1] = np.where(present[:, None], features, 0.0)
-        restart = ~same
-        self.tokens[restart, :-1] = 0.0  # new occupant or empty slot: drop the old history
-        self.lengths = np.where(same, np.minimum(self.lengths + 1, self.seq_len), present.astype(np.int64))
+        flags = present.tolist()
+        same = np.fromiter(
+            (p and i == o for p, i, o in zip(flags, ids, self.ids, strict=True)),
+            dtype=bool,
+            count=self.n_slots,
+        )  # (n_slots,) same occupant as at the previous update
+        tokens = self.tokens
+        tokens[:, :-1] = tokens[:, 1:]  # shift left: the newest token goes to index seq_len - 1
+        tokens[:, -1] = features
+        np.minimum(self.lengths + 1, self.seq_len, out=self.lengths)
         self.changed = present & ~same
-        self.ids = [ids[m] if present[m] else "" for m in range(self.n_slots)]
+        if not same.all():
+            restart = ~same  # new occupant or empty slot: drop the old history
+            tokens[restart, :-1] = 0.0
+            tokens[~present, -1] = 0.0
+            self.lengths[restart] = present[restart]
+        self.ids = [i if p else "" for i, p in zip(ids, flags, strict=True)]
 
 
 # --------------------------------------------------------------------------------------------

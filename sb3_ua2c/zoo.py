@@ -19,11 +19,19 @@ Choices made here, where rl-zoo3 2.9.2 alone does not do what a UA2C user expect
 * rl-zoo3 ships no hyperparameters for ``ua2c``: ``train``/``optimize`` with ``--algo ua2c`` and no
   ``--conf-file`` stop with a message pointing at ``zoo_configs/ua2c.yml``.
 
+* Continuing with hyperparameters that change the networks' shapes (``chunk_size``,
+  ``history_len``) stops with an error naming the argument.
+* :class:`OfflineDatasetCallback` (YAML ``callback:``) keeps an offline dataset in UA2C's replay
+  buffer during online training.
+
 Sweeps: without ``--storage`` the study lives in memory (one process). ``--storage
 sqlite:///sweep.db`` keeps it on one machine; several workers on several machines share a
 study through ``--storage postgresql://user:password@host:5432/db --study-name NAME`` (Optuna's
-RDB storage, driver ``psycopg2``). ``--n-trials`` counts per worker; ``--max-total-trials`` caps
-the whole study.
+RDB storage, driver ``psycopg2``). The launcher creates Optuna's tables under a PostgreSQL
+advisory lock, so workers may start at the same moment on an empty database, and every trial
+records its worker (``"hostname:pid"``, user attribute ``worker``). ``--n-trials`` counts per
+worker; ``--max-total-trials`` caps the whole study (rl-zoo3 checks it after each trial, so
+workers finishing at the same moment can overshoot it by at most ``workers - 1``).
 """
 
 from __future__ import annotations
@@ -39,6 +47,8 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
+from stable_baselines3.common.callbacks import BaseCallback
+
 if TYPE_CHECKING:
     import optuna
 
@@ -53,6 +63,9 @@ NET_ARCHS: dict[str, tuple[int, ...]] = {
 
 # Key of the PostgreSQL advisory lock that serialises Optuna's schema creation between workers.
 _SCHEMA_LOCK_KEY = 0x55413243  # "UA2C"
+
+# rl-zoo3's flag and the prefix argparse accepts for it.
+_OPTIMIZE_FLAGS = frozenset({"-optimize", "--optimize", "--optimize-hyperparameters"})
 
 #: Keys of an rl-zoo3 hyperparameter entry that rl-zoo3 consumes itself; every other key of a
 #: ``zoo_configs/*.yml`` entry is passed to the algorithm's constructor.
@@ -72,15 +85,16 @@ ZOO_KEYS = frozenset(
     }
 )
 
-_USAGE = """usage: python -m sb3_ua2c.zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
+_USAGE = """usage: ua2c-zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
+       python -m sb3_ua2c.zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
 
-  train     rl-zoo3 train (``-i model.zip`` continues from a checkpoint, timesteps keep growing)
-  enjoy     rl-zoo3 enjoy (runs the stateful predict: adaptive chunks are replanned in place)
-  optimize  rl-zoo3 train --optimize-hyperparameters (Optuna; ``--storage postgresql://...``
-            lets workers on several machines share one study)
+  train     rl-zoo3 train; -i model.zip continues from a checkpoint (timesteps keep growing)
+  enjoy     rl-zoo3 enjoy; runs the stateful predict (adaptive chunks, replanning in place)
+  optimize  rl-zoo3 train --optimize-hyperparameters (Optuna); --storage postgresql://...
+            lets workers on several machines share one study
 
-``--algo`` defaults to ua2c. ``python -m sb3_ua2c.zoo train --help`` lists rl-zoo3's arguments.
-example: python -m sb3_ua2c.zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
+--algo defaults to ua2c. `ua2c-zoo train --help` lists rl-zoo3's own arguments.
+example: ua2c-zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
 """
 
 
@@ -145,8 +159,17 @@ class UA2CSearchSpace:
             if not all(isinstance(v, int) and not isinstance(v, bool) for v in getattr(self, name)):
                 raise ValueError(f"{name} must hold integers, got {getattr(self, name)!r}")
         if not (isinstance(self.net_arch, tuple) and self.net_arch and set(self.net_arch) <= set(NET_ARCHS)):
-            raise ValueError(f"net_arch must be a non-empty tuple of names among {sorted(NET_ARCHS)}, got {self.net_arch!r}")
-        for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "critic_embed_dim"):
+            raise ValueError(
+                f"net_arch must be a non-empty tuple of names among {sorted(NET_ARCHS)}, got {self.net_arch!r}"
+            )
+        for name in (
+            "batch_size",
+            "chunk_size",
+            "history_len",
+            "n_candidates",
+            "n_target_candidates",
+            "critic_embed_dim",
+        ):
             choices = getattr(self, name)
             if not (
                 isinstance(choices, tuple)
@@ -193,7 +216,9 @@ def sample_ua2c_params(
     """
     space = UA2CSearchSpace() if space is None else space
     sampled = {
-        "one_minus_gamma": trial.suggest_float("one_minus_gamma", 1.0 - space.gamma[1], 1.0 - space.gamma[0], log=True),
+        "one_minus_gamma": trial.suggest_float(
+            "one_minus_gamma", 1.0 - space.gamma[1], 1.0 - space.gamma[0], log=True
+        ),
         "learning_rate": trial.suggest_float("learning_rate", *space.learning_rate, log=True),
         "batch_size": trial.suggest_categorical("batch_size", space.batch_size),
         "tau": trial.suggest_float("tau", *space.tau, log=True),
@@ -255,13 +280,65 @@ def register(search_space: UA2CSearchSpace | None = None) -> None:
     if search_space is None:
         hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = sample_ua2c_params
     else:
-        hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = functools.partial(sample_ua2c_params, space=search_space)
+        hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] = functools.partial(
+            sample_ua2c_params, space=search_space
+        )
     hyperparams_opt.HYPERPARAMS_CONVERTER["ua2c"] = convert_ua2c_params
+
+
+class OfflineDatasetCallback(BaseCallback):
+    """
+    Put the episodes of an offline dataset into UA2C's replay buffer when training starts.
+
+    The rl-zoo way to keep offline data available online (paper §3.2: the buffer mixes offline
+    k-step windows into each minibatch with ``offline_ratio``), e.g. when continuing from an
+    offline pre-trained checkpoint with ``-i pretrained.zip``::
+
+        callback:
+          - sb3_ua2c.zoo.OfflineDatasetCallback:
+              dataset: data/merge
+
+    Nothing is added when the buffer already holds offline data (a ``replay_buffer.pkl`` next to
+    the checkpoint, which rl-zoo3 loads with ``-i``), so the data is never counted twice.
+
+    :param dataset: directory of a dataset written by ``python -m sb3_ua2c collect``
+        (:func:`sb3_ua2c.offline.write_dataset`)
+    :param verbose: 1 prints how many steps were added
+    """
+
+    def __init__(self, dataset: str | os.PathLike, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if not isinstance(dataset, str | os.PathLike) or not str(dataset):
+            raise ValueError(f"OfflineDatasetCallback: dataset must be a directory path, got {dataset!r}")
+        self.dataset = str(dataset)
+        #: environment steps added to the buffer (0 when it already held offline data)
+        self.n_added = 0
+
+    def _on_training_start(self) -> None:
+        from sb3_ua2c.offline import load_dataset
+
+        add_offline_episodes = getattr(self.model, "add_offline_episodes", None)
+        if add_offline_episodes is None:
+            raise ValueError(f"OfflineDatasetCallback needs a UA2C model, got {type(self.model).__name__}")
+        if self.model.replay_buffer.n_samples()[1] > 0:
+            if self.verbose:
+                print(
+                    f"OfflineDatasetCallback: the replay buffer already holds offline data, {self.dataset} not added"
+                )
+            return
+        dataset = load_dataset(self.dataset)
+        dataset.check_compatible(self.training_env)
+        self.n_added = add_offline_episodes(dataset.episodes)
+        if self.verbose:
+            print(f"OfflineDatasetCallback: {self.n_added} offline steps from {self.dataset}")
+
+    def _on_step(self) -> bool:
+        return True
 
 
 def _experiment_manager_class() -> type:
     """
-    rl-zoo3's ``ExperimentManager`` with two additions.
+    rl-zoo3's ``ExperimentManager`` with three additions.
 
     * Continued runs (``-i model.zip``) keep counting timesteps: rl-zoo3 2.9.2 calls
       ``model.learn(n_timesteps)``, which resets ``num_timesteps`` to 0 after loading a checkpoint;
@@ -378,11 +455,15 @@ def prepare_storage(storage: str | None, attempts: int = 5) -> None:
     try:
         if engine.dialect.name == "postgresql":
             with engine.connect() as connection:
-                connection.execute(sqlalchemy.text("SELECT pg_advisory_lock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+                connection.execute(
+                    sqlalchemy.text("SELECT pg_advisory_lock(:key)"), {"key": _SCHEMA_LOCK_KEY}
+                )
                 try:
                     optuna.storages.RDBStorage(storage)
                 finally:
-                    connection.execute(sqlalchemy.text("SELECT pg_advisory_unlock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+                    connection.execute(
+                        sqlalchemy.text("SELECT pg_advisory_unlock(:key)"), {"key": _SCHEMA_LOCK_KEY}
+                    )
             return
         for attempt in range(attempts):
             try:
@@ -416,7 +497,7 @@ def build_zoo_argv(command: str, args: Sequence[str]) -> list[str]:
     if algo is None:
         algo = "ua2c"
         zoo_args = ["--algo", algo, *zoo_args]
-    if command == "optimize" and not {"-optimize", "--optimize-hyperparameters"} & set(zoo_args):
+    if command == "optimize" and not _OPTIMIZE_FLAGS & set(zoo_args):
         zoo_args.append("--optimize-hyperparameters")
     if (
         command != "enjoy"
@@ -451,7 +532,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise SystemExit(f"error: {error}") from None
 
     register()
-    if {"-optimize", "--optimize-hyperparameters"} & set(zoo_argv):
+    if _OPTIMIZE_FLAGS & set(zoo_argv):
         prepare_storage(_option_value(zoo_argv, ("--storage",)))
     from rl_zoo3.enjoy import enjoy
     from rl_zoo3.train import train

@@ -96,7 +96,9 @@ class PostgresServer:
             argv = ["runuser", "-u", self.run_as, "--", *argv]
         result = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, check=False)
         if result.returncode != 0:
-            raise RuntimeError(f"{' '.join(argv)} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
+            raise RuntimeError(
+                f"{' '.join(argv)} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}"
+            )
         return result
 
     def start(self) -> PostgresServer:
@@ -104,15 +106,39 @@ class PostgresServer:
         if self.run_as is not None:
             entry = pwd.getpwnam(self.run_as)
             os.chown(self.root, entry.pw_uid, entry.pw_gid)
-        self._run("initdb", "-D", str(self.datadir), "-U", "postgres", "-A", "trust", "-E", "UTF8",
-                  "--no-locale", "--no-sync", timeout=120)
+        self._run(
+            "initdb",
+            "-D",
+            str(self.datadir),
+            "-U",
+            "postgres",
+            "-A",
+            "trust",
+            "-E",
+            "UTF8",
+            "--no-locale",
+            "--no-sync",
+            timeout=120,
+        )
         self.port = _free_port()
         options = (
             f"-c listen_addresses=127.0.0.1 -c port={self.port} -c unix_socket_directories={self.root} "
             "-c fsync=off -c synchronous_commit=off -c full_page_writes=off -c max_connections=50"
         )
-        self._run("pg_ctl", "-D", str(self.datadir), "-l", str(self.root / "server.log"), "-o", options,
-                  "-w", "-t", str(int(self.start_timeout)), "start", timeout=self.start_timeout + 10)
+        self._run(
+            "pg_ctl",
+            "-D",
+            str(self.datadir),
+            "-l",
+            str(self.root / "server.log"),
+            "-o",
+            options,
+            "-w",
+            "-t",
+            str(int(self.start_timeout)),
+            "start",
+            timeout=self.start_timeout + 10,
+        )
         return self
 
     def create_database(self, name: str) -> str:
@@ -128,7 +154,9 @@ class PostgresServer:
         deadline = time.monotonic() + self.start_timeout
         while True:
             try:
-                connection = psycopg2.connect(host="127.0.0.1", port=self.port, user="postgres", dbname="postgres")
+                connection = psycopg2.connect(
+                    host="127.0.0.1", port=self.port, user="postgres", dbname="postgres"
+                )
                 break
             except psycopg2.OperationalError:
                 if time.monotonic() > deadline:

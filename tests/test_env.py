@@ -61,7 +61,10 @@ def test_gymnasium_and_sb3_check_env(make_env):
 
     env = make_env(render_mode="rgb_array")
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # SB3 recommends a [-1, 1] action box; ours is in m/s²
+        warnings.simplefilter("error")  # any other checker warning fails the test
+        # SB3 recommends a [-1, 1] action box; ours is in m/s² (SB3's off-policy algorithms rescale)
+        warnings.filterwarnings("ignore", message="We recommend you to use a symmetric")
+        warnings.filterwarnings("ignore", message=".*we recommend using a symmetric and normalized space")
         # gymnasium's render and close sub-checks build a second env in this process, which
         # libsumo cannot host: they are covered by test_render_rgb_array and test_close_is_idempotent.
         gym_check_env(env.unwrapped, skip_render_check=True, skip_close_check=True)
@@ -455,3 +458,23 @@ def test_hdvs_reenter_and_av_leaves_the_road(make_env):
     assert len(u.hdv_styles()) + len(u.sim.pending_ids()) == 34
     reentered = [vid for vid, near_start in seen_positions.items() if any(near_start[10:])]
     assert len(reentered) >= 5  # vehicles seen again at the highway entry after the start
+
+
+def test_record_video(tmp_path):
+    pytest.importorskip("moviepy")
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(
+        gym.make("MixedTraffic-v0", render_mode="rgb_array", time_limit=2.0),
+        str(tmp_path / "videos"), episode_trigger=lambda _: True, disable_logger=True,
+    )
+    try:
+        env.reset(seed=0)
+        done = False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(act())
+            done = terminated or truncated
+    finally:
+        env.close()
+    videos = list((tmp_path / "videos").glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000

@@ -45,7 +45,9 @@ def unknown_keys(algo_cls: type, entry: dict) -> list[str]:
         if isinstance(policy_kwargs, str):
             policy_kwargs = eval(policy_kwargs, {"nn": nn})
         policy_cls = algo_cls.policy_aliases[entry["policy"]]
-        unknown += [f"policy_kwargs.{k}" for k in sorted(set(policy_kwargs) - _constructor_arguments(policy_cls))]
+        unknown += [
+            f"policy_kwargs.{k}" for k in sorted(set(policy_kwargs) - _constructor_arguments(policy_cls))
+        ]
     return unknown
 
 
@@ -124,16 +126,22 @@ def test_train_enjoy_and_continue_sac(tmp_path, capsys):
     assert start.num_timesteps == 300
 
     # -i with no gradient step: timesteps grow, weights are exactly the checkpoint's.
-    _train(tmp_path, "sac", "-n", "200", "--seed", "2", "-i", str(first), "-params", "learning_starts:1000000")
+    _train(
+        tmp_path, "sac", "-n", "200", "--seed", "2", "-i", str(first), "-params", "learning_starts:1000000"
+    )
     frozen = SAC.load(tmp_path / "sac" / "Pendulum-v1_2" / "Pendulum-v1.zip")
     assert frozen.num_timesteps == 500
-    assert all(torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(frozen), strict=True))
+    assert all(
+        torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(frozen), strict=True)
+    )
 
     # -i with learning: the same start, then the weights move.
     _train(tmp_path, "sac", "-n", "200", "--seed", "3", "-i", str(first))
     moved = SAC.load(tmp_path / "sac" / "Pendulum-v1_3" / "Pendulum-v1.zip")
     assert moved.num_timesteps == 500
-    assert not all(torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(moved), strict=True))
+    assert not all(
+        torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(moved), strict=True)
+    )
 
     capsys.readouterr()
     zoo.main(["enjoy", "--algo", "sac", "--env", "Pendulum-v1", "-f", str(tmp_path), "--exp-id", "1",
@@ -177,7 +185,9 @@ def test_train_enjoy_and_continue_ua2c(tmp_path, capsys):
     _train(tmp_path, "ua2c", "-n", "200", "--seed", "2", "-i", str(first), *_params(learning_starts=10**6))
     frozen = UA2C.load(tmp_path / "ua2c" / "Pendulum-v1_2" / "Pendulum-v1.zip")
     assert frozen.num_timesteps == 500
-    assert all(torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(frozen), strict=True))
+    assert all(
+        torch.equal(a, b) for a, b in zip(_policy_tensors(start), _policy_tensors(frozen), strict=True)
+    )
 
     # enjoy: rl-zoo3 passes state/episode_start, so the adaptive chunks are executed statefully.
     capsys.readouterr()
@@ -210,16 +220,17 @@ def test_train_ua2c_on_mixed_traffic_with_the_yaml_entry(mixed_traffic_checkpoin
     assert "policy" in params
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="UA2C.load: SB3 stores the data as JSON, so discrete_action_dims comes back with str keys "
-    "({'1': [...]}) and _setup_model rejects them",
-)
-def test_mixed_traffic_checkpoint_loads_back(mixed_traffic_checkpoint):
+def test_enjoy_the_mixed_traffic_checkpoint(mixed_traffic_checkpoint, capsys):
     from sb3_ua2c import UA2C
 
     model = UA2C.load(mixed_traffic_checkpoint)
-    assert model.discrete_action_dims == {1: [-1.0, 0.0, 1.0]}
+    assert model.policy.discrete_dims == {1: 3}  # lane change: 3 categories
+    capsys.readouterr()
+    zoo.main(["enjoy", "--env", "MixedTraffic-v0", "--gym-packages", "envs", "--no-render", "-n", "200",
+              "-f", str(mixed_traffic_checkpoint.parents[2]), "--num-threads", "1"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "Loading " + str(mixed_traffic_checkpoint) in out
+    assert "Episode Length" in out  # an episode ends within 200 steps (time limit 40 s at 0.2 s)
 
 
 def test_continue_rejects_a_chunk_size_that_differs_from_the_checkpoint(tmp_path):
@@ -282,11 +293,45 @@ def test_continue_online_from_an_offline_pretrained_checkpoint(tmp_path):
     )
 
 
+def test_offline_dataset_callback_adds_the_dataset_when_continuing(tmp_path):
+    from sb3_ua2c import UA2C
+    from sb3_ua2c.offline import write_dataset
+
+    env = gym.make("Pendulum-v1")
+    episodes = _random_episodes(2, seed=5)
+    dataset = write_dataset(
+        episodes, tmp_path / "data" / "pendulum-v0", env.observation_space, env.action_space
+    )
+    # A checkpoint without replay_buffer.pkl: the YAML/-params callback brings the data in.
+    checkpoint = tmp_path / "fresh.zip"
+    UA2C("MlpPolicy", env, seed=0, **TINY_UA2C).save(checkpoint)
+    callback = [{"sb3_ua2c.zoo.OfflineDatasetCallback": {"dataset": str(dataset)}}]
+    _train(tmp_path, "ua2c", "-n", "50", "-i", str(checkpoint), "--save-replay-buffer",
+           *_params(learning_starts=10**6, callback=callback))  # fmt: skip
+    buffer_model = UA2C("MlpPolicy", env, **TINY_UA2C)
+    buffer_model.load_replay_buffer(tmp_path / "ua2c" / "Pendulum-v1_1" / "replay_buffer.pkl")
+    # 2 episodes x 200 steps, one k-step window per start
+    assert buffer_model.replay_buffer.n_samples()[1] == 400
+
+
+def test_offline_dataset_callback_rejects_bad_input():
+    with pytest.raises(ValueError, match="dataset must be a directory path"):
+        zoo.OfflineDatasetCallback(dataset="")
+    callback = zoo.OfflineDatasetCallback(dataset="anywhere")
+    sac = SAC("MlpPolicy", "Pendulum-v1", buffer_size=10)
+    callback.init_callback(sac)
+    with pytest.raises(ValueError, match="needs a UA2C model, got SAC"):
+        callback.on_training_start({}, {})
+
+
 # --------------------------------------------------------------------------- sampler
 
 
 def test_convert_ua2c_params_maps_one_minus_gamma():
-    assert zoo.convert_ua2c_params({"one_minus_gamma": 0.01, "chunk_size": 5}) == {"gamma": 0.99, "chunk_size": 5}
+    assert zoo.convert_ua2c_params({"one_minus_gamma": 0.01, "chunk_size": 5}) == {
+        "gamma": 0.99,
+        "chunk_size": 5,
+    }
 
 
 def test_convert_ua2c_params_moves_policy_arguments_into_policy_kwargs():
@@ -318,7 +363,14 @@ def test_sampler_draws_inside_the_search_space():
         }
         assert space.gamma[0] <= params["gamma"] <= space.gamma[1]
         assert math.isclose(params["gamma"], trial.user_attrs["gamma"])
-        for name in ("learning_rate", "tau", "entropy_threshold", "q_weight", "flow_steps", "target_flow_steps"):
+        for name in (
+            "learning_rate",
+            "tau",
+            "entropy_threshold",
+            "q_weight",
+            "flow_steps",
+            "target_flow_steps",
+        ):
             low, high = getattr(space, name)
             assert low <= params[name] <= high, name
         for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates"):
@@ -378,4 +430,6 @@ def test_register_installs_the_sampler_in_rl_zoo():
     assert hyperparams_opt.HYPERPARAMS_CONVERTER["ua2c"] is zoo.convert_ua2c_params
     zoo.register()
     assert hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"] is zoo.sample_ua2c_params
-    assert np.isfinite(hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"](optuna.create_study().ask(), 1, 1, {})["gamma"])
+    assert np.isfinite(
+        hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"](optuna.create_study().ask(), 1, 1, {})["gamma"]
+    )

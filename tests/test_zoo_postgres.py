@@ -19,23 +19,47 @@ from sb3_ua2c.zoo import UA2CSearchSpace, convert_ua2c_params
 
 REPO = Path(__file__).resolve().parents[1]
 N_WORKERS = 2
-TRIALS_PER_WORKER = 3
+TRIALS_PER_WORKER = 2
 
 
 def _in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() in {"1", "true", "yes"}
 
 
-@pytest.fixture(scope="module")
-def postgres_server():
+def _server_or_fail() -> PostgresServer:
+    """The server object, or a test failure under CI (which installs PostgreSQL), or a skip elsewhere."""
     try:
-        server = PostgresServer()
+        return PostgresServer()
     except PostgresUnavailable as error:
         if _in_ci():
             pytest.fail(f"CI needs a PostgreSQL server for the sweep test: {error}")
         pytest.skip(f"no PostgreSQL server binaries on this machine: {error}")
-    with server:
+
+
+@pytest.fixture(scope="module")
+def postgres_server():
+    with _server_or_fail() as server:
         yield server
+
+
+@pytest.fixture
+def no_server_binaries(monkeypatch):
+    import postgres_server
+
+    monkeypatch.setattr(postgres_server.shutil, "which", lambda name: None)
+    monkeypatch.setattr(postgres_server.glob, "glob", lambda pattern: [])
+
+
+def test_missing_server_fails_under_ci(monkeypatch, no_server_binaries):
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="apt-get install -y postgresql"):
+        _server_or_fail()
+
+
+def test_missing_server_skips_on_a_developer_machine(monkeypatch, no_server_binaries):
+    monkeypatch.delenv("CI", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="no PostgreSQL server binaries"):
+        _server_or_fail()
 
 
 def _worker_command(storage: str, seed: int, log_folder: Path) -> list[str]:
