@@ -234,8 +234,10 @@ class SlotSequences:
         self.tokens = np.zeros((self.n_slots, self.seq_len, self.n_features), dtype=np.float32)
         #: (n_slots,) number of valid tokens
         self.lengths = np.zeros(self.n_slots, dtype=np.int64)
-        #: (n_slots,) True where the occupant changed (new sequence) at the last update
+        #: (n_slots,) True where a new occupant arrived (new sequence) at the last update
         self.changed = np.zeros(self.n_slots, dtype=bool)
+        #: (n_slots,) True where the slot became empty at the last update
+        self.vacated = np.zeros(self.n_slots, dtype=bool)
         self.ids: list[str] = [""] * self.n_slots
 
     def reset(self) -> None:
@@ -243,6 +245,7 @@ class SlotSequences:
         self.tokens[:] = 0.0
         self.lengths[:] = 0
         self.changed[:] = False
+        self.vacated[:] = False
         self.ids = [""] * self.n_slots
 
     @property
@@ -275,20 +278,19 @@ class SlotSequences:
                 f"got {len(ids)} and {present.shape}"
             )
         flags = present.tolist()
-        same = np.fromiter(
-            (p and i == o for p, i, o in zip(flags, ids, self.ids, strict=True)),
-            dtype=bool,
-            count=self.n_slots,
-        )  # (n_slots,) same occupant as at the previous update
+        # (n_slots,) same occupant as at the previous update
+        same = np.array([p and i == o for p, i, o in zip(flags, ids, self.ids, strict=True)], dtype=bool)
+        was_present = self.lengths > 0
         tokens = self.tokens
         tokens[:, :-1] = tokens[:, 1:]  # shift left: the newest token goes to index seq_len - 1
-        tokens[:, -1] = features
+        np.multiply(features, present[:, None], out=tokens[:, -1])  # an empty slot's token is zeros
         np.minimum(self.lengths + 1, self.seq_len, out=self.lengths)
+        self.lengths *= present
         self.changed = present & ~same
-        if not same.all():
-            restart = ~same  # new occupant or empty slot: drop the old history
+        self.vacated = was_present & ~present
+        restart = ~same & (present | was_present)  # new occupant, or slot just emptied
+        if restart.any():  # rare: drop the old history
             tokens[restart, :-1] = 0.0
-            tokens[~present, -1] = 0.0
             self.lengths[restart] = present[restart]
         self.ids = [i if p else "" for i, p in zip(ids, flags, strict=True)]
 
@@ -728,7 +730,16 @@ class RandomDriver:
         return np.array([self._accel, lane], dtype=np.float32)
 
 
-def _slots_from_info(info: dict, n_slots: int, n_features: int) -> dict[str, Any]:
+def read_slots(
+    info: dict, n_slots: int = len(SLOT_NAMES), n_features: int = len(SLOT_FEATURES)
+) -> dict[str, Any]:
+    """Return ``info["slots"]`` after checking it follows the slot contract of ``MixedTraffic-v0``.
+
+    :param info: the ``info`` dict of ``reset`` or ``step``
+    :param n_slots: expected number of slots
+    :param n_features: expected features per slot
+    :return: the dict with ``ids``, ``styles``, ``features`` (n_slots, n_features), ``present``
+    """
     if "slots" not in info:
         raise ValueError(
             "the environment's info has no 'slots' entry (see the MixedTraffic-v0 slot contract)"
@@ -817,7 +828,7 @@ def collect_style_dataset(
             seqs.reset()
             t, done = 0, False
             while True:
-                slots = _slots_from_info(info, n_slots, n_features)
+                slots = read_slots(info, n_slots, n_features)
                 seqs.update(slots["ids"], slots["features"], slots["present"])
                 if t % stride == 0:
                     styles = np.asarray(slots["styles"])
@@ -935,7 +946,9 @@ def plot_confusion(
 
     m = np.asarray(matrix, dtype=np.float64)
     rate = m / np.maximum(m.sum(0, keepdims=True), 1.0)  # per ground-truth column
-    fig = Figure(figsize=(4.6, 4.0), dpi=120)  # no pyplot: the user's backend stays untouched
+    fig = Figure(
+        figsize=(5.0, 4.2), dpi=120, layout="constrained"
+    )  # no pyplot: the user's backend stays untouched
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     im = ax.imshow(rate, cmap="Blues", vmin=0.0, vmax=1.0)
@@ -952,14 +965,13 @@ def plot_confusion(
             )
     ax.set_xticks(range(len(class_names)), class_names)
     ax.set_yticks(range(len(class_names)), class_names)
-    ax.set_xlabel("ground truth")
+    ax.set_xlabel("ground truth (cells: share of the column, count)")
     ax.set_ylabel("inferred")
     if title:
         ax.set_title(title, fontsize=9)
-    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-    fig.tight_layout()
+    fig.colorbar(im, ax=ax, shrink=0.85)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    fig.savefig(path, bbox_inches="tight", pad_inches=0.1)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1208,6 +1220,8 @@ def evaluate_style_classifier(
         "confusion_matrix_layout": "rows = inferred style, columns = ground truth",
         "classes": list(names),
         "test_episodes": [int(e) for e in test_episodes],
+        "dataset": dict(dataset.meta),
+        "classifier_config": dataclasses.asdict(model.config),
     }
     lengths = te.lengths
     by_len = {}
@@ -1271,8 +1285,13 @@ def build_parser() -> argparse.ArgumentParser:
         "MixedTraffic-v0, train the Transformer classifier, evaluate it against a baseline.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    c = sub.add_parser("collect", help="roll out the environment and save labelled slot sequences (.npz)")
-    c.add_argument("--episodes", type=int, default=60, help="number of episodes (default: 60)")
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    c = sub.add_parser(
+        "collect",
+        formatter_class=fmt,
+        help="roll out the environment and save labelled slot sequences (.npz)",
+    )
+    c.add_argument("--episodes", type=int, default=1500, help="number of episodes")
     c.add_argument("--out", default="style_data.npz", help="output .npz file")
     c.add_argument("--env", default="MixedTraffic-v0", help="gymnasium id")
     c.add_argument("--seq-len", type=int, default=20, help="tokens per slot sequence ℓ")
@@ -1283,17 +1302,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--sumo-driver-fraction",
         type=float,
         default=0.5,
-        help="share of episodes where SUMO drives the AV (the rest: random driver; default 0.5)",
+        help="share of episodes where SUMO drives the AV (the rest: random driver)",
     )
     c.add_argument("--env-kwargs", nargs="*", metavar="KEY=VALUE", help="gym.make keyword arguments")
     c.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    t = sub.add_parser("train", help="train the classifier with early stopping (split by episode)")
+    t = sub.add_parser(
+        "train", formatter_class=fmt, help="train the classifier with early stopping (split by episode)"
+    )
     t.add_argument("--data", required=True, help=".npz written by collect")
     t.add_argument("--out", default="style_classifier.pt", help="output weights file")
     t.add_argument("--model", nargs="*", metavar="KEY=VALUE", help="StyleClassifierConfig fields")
     t.add_argument("--train", nargs="*", metavar="KEY=VALUE", help="StyleTrainConfig fields")
     t.add_argument("--no-progress", action="store_true")
-    e = sub.add_parser("evaluate", help="evaluate on the held-out episodes, with the baseline")
+    e = sub.add_parser(
+        "evaluate", formatter_class=fmt, help="evaluate on the held-out episodes, with the baseline"
+    )
     e.add_argument("--data", required=True, help=".npz written by collect")
     e.add_argument("--model", required=True, help="weights file written by train")
     e.add_argument("--json", default="results/style_eval.json", help="metrics output")

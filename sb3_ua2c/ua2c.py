@@ -35,7 +35,7 @@ from stable_baselines3.common.utils import (
 )
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, OfflineEpisode
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ExecutorStep,
@@ -609,7 +609,8 @@ class UA2C(OffPolicyAlgorithm):
             self.logger.record("train/q_term", float(np.mean(q_terms)))
             self.logger.record("train/q_mean", float(np.mean(q_values)))
 
-    def _gradient_step(self, data: Any) -> dict[str, float]:
+    def _gradient_step(self, data: ChunkReplaySamples) -> dict[str, float]:
+        """One update of the critics (Eq. 3 with the target of Eq. 4 / 8), the actor (Eq. 2) and the targets."""
         policy = self.policy
         b = data.chunks.shape[0]
         obs_flat = data.observation_history.reshape(b, -1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
@@ -637,8 +638,11 @@ class UA2C(OffPolicyAlgorithm):
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
-        q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)  # (B,)
-        self.critic.requires_grad_(True)
+        try:
+            # (n, B, 1) -> (B,)
+            q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)
+        finally:
+            self.critic.requires_grad_(True)
         loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight)
         self.actor.optimizer.zero_grad()
         loss.backward()

@@ -20,8 +20,8 @@ from sb3_ua2c.style import (
     SLOT_NAMES,
     DrivingStyleClassifier,
     SlotSequences,
-    _slots_from_info,
     load_classifier,
+    read_slots,
 )
 
 
@@ -44,15 +44,17 @@ class DrivingStyleContext(gym.Wrapper):
     ``update_every`` steps (counted from ``reset``, which always runs it) over all occupied
     slots; in between, a slot keeps the distribution of its (same) occupant, and a slot whose
     occupant changed shows the uniform distribution ("vehicle present, style not inferred yet")
-    until the next refresh. ``update_every=1`` is Eq. 6 at every step. The default of 5 steps
-    (1 s of ``MixedTraffic-v0``) bounds the cost to one forward per 5 steps.
+    until the next refresh. ``update_every=1`` is Eq. 6 at every step. The default of 10 steps
+    (2 s of ``MixedTraffic-v0``) keeps the overhead under ~20% of an env step
+    (``benchmarks/bench_style.py``); a new occupant's first ~10 tokens classify least reliably
+    anyway.
 
     Usable from an rl-zoo YAML file::
 
         env_wrapper:
           - sb3_ua2c.wrappers.DrivingStyleContext:
               classifier: path/to/style_classifier.pt
-              update_every: 5
+              update_every: 10
 
     The wrapper holds no simulator state of its own and pickles with its classifier, so it works
     in ``SubprocVecEnv`` workers.
@@ -68,7 +70,7 @@ class DrivingStyleContext(gym.Wrapper):
         self,
         env: gym.Env,
         classifier: DrivingStyleClassifier | str | os.PathLike | None = None,
-        update_every: int = 5,
+        update_every: int = 10,
         empty: str = "zeros",
     ):
         super().__init__(env)
@@ -110,6 +112,7 @@ class DrivingStyleContext(gym.Wrapper):
     ) -> tuple[np.ndarray, dict]:
         obs, info = self.env.reset(seed=seed, options=options)
         self._sequences.reset()
+        self.context[:] = self._fill
         self._t = 0
         return self._observation(obs, info), info
 
@@ -119,15 +122,15 @@ class DrivingStyleContext(gym.Wrapper):
 
     def _observation(self, obs: np.ndarray, info: dict) -> np.ndarray:
         seqs = self._sequences
-        slots = _slots_from_info(info, seqs.n_slots, seqs.n_features)
+        slots = read_slots(info, seqs.n_slots, seqs.n_features)
         seqs.update(slots["ids"], slots["features"], slots["present"])
-        present = seqs.present
         tick = self._t % self.update_every == 0
         self._t += 1
-        self.context[~present] = self._fill
+        if seqs.vacated.any():
+            self.context[seqs.vacated] = self._fill
         if tick:
-            if present.any():
-                rows = np.flatnonzero(present)
+            rows = np.flatnonzero(seqs.lengths)  # occupied slots
+            if rows.size:
                 self.n_forwards += 1
                 with torch.inference_mode():
                     logits = self.classifier(

@@ -534,16 +534,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     register()
     if _OPTIMIZE_FLAGS & set(zoo_argv):
         prepare_storage(_option_value(zoo_argv, ("--storage",)))
-    from rl_zoo3.enjoy import enjoy
-    from rl_zoo3.train import train
-
     program = f"ua2c-zoo {command}"
     saved_argv = sys.argv
     sys.argv = [program, *zoo_argv]
     try:
         if command == "enjoy":
+            from rl_zoo3.enjoy import enjoy
+
             enjoy()
         else:
+            from rl_zoo3.train import train
+
             with _patched_train_module():
                 train()
     finally:

@@ -106,39 +106,26 @@ class PostgresServer:
         if self.run_as is not None:
             entry = pwd.getpwnam(self.run_as)
             os.chown(self.root, entry.pw_uid, entry.pw_gid)
-        self._run(
-            "initdb",
-            "-D",
-            str(self.datadir),
-            "-U",
-            "postgres",
-            "-A",
-            "trust",
-            "-E",
-            "UTF8",
-            "--no-locale",
-            "--no-sync",
-            timeout=120,
-        )
-        self.port = _free_port()
-        options = (
-            f"-c listen_addresses=127.0.0.1 -c port={self.port} -c unix_socket_directories={self.root} "
-            "-c fsync=off -c synchronous_commit=off -c full_page_writes=off -c max_connections=50"
-        )
-        self._run(
-            "pg_ctl",
-            "-D",
-            str(self.datadir),
-            "-l",
-            str(self.root / "server.log"),
-            "-o",
-            options,
-            "-w",
-            "-t",
-            str(int(self.start_timeout)),
-            "start",
-            timeout=self.start_timeout + 10,
-        )
+        initdb = ("initdb", "-D", str(self.datadir), "-U", "postgres", "-A", "trust", "-E", "UTF8",
+                  "--no-locale", "--no-sync")  # fmt: skip
+        self._run(*initdb, timeout=120)
+        for attempt in range(3):  # the free port may be taken between probing and binding
+            self.port = _free_port()
+            options = (
+                f"-c listen_addresses=127.0.0.1 -c port={self.port} -c unix_socket_directories={self.root} "
+                "-c fsync=off -c synchronous_commit=off -c full_page_writes=off -c max_connections=50"
+            )
+            pg_ctl = ("pg_ctl", "-D", str(self.datadir), "-l", str(self.root / "server.log"), "-o", options,
+                      "-w", "-t", str(int(self.start_timeout)), "start")  # fmt: skip
+            try:
+                self._run(*pg_ctl, timeout=self.start_timeout + 10)
+                break
+            except RuntimeError:
+                if attempt == 2:
+                    log = self.root / "server.log"
+                    raise RuntimeError(
+                        f"PostgreSQL did not start:\n{log.read_text() if log.exists() else ''}"
+                    ) from None
         return self
 
     def create_database(self, name: str) -> str:
@@ -176,7 +163,8 @@ class PostgresServer:
             return
         try:
             if (self.datadir / "postmaster.pid").exists():
-                self._run("pg_ctl", "-D", str(self.datadir), "-m", "fast", "-w", "stop", timeout=60)
+                # A throw-away cluster: no shutdown checkpoint needed.
+                self._run("pg_ctl", "-D", str(self.datadir), "-m", "immediate", "-w", "stop", timeout=60)
         finally:
             shutil.rmtree(self.root, ignore_errors=True)
             self.root = None

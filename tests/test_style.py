@@ -9,6 +9,7 @@ import torch
 from style_helpers import make_generated_dataset
 
 from sb3_ua2c.style import (
+    DEFAULT_CLASSIFIER_PATH,
     SLOT_FEATURES,
     SLOT_NAMES,
     STYLES,
@@ -20,6 +21,7 @@ from sb3_ua2c.style import (
     StyleTrainConfig,
     attention_bias,
     classification_metrics,
+    collect_style_dataset,
     confusion_matrix,
     evaluate_style_classifier,
     load_classifier,
@@ -350,3 +352,29 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train", "--data", str(tmp_path / "d.npz"), "--model", "d_modle=8", "--no-progress"])
     assert "d_modle" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- environment and package data
+def test_collect_from_mixed_traffic():
+    pytest.importorskip("libsumo")
+    pytest.importorskip("envs.mixed_traffic")
+    ds = collect_style_dataset(
+        3, seq_len=6, stride=2, seed=5, max_steps_per_episode=30, sumo_driver_fraction=0.5, progress_bar=False
+    )
+    assert len(ds) > 0 and ds.tokens.shape[1:] == (6, F)
+    assert set(np.unique(ds.episodes)) <= {0, 1, 2}
+    assert ds.labels.min() >= 0 and ds.labels.max() < len(STYLES)
+    assert ds.valid[:, -1].all()  # the newest token is always valid
+    np.testing.assert_array_equal(ds.tokens[~ds.valid], 0.0)
+    assert ds.meta["seq_len"] == 6 and ds.meta["features"] == list(SLOT_FEATURES)
+    with pytest.raises(ValueError, match="sumo_driver_fraction"):
+        collect_style_dataset(1, sumo_driver_fraction=2.0)
+
+
+def test_packaged_classifier_loads():
+    if not DEFAULT_CLASSIFIER_PATH.is_file():
+        pytest.skip("no packaged classifier in this checkout")
+    model = load_classifier(None)
+    assert model.config.n_features == len(SLOT_FEATURES) and model.config.n_classes == len(STYLES)
+    assert model.metadata["styles"] == list(STYLES) and model.metadata["features"] == list(SLOT_FEATURES)
+    assert DEFAULT_CLASSIFIER_PATH.stat().st_size < 300_000

@@ -147,8 +147,9 @@ def test_pickle_and_subproc_vec_env(classifier):
 def test_mixed_traffic_observation_grows_from_20_to_38(classifier):
     pytest.importorskip("libsumo")
     pytest.importorskip("envs.mixed_traffic")
-    import envs  # noqa: F401  (registers MixedTraffic-v0)
     from stable_baselines3.common.env_checker import check_env
+
+    import envs  # noqa: F401  (registers MixedTraffic-v0)
 
     clf = DrivingStyleClassifier(StyleClassifierConfig(d_model=16, n_heads=2, dim_feedforward=16)).eval()
     env = DrivingStyleContext(gym.make("MixedTraffic-v0"), classifier=clf, update_every=1)
@@ -167,3 +168,13 @@ def test_mixed_traffic_observation_grows_from_20_to_38(classifier):
                 break
     finally:
         env.close()
+
+
+def test_packaged_classifier_is_the_default():
+    from sb3_ua2c.style import DEFAULT_CLASSIFIER_PATH
+
+    if not DEFAULT_CLASSIFIER_PATH.is_file():
+        pytest.skip("no packaged classifier in this checkout")
+    env = DrivingStyleContext(FakeSlotEnv())
+    assert env.classifier.config.seq_len == 20
+    assert env.reset(seed=0)[0].shape == (38,)

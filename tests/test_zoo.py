@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
 import math
 from pathlib import Path
@@ -48,13 +49,24 @@ def unknown_keys(algo_cls: type, entry: dict) -> list[str]:
         unknown += [
             f"policy_kwargs.{k}" for k in sorted(set(policy_kwargs) - _constructor_arguments(policy_cls))
         ]
+    wrappers = entry.get("env_wrapper") or []
+    for wrapper in wrappers if isinstance(wrappers, list) else [wrappers]:
+        name, kwargs = next(iter(wrapper.items())) if isinstance(wrapper, dict) else (wrapper, {})
+        module, _, cls_name = name.rpartition(".")
+        wrapper_cls = getattr(importlib.import_module(module), cls_name)
+        unknown += [
+            f"{cls_name}.{k}" for k in sorted(set(kwargs or {}) - _constructor_arguments(wrapper_cls))
+        ]
     return unknown
 
 
 def test_unknown_keys_detects_a_misspelled_key():
     entry = {"policy": "MlpPolicy", "n_timesteps": 10, "learning_rate": 1e-3, "learnig_starts": 5,
-             "policy_kwargs": "dict(net_arch=[8], n_critic=3)"}  # fmt: skip
-    assert unknown_keys(SAC, entry) == ["learnig_starts", "policy_kwargs.n_critic"]
+             "policy_kwargs": "dict(net_arch=[8], n_critic=3)",
+             "env_wrapper": [{"sb3_ua2c.wrappers.DrivingStyleContext": {"update_evry": 5}}]}  # fmt: skip
+    assert unknown_keys(SAC, entry) == [
+        "learnig_starts", "policy_kwargs.n_critic", "DrivingStyleContext.update_evry",
+    ]  # fmt: skip
 
 
 @pytest.mark.parametrize("config", sorted(CONFIGS.glob("*.yml")), ids=lambda p: p.name)
@@ -66,9 +78,15 @@ def test_yaml_keys_are_constructor_arguments_or_zoo_keys(config):
         assert unknown_keys(algo_cls, entry) == [], f"{config.name}:{env_id}"
 
 
-def test_baselines_share_the_env_ids_of_ua2c():
-    env_ids = {p.stem: set(yaml.safe_load(p.read_text())) for p in CONFIGS.glob("*.yml")}
-    assert env_ids["sac"] == env_ids["tqc"] == env_ids.get("ua2c", env_ids["sac"])
+def test_baselines_share_env_ids_and_budgets_with_ua2c():
+    configs = {p.stem: yaml.safe_load(p.read_text()) for p in CONFIGS.glob("*.yml")}
+    assert set(configs) == {"ua2c", "sac", "tqc"}
+    assert set(configs["sac"]) == set(configs["tqc"]) == set(configs["ua2c"])
+    # Same training budget and discount on each env id: the comparisons are like for like.
+    for env_id in configs["ua2c"]:
+        for key in ("n_timesteps", "gamma"):
+            values = {algo: float(entries[env_id].get(key, 0.99)) for algo, entries in configs.items()}
+            assert len(set(values.values())) == 1, (env_id, key, values)
 
 
 # --------------------------------------------------------------------------- launcher arguments
@@ -102,6 +120,26 @@ def test_main_without_arguments_prints_usage_and_exits(capsys):
     assert "train" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="Unknown command 'fit'"):
         zoo.main(["fit"])
+
+
+def test_optimize_flag_prefix_is_recognised():
+    # argparse accepts --optimize for --optimize-hyperparameters: not appended a second time.
+    assert zoo.build_zoo_argv("optimize", ["--algo", "sac", "--optimize"]) == ["--algo", "sac", "--optimize"]
+
+
+def test_prepare_storage_creates_the_optuna_schema_once(tmp_path):
+    import sqlalchemy
+
+    zoo.prepare_storage(None)  # in-memory study: nothing to do
+    zoo.prepare_storage(str(tmp_path / "journal.log"))  # journal file: nothing to do
+    assert not (tmp_path / "journal.log").exists()
+    url = f"sqlite:///{tmp_path / 'sweep.db'}"
+    zoo.prepare_storage(url)
+    zoo.prepare_storage(url)  # idempotent
+    engine = sqlalchemy.create_engine(url)
+    tables = set(sqlalchemy.inspect(engine).get_table_names())
+    engine.dispose()
+    assert {"studies", "trials", "trial_params", "alembic_version"} <= tables
 
 
 # --------------------------------------------------------------------------- train / enjoy / continue
@@ -200,7 +238,8 @@ def test_train_enjoy_and_continue_ua2c(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def mixed_traffic_checkpoint(tmp_path_factory) -> Path:
-    """UA2C trained 120 steps on MixedTraffic-v0 through the launcher with the YAML entry (tiny networks)."""
+    """UA2C trained 120 steps on MixedTraffic-v0 through the launcher with the YAML entry (tiny networks,
+    style-context wrapper as in the YAML)."""
     log_folder = tmp_path_factory.mktemp("zoo-mixed-traffic")
     tiny = {k: v for k, v in TINY_UA2C.items() if k not in ("chunk_size", "learning_starts")}
     _train(log_folder, "ua2c", "-n", "120", "--seed", "0", "--gym-packages", "envs",
@@ -215,7 +254,8 @@ def test_train_ua2c_on_mixed_traffic_with_the_yaml_entry(mixed_traffic_checkpoin
     entry = yaml.safe_load((CONFIGS / "ua2c.yml").read_text())["MixedTraffic-v0"]
     assert data["num_timesteps"] == 120
     assert data["chunk_size"] == entry["chunk_size"]
-    assert data["observation_space"].shape == (20,)
+    # MixedTraffic-v0's 20 numbers + the style context c_t of Eq. 6 (6 slots x 3 styles)
+    assert data["observation_space"].shape == (38,)
     assert data["action_space"].shape == (2,)
     assert "policy" in params
 

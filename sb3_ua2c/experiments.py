@@ -1,0 +1,980 @@
+"""Reproduction of the paper's Figure 2 on ``MixedTraffic-v0``, over several seeds (paper §4).
+
+One command runs the four panels and the sweeps that go beyond the paper::
+
+    python benchmarks/fig2.py                  # 5 seeds, full budget (estimate printed at start)
+    python benchmarks/fig2.py --quick --seeds 1  # tiny budget, a smoke test (a minute or two)
+
+Per seed ``s`` the runner does, building on :mod:`sb3_ua2c.offline` and :mod:`sb3_ua2c.pipeline`:
+
+* (a), (b) **offline**: one dataset; the chunk policy (``chunk_size=k``) and the one-step
+  baseline (``chunk_size=1``) are pre-trained on it with the same number of gradient steps and
+  evaluated on the same scenarios (reward, cumulative jerk). The offline chunk policy executes
+  its chunks in full (δ = inf): adaptive execution is the Phase-2 mechanism, compared in (c).
+* (c) **online**: adaptive (finite δ) and fixed (δ = inf) execution, both fine-tuned from the
+  SAME chunk checkpoint of (a) with the same number of online steps, evaluated on the same
+  scenarios with their own execution rule.
+* (d) **driving style**: a labelled slot dataset, the Transformer classifier of Eq. 5 and its
+  evaluation on held-out episodes (:func:`sb3_ua2c.style.evaluate_style_classifier`); the panel
+  shows the confusion matrix summed over seeds (rows inferred, columns ground truth).
+* sweeps: δ (the fine-tuned adaptive checkpoint executed with several thresholds: mean executed
+  length ``L_t`` vs reward), k (pre-training with several chunk lengths, same gradient budget)
+  and the style context c_t (Eq. 6) appended to the observation vs not (own dataset, same
+  pre-training and online budgets as the adaptive arm).
+
+Every unit of work is a file, written atomically: the dataset ``<work>/seed<s>/dataset``, the
+checkpoints ``<work>/seed<s>/*.zip`` and the per-seed raw results ``<raw>/seed<s>/*.json``.
+A unit whose file exists is skipped, so an interrupted run resumes where it stopped and a second
+call only rebuilds the report.
+
+Relative changes. Rewards may be negative, so a relative change is taken with respect to the
+magnitude of the baseline: ``100 · (new − base) / |base|`` (:func:`relative_change_pct`).
+The headline figures apply it to the means over seeds; the table also gives the per-seed changes'
+mean and 95% confidence interval. Confidence intervals are Student-t intervals over seeds
+(:func:`t_confidence_interval`), ``mean ± t_{0.975, n−1} · sd / √n``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The paper's Fig. 2 figures (one seed), in percent.
+PAPER = {
+    "offline_reward_gain_pct": 6.70,
+    "offline_jerk_change_pct": -18.37,
+    "online_reward_gain_pct": 13.17,
+}
+#: Metrics of :class:`sb3_ua2c.pipeline.EpisodeMetrics` aggregated per method.
+METRICS = ("reward", "cumulative_jerk", "collision", "merge_success", "mean_speed", "mean_executed_length")
+#: The four arms of Fig. 2 (a)-(c).
+MAIN_METHODS = ("onestep", "chunk", "fixed", "adaptive")
+METHOD_LABELS = {
+    "onestep": "one-step baseline (k=1)",
+    "chunk": "chunk policy (offline, full chunks)",
+    "chunk_adaptive": "chunk policy (offline, adaptive execution)",
+    "fixed": "fixed chunks (δ=inf, online)",
+    "adaptive": "adaptive chunks (online)",
+    "adaptive_style": "adaptive chunks + style context c_t",
+}
+#: Seed offsets: datasets, evaluation scenarios and style data never share a SUMO seed as long as
+#: run seeds are < MAX_SEED, episodes per dataset < 10,000 and evaluation episodes <= 1,000.
+DATASET_SEED_BASE = 1_000_000  # episode i of run seed s: 1_000_000 + 10_000 s + i
+STYLE_SEED_BASE = 3_000_000  # episode i of run seed s: 3_000_000 + 10_000 s + i
+EVAL_SEED_BASE = 2_000  # evaluate() resets episode i of seed e with 1000 * e + i -> 2_000_000 + 1000 s + i
+MAX_SEED = 100
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration
+# ---------------------------------------------------------------------------------------------
+def _positive_int(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"Fig2Budget.{name} must be an integer >= 1, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Fig2Budget:
+    """Budget and hyperparameters of one Figure-2 run (per seed); an unknown key or a bad value
+    raises ``ValueError`` naming it.
+
+    :param dataset_episodes: offline episodes collected per seed (behaviour policy of
+        :class:`~sb3_ua2c.offline.BehaviourConfig`)
+    :param pretrain_steps: Phase-1 gradient steps, the same for every pre-trained arm
+    :param finetune_steps: Phase-2 environment steps, the same for adaptive and fixed
+    :param eval_episodes: evaluation episodes per method and seed (same scenarios for all methods)
+    :param chunk_size: ``k`` of the chunk policy
+    :param entropy_threshold: δ of the adaptive arm (Eq. 7); the fixed arm uses ``inf``
+    :param style_episodes: episodes of the driving-style dataset per seed (>= 3: split by episode)
+    :param style_max_epochs: epochs bound of the style classifier's training (early stopping)
+    :param delta_sweep: thresholds δ at which the fine-tuned adaptive checkpoint is executed
+    :param k_sweep: chunk lengths pre-trained for the k sweep (``1`` and ``chunk_size`` reuse
+        the arms of panel (a))
+    :param style_ablation: run the "adaptive + style context" arm
+    :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
+    :param algo_kwargs: extra UA2C constructor arguments of every arm (e.g. ``batch_size``)
+    """
+
+    dataset_episodes: int = 100
+    pretrain_steps: int = 2000
+    finetune_steps: int = 3000
+    eval_episodes: int = 10
+    chunk_size: int = 5
+    entropy_threshold: float = 0.0
+    style_episodes: int = 60
+    style_max_epochs: int = 40
+    delta_sweep: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0, math.inf)
+    k_sweep: tuple[int, ...] = (1, 3, 5, 10)
+    style_ablation: bool = True
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes",
+                     "chunk_size", "style_max_epochs"):
+            _positive_int(name, getattr(self, name))
+        if isinstance(self.style_episodes, bool) or not isinstance(self.style_episodes, int) or self.style_episodes < 3:
+            raise ValueError(f"Fig2Budget.style_episodes must be an integer >= 3, got {self.style_episodes!r}")
+        for name, limit in (("dataset_episodes", 9_999), ("style_episodes", 9_999), ("eval_episodes", 1_000)):
+            if getattr(self, name) > limit:
+                raise ValueError(f"Fig2Budget.{name} must be <= {limit} (seed ranges), got {getattr(self, name)!r}")
+        if (isinstance(self.entropy_threshold, bool) or not isinstance(self.entropy_threshold, int | float)
+                or not math.isfinite(self.entropy_threshold)):
+            raise ValueError(
+                f"Fig2Budget.entropy_threshold must be a finite number (the fixed arm is δ=inf), "
+                f"got {self.entropy_threshold!r}"
+            )
+        deltas = tuple(float(d) for d in self.delta_sweep)
+        if any(math.isnan(d) or d == -math.inf for d in deltas):
+            raise ValueError(f"Fig2Budget.delta_sweep must hold numbers > -inf, got {self.delta_sweep!r}")
+        ks = tuple(self.k_sweep)
+        for k in ks:
+            _positive_int("k_sweep", k)
+        if not isinstance(self.style_ablation, bool):
+            raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
+        for name in ("env_kwargs", "algo_kwargs"):
+            if not isinstance(getattr(self, name), Mapping):
+                raise ValueError(f"Fig2Budget.{name} must be a mapping, got {getattr(self, name)!r}")
+        reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
+        if reserved:
+            raise ValueError(f"Fig2Budget.algo_kwargs must not set {sorted(reserved)}: they are Fig2Budget fields")
+        object.__setattr__(self, "delta_sweep", tuple(sorted(set(deltas))))
+        object.__setattr__(self, "k_sweep", tuple(sorted(set(int(k) for k in ks))))
+        object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
+        object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
+        object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Fig2Budget:
+        """Build from a mapping (e.g. JSON); an unknown key raises ``ValueError`` naming it."""
+        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown Fig2Budget key(s) {sorted(unknown)}; valid: {sorted(f.name for f in dataclasses.fields(cls))}")
+        values = dict(values)
+        for name in ("delta_sweep", "k_sweep"):
+            if name in values:
+                values[name] = tuple(float(v) if name == "delta_sweep" else v for v in values[name])
+        return cls(**values)
+
+    def replace(self, **changes: Any) -> Fig2Budget:
+        """A copy with ``changes`` applied (validated like :meth:`from_dict`)."""
+        return Fig2Budget.from_dict({**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of the fields (lists for the sweeps), the inverse of :meth:`from_dict`."""
+        out = dataclasses.asdict(self)
+        out["delta_sweep"] = list(self.delta_sweep)
+        out["k_sweep"] = list(self.k_sweep)
+        return out
+
+    @property
+    def pretrain_ks(self) -> tuple[int, ...]:
+        """Chunk lengths pre-trained per seed: 1, ``chunk_size`` and the k sweep."""
+        return tuple(sorted({1, self.chunk_size, *self.k_sweep}))
+
+
+#: Default budget: about two hours for 5 seeds on 2 cores (see :func:`estimate_seconds`).
+FULL_BUDGET = Fig2Budget()
+#: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI.
+QUICK_BUDGET = Fig2Budget(
+    dataset_episodes=3, pretrain_steps=8, finetune_steps=30, eval_episodes=1, style_episodes=6,
+    style_max_epochs=2, delta_sweep=(0.0, math.inf), k_sweep=(1, 2, 3), chunk_size=3,
+    env_kwargs={"time_limit": 4.0}, algo_kwargs={"batch_size": 32},
+)
+
+
+@dataclass(frozen=True)
+class CostModel:
+    """Per-unit costs used to estimate a run's wall time, measured on a shared 2-core machine with
+    one torch thread (torch 2.13 CPU, default UA2C networks, batch 256, 200-step episodes).
+
+    :param collect_ms_per_step: behaviour-policy collection, per env step
+    :param pretrain_ms_per_step_per_k: Phase-1 gradient step, per unit of chunk length (k=1: 20 ms,
+        k=5: 109 ms measured)
+    :param finetune_ms_per_update: Phase-2 gradient step of the k=5 policy incl. its replanning
+    :param finetune_ms_per_env_step: Phase-2 env step excluding updates
+    :param eval_ms_per_step: evaluation (replanning amortised), per env step
+    :param style_ms_per_step: style-data collection, per env step
+    :param style_s_per_epoch: style classifier training, per epoch of a 60-episode dataset
+    :param style_context_factor: slowdown of env steps with the style wrapper
+    :param adaptive_plan_length: assumed mean ``L_t`` of the adaptive arm (updates = steps / L)
+    """
+
+    collect_ms_per_step: float = 1.6
+    pretrain_ms_per_step_per_k: float = 22.0
+    finetune_ms_per_update: float = 125.0
+    finetune_ms_per_env_step: float = 5.0
+    eval_ms_per_step: float = 4.0
+    style_ms_per_step: float = 1.6
+    style_s_per_epoch: float = 0.3
+    style_context_factor: float = 2.0
+    adaptive_plan_length: float = 1.0
+
+
+def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None = None) -> dict[str, float]:
+    """Estimated CPU seconds of a run from measured per-unit costs (one worker = one core).
+
+    :param budget: the run's budget
+    :param n_seeds: number of seeds
+    :param costs: per-unit costs (default :class:`CostModel`)
+    :return: seconds per stage and ``"total"`` (summed over seeds, before resuming)
+    """
+    c = costs or CostModel()
+    steps_per_episode = float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
+    ms = 1e-3
+    data = budget.dataset_episodes * steps_per_episode * c.collect_ms_per_step * ms
+    pre = sum(budget.pretrain_steps * k * c.pretrain_ms_per_step_per_k * ms for k in budget.pretrain_ks)
+    updates_scale = budget.algo_kwargs.get("batch_size", 256) / 256
+
+    def online(plan_length: float) -> float:
+        return budget.finetune_steps * (
+            c.finetune_ms_per_env_step + c.finetune_ms_per_update * updates_scale / plan_length
+        ) * ms
+
+    fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
+    n_evals = len(MAIN_METHODS) + 1 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+    evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
+    style = (budget.style_episodes * steps_per_episode * c.style_ms_per_step * ms
+             + budget.style_max_epochs * c.style_s_per_epoch * budget.style_episodes / 60)
+    ablation = 0.0
+    if budget.style_ablation:
+        ablation = (data * c.style_context_factor
+                    + budget.pretrain_steps * budget.chunk_size * c.pretrain_ms_per_step_per_k * ms
+                    + online(c.adaptive_plan_length))
+    stages = {"datasets": data, "pretrain": pre, "finetune": fine, "evaluate": evals, "style": style,
+              "style_ablation": ablation}
+    out = {name: n_seeds * value for name, value in stages.items()}
+    out["total"] = sum(out.values())
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Statistics (pure)
+# ---------------------------------------------------------------------------------------------
+def student_t_two_sided_cdf(t: float, df: int) -> float:
+    """``P(|T| <= t)`` for Student's t with integer ``df`` degrees of freedom, closed form of
+    Abramowitz & Stegun 26.7.3-26.7.4 (θ = atan(t / √df)).
+
+    :param t: the bound, >= 0
+    :param df: degrees of freedom, >= 1
+    """
+    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
+        raise ValueError(f"df must be an integer >= 1, got {df!r}")
+    if not t >= 0:
+        raise ValueError(f"t must be >= 0, got {t!r}")
+    if math.isinf(t):
+        return 1.0
+    theta = math.atan(t / math.sqrt(df))
+    s, c = math.sin(theta), math.cos(theta)
+    if df % 2 == 1:
+        total, term = 0.0, c  # cos θ (1 + 2/3 cos²θ + 2·4/(3·5) cos⁴θ + ...), df - 2 terms' powers
+        for j in range(1, (df - 1) // 2 + 1):
+            total += term
+            term *= c * c * (2 * j) / (2 * j + 1)
+        return (2.0 / math.pi) * (theta + s * total) if df > 1 else 2.0 * theta / math.pi
+    total, term = 0.0, 1.0  # 1 + 1/2 cos²θ + 1·3/(2·4) cos⁴θ + ..., up to cos^{df-2}
+    for j in range(1, df // 2 + 1):
+        total += term
+        term *= c * c * (2 * j - 1) / (2 * j)
+    return s * total
+
+
+def student_t_quantile(confidence: float, df: int) -> float:
+    """Two-sided critical value ``t`` with ``P(|T| <= t) = confidence`` (bisection, 1e-10).
+
+    :param confidence: in (0, 1), e.g. 0.95 (``t = 2.776`` for ``df = 4``)
+    :param df: degrees of freedom, >= 1
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    lo, hi = 0.0, 1.0
+    while student_t_two_sided_cdf(hi, df) < confidence:
+        hi *= 2.0
+    while hi - lo > 1e-10 * max(1.0, hi):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if student_t_two_sided_cdf(mid, df) < confidence else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def t_confidence_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float]:
+    """Mean and half-width of the Student-t confidence interval over seeds.
+
+    ``half = t_{(1+c)/2, n-1} · s / √n`` with the sample standard deviation ``s`` (ddof = 1);
+    with one value the half-width is NaN (no spread can be estimated).
+
+    :param values: (n,) one number per seed, finite
+    :param confidence: coverage, e.g. 0.95
+    :return: ``(mean, half_width)``
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.ndim != 1 or x.size == 0:
+        raise ValueError(f"values must be a non-empty 1-D sequence, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"values must be finite, got {x.tolist()}")
+    mean = float(x.mean())
+    if x.size == 1:
+        return mean, math.nan
+    return mean, student_t_quantile(confidence, x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
+
+
+def relative_change_pct(new: float, base: float) -> float:
+    """``100 · (new − base) / |base|``: positive when ``new`` is larger, whatever the sign of
+    ``base`` (rewards may be negative). NaN when ``base`` is 0.
+
+    :param new: the method's value
+    :param base: the baseline's value
+    """
+    if base == 0 or not (math.isfinite(new) and math.isfinite(base)):
+        return math.nan
+    return 100.0 * (new - base) / abs(base)
+
+
+def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
+    """Relative change of paired per-seed values.
+
+    :param new: (n,) the method's per-seed means
+    :param base: (n,) the baseline's per-seed means, same seed order
+    :return: ``change_pct`` (of the means over seeds, the headline figure), ``per_seed_pct``,
+        and the t interval of the per-seed changes (``per_seed_mean_pct``, ``per_seed_ci95_pct``)
+    """
+    new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
+    if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
+        raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
+    per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
+    finite = [p for p in per_seed if math.isfinite(p)]
+    mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
+    return {
+        "change_pct": relative_change_pct(float(new_a.mean()), float(base_a.mean())),
+        "per_seed_pct": per_seed,
+        "per_seed_mean_pct": mean,
+        "per_seed_ci95_pct": half,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Units of work (each one a file; skipped when the file exists)
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a run keeps its files.
+
+    :param out: report directory (``fig2.md``, ``fig2.json``, PNG panels)
+    :param raw: per-seed raw results (small JSON files, worth keeping with the report)
+    :param work: datasets and checkpoints (large; not part of the report)
+    """
+
+    out: Path
+    raw: Path
+    work: Path
+
+    @classmethod
+    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
+              work: str | os.PathLike | None = None) -> RunPaths:
+        """Default layout: ``<out>/fig2_raw`` and ``<out>/fig2_work`` unless given."""
+        out = Path(out)
+        return cls(out, Path(raw) if raw else out / "fig2_raw", Path(work) if work else out / "fig2_work")
+
+    def seed_work(self, seed: int) -> Path:
+        return self.work / f"seed{seed}"
+
+    def seed_raw(self, seed: int) -> Path:
+        return self.raw / f"seed{seed}"
+
+
+def delta_name(delta: float) -> str:
+    """File-name-safe label of a threshold: ``0.5 -> "0.5"``, ``-1 -> "m1"``, ``inf -> "inf"``."""
+    return "inf" if math.isinf(delta) else f"{delta:g}".replace("-", "m")
+
+
+def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any],
+             style_classifier: str | None, log: list[str], unit: str):
+    """Load the dataset at ``path``, or collect it (unit ``unit``) when missing or damaged."""
+    from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, collect_dataset, load_dataset
+
+    if (path / METADATA_FILE).is_file():
+        try:
+            return load_dataset(path)
+        except OfflineDatasetError:
+            pass  # damaged: collect again
+    log.append(unit)
+    return collect_dataset(path, n_episodes, env_kwargs=env_kwargs, style_classifier=style_classifier,
+                           seed=seed, overwrite=True)
+
+
+def _evaluation(raw: Path, method: str, checkpoint: Path, seed: int, budget: Fig2Budget, settings: dict[str, Any],
+                entropy_threshold: float | None, log: list[str]) -> None:
+    """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists."""
+    from sb3_ua2c.pipeline import evaluate, summarize, write_json
+
+    path = raw / f"{method}.json"
+    if path.is_file():
+        return
+    log.append(f"seed{seed}/evaluate/{method}")
+    episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(EVAL_SEED_BASE + seed,),
+                        env_settings_=settings, entropy_threshold=entropy_threshold)
+    write_json(path, {
+        "method": method, "seed": seed, "checkpoint": checkpoint.name,
+        "entropy_threshold": None if entropy_threshold is None else delta_name(float(entropy_threshold)),
+        "eval_seed": EVAL_SEED_BASE + seed, "summary": summarize(episodes), "episodes": episodes,
+    })
+
+
+def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
+    """Run (or resume) every unit of one seed; return the names of the units actually executed.
+
+    :param seed: the seed (datasets, networks, online env, evaluation scenarios derive from it)
+    :param budget: the run's budget
+    :param paths: the run's directories
+    """
+    import torch
+
+    from sb3_ua2c.pipeline import env_settings, finetune, pretrain
+
+    torch.set_num_threads(1)
+    work, raw = paths.seed_work(seed), paths.seed_raw(seed)
+    work.mkdir(parents=True, exist_ok=True)
+    raw.mkdir(parents=True, exist_ok=True)
+    log: list[str] = []
+    env_kwargs = dict(budget.env_kwargs)
+    ds = _dataset(work / "dataset", budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * seed, env_kwargs,
+                  None, log, f"seed{seed}/dataset")
+    settings = env_settings(ds)
+
+    def pretrained(k: int, dataset: Any, name: str) -> Path:
+        path = work / f"{name}.zip"
+        if not path.is_file():
+            log.append(f"seed{seed}/pretrain/{name}")
+            kwargs = {**budget.algo_kwargs, "chunk_size": k, "entropy_threshold": budget.entropy_threshold}
+            pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=kwargs)
+        return path
+
+    def finetuned(start: Path, dataset: Any, name: str, delta: float) -> Path:
+        path = work / f"{name}.zip"
+        if not path.is_file():
+            log.append(f"seed{seed}/finetune/{name}")
+            finetune(start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed)
+        return path
+
+    # (a), (b) and the k sweep: same data, same gradient budget
+    ckpt = {k: pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
+    _evaluation(raw, "onestep", ckpt[1], seed, budget, settings, None, log)
+    _evaluation(raw, "chunk", ckpt[budget.chunk_size], seed, budget, settings, math.inf, log)
+    _evaluation(raw, "chunk_adaptive", ckpt[budget.chunk_size], seed, budget, settings, budget.entropy_threshold, log)
+    for k in budget.k_sweep:
+        _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
+    # (c): both from the same chunk checkpoint, same online budget
+    adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
+    fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
+    _evaluation(raw, "adaptive", adaptive, seed, budget, settings, budget.entropy_threshold, log)
+    _evaluation(raw, "fixed", fixed, seed, budget, settings, math.inf, log)
+    for delta in budget.delta_sweep:
+        _evaluation(raw, f"delta_{delta_name(delta)}", adaptive, seed, budget, settings, delta, log)
+    # (d): driving-style inference
+    classifier = _style_unit(seed, budget, work, raw, log)
+    # beyond the paper: the style context c_t appended to the observation (Eq. 6)
+    if budget.style_ablation:
+        ds_style = _dataset(work / "dataset_style", budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * seed,
+                            env_kwargs, str(classifier.resolve()), log, f"seed{seed}/dataset_style")
+        pre_style = pretrained(budget.chunk_size, ds_style, "pretrain_style")
+        fine_style = finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
+        _evaluation(raw, "adaptive_style", fine_style, seed, budget, env_settings(ds_style),
+                    budget.entropy_threshold, log)
+    return log
+
+
+def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: list[str]) -> Path:
+    """Style data, classifier (Eq. 5) and its held-out evaluation of one seed; returns the classifier path."""
+    from sb3_ua2c import style
+    from sb3_ua2c.pipeline import write_json
+
+    data_path, model_path, result_path = work / "style_data.npz", work / "style_classifier.pt", raw / "style.json"
+    if data_path.is_file():
+        data = style.StyleDataset.load(data_path)
+    else:
+        log.append(f"seed{seed}/style/collect")
+        data = style.collect_style_dataset(
+            budget.style_episodes, seed=STYLE_SEED_BASE + 10_000 * seed, env_kwargs=dict(budget.env_kwargs),
+            progress_bar=False,
+        )
+        tmp = data_path.with_name(".style_data.tmp.npz")
+        data.save(tmp)
+        os.replace(tmp, data_path)
+    if model_path.is_file():
+        model = style.DrivingStyleClassifier.load(model_path)
+    else:
+        log.append(f"seed{seed}/style/train")
+        model, _ = style.train_style_classifier(
+            data, train_config={"max_epochs": budget.style_max_epochs, "seed": seed}, progress_bar=False
+        )
+        tmp = model_path.with_name(".style_classifier.tmp.pt")
+        model.save(tmp)
+        os.replace(tmp, model_path)
+    if not result_path.is_file():
+        log.append(f"seed{seed}/style/evaluate")
+        write_json(result_path, {"seed": seed, **style.evaluate_style_classifier(model, data)})
+    return model_path
+
+
+#: Budget fields that change what an existing unit holds; the sweeps may grow between calls.
+UNIT_FIELDS = ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes", "chunk_size",
+               "entropy_threshold", "style_episodes", "style_max_epochs", "env_kwargs", "algo_kwargs")
+MANIFEST = "fig2_budget.json"
+
+
+def check_manifest(paths: RunPaths, budget: Fig2Budget) -> Fig2Budget | None:
+    """Refuse to resume a run made with another budget (its units would be silently reused).
+
+    The first call records the budget in ``<work>/fig2_budget.json``; later calls must agree on
+    :data:`UNIT_FIELDS` (the δ and k sweeps and the style ablation may change: they only add
+    units).
+
+    :return: the recorded budget, or ``None`` on the first call
+    :raises ValueError: naming the fields that differ
+    """
+    recorded = read_manifest(paths)
+    if recorded is None:
+        return None
+    differ = [name for name in UNIT_FIELDS if getattr(recorded, name) != getattr(budget, name)]
+    if differ:
+        details = ", ".join(f"{n}: recorded {getattr(recorded, n)!r}, now {getattr(budget, n)!r}" for n in differ)
+        raise ValueError(
+            f"the run in {paths.work} was made with another budget ({details}); "
+            "pass the same budget to resume it, or another --out/--work to start a new run"
+        )
+    return recorded
+
+
+def read_manifest(paths: RunPaths) -> Fig2Budget | None:
+    """The budget recorded by the last call on ``paths`` (``None`` if there is none)."""
+    path = paths.work / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        return Fig2Budget.from_dict(json.loads(path.read_text()))
+    except (json.JSONDecodeError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path} is not a Fig2Budget record: {exc}") from exc
+
+
+def write_manifest(paths: RunPaths, budget: Fig2Budget) -> None:
+    from sb3_ua2c.pipeline import write_json
+
+    write_json(paths.work / MANIFEST, strict_json(budget.to_dict()))
+
+
+def _run_seed_worker(args: tuple[int, dict[str, Any], RunPaths]) -> list[str]:
+    seed, budget, paths = args
+    return run_seed(seed, Fig2Budget.from_dict(budget), paths)
+
+
+def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1,
+            printer: Any = print) -> list[str]:
+    """Run (or resume) every seed, ``workers`` seeds at a time in separate processes (one SUMO
+    simulation per process); ``workers=1`` runs in this process.
+
+    :return: the units executed, over all seeds
+    """
+    _positive_int("workers", workers)
+    check_manifest(paths, budget)
+    write_manifest(paths, budget)
+    executed: list[str] = []
+    if workers == 1 or len(seeds) == 1:
+        for s in seeds:
+            t0 = time.perf_counter()
+            units = run_seed(s, budget, paths)
+            printer(f"seed {s}: {len(units)} unit(s) run in {time.perf_counter() - t0:.0f} s")
+            executed += units
+        return executed
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        jobs = [(s, budget.to_dict(), paths) for s in seeds]
+        for s, units in zip(seeds, pool.map(_run_seed_worker, jobs), strict=True):
+            printer(f"seed {s}: {len(units)} unit(s) run")
+            executed += units
+    return executed
+
+
+# ---------------------------------------------------------------------------------------------
+# Aggregation and report
+# ---------------------------------------------------------------------------------------------
+def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[str, Any]]]:
+    """Per-seed raw results: ``{method: {seed: summary}}`` plus ``"style"`` (evaluation dicts)."""
+    out: dict[str, dict[int, dict[str, Any]]] = {}
+    for s in seeds:
+        folder = paths.seed_raw(s)
+        if not folder.is_dir():
+            raise FileNotFoundError(f"no raw results for seed {s} in {folder}")
+        for f in sorted(folder.glob("*.json")):
+            payload = json.loads(f.read_text())
+            out.setdefault(f.stem, {})[s] = payload if f.stem == "style" else payload["summary"]
+    return out
+
+
+def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
+    out: dict[str, Any] = {"seeds": list(seeds)}
+    for key in METRICS:
+        values = [float(per_seed[s][key]) for s in seeds]
+        finite = [v for v in values if math.isfinite(v)]
+        mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
+        out[key] = {"mean": mean, "ci95": half, "per_seed": values}
+    return out
+
+
+def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
+    """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
+
+    :param raw: output of :func:`load_raw`
+    :param seeds: the seeds to aggregate (all must be present for every method)
+    :param budget: the run's budget (recorded, and it names the sweep arms)
+    """
+    seeds = list(seeds)
+    missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
+    if missing:
+        raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
+    methods = {m: _stats(raw[m], seeds) for m in raw if m != "style" and all(s in raw[m] for s in seeds)}
+
+    def per_seed(method: str, key: str) -> list[float]:
+        return methods[method][key]["per_seed"]
+
+    offline_reward = compare(per_seed("chunk", "reward"), per_seed("onestep", "reward"))
+    offline_jerk = compare(per_seed("chunk", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
+    online_reward = compare(per_seed("adaptive", "reward"), per_seed("fixed", "reward"))
+    result: dict[str, Any] = {
+        "offline_reward_gain_pct": offline_reward["change_pct"],
+        "offline_jerk_change_pct": offline_jerk["change_pct"],
+        "online_reward_gain_pct": online_reward["change_pct"],
+        "comparisons": {"offline_reward": offline_reward, "offline_jerk": offline_jerk, "online_reward": online_reward},
+        "paper": dict(PAPER),
+        "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
+        "methods": methods,
+        "seeds": seeds,
+        "budget": budget.to_dict(),
+    }
+    if "style" in raw and all(s in raw["style"] for s in seeds):
+        styles = [raw["style"][s] for s in seeds]
+        macro = [float(r["macro_accuracy"]) for r in styles]
+        mean, half = t_confidence_interval(macro)
+        matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
+        result["style_macro_accuracy"] = mean
+        result["style"] = {
+            "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
+            "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
+            "baseline_macro_accuracy_per_seed": [float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
+            "confusion_matrix": matrix.tolist(),
+            "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds",
+            "classes": styles[0]["classes"],
+        }
+    else:
+        result["style_macro_accuracy"] = math.nan
+    result["delta_sweep"] = [
+        {"delta": d, "method": f"delta_{delta_name(d)}", **{k: methods[f"delta_{delta_name(d)}"][k]
+                                                             for k in ("reward", "mean_executed_length", "cumulative_jerk")}}
+        for d in budget.delta_sweep if f"delta_{delta_name(d)}" in methods
+    ]
+    result["k_sweep"] = [
+        {"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in ("reward", "cumulative_jerk", "collision")}}
+        for k in budget.k_sweep if f"k{k}" in methods
+    ]
+    if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
+        result["comparisons"]["offline_reward_chunk_adaptive"] = compare(
+            per_seed("chunk_adaptive", "reward"), per_seed("onestep", "reward"))
+        result["comparisons"]["offline_jerk_chunk_adaptive"] = compare(
+            per_seed("chunk_adaptive", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
+    if "adaptive_style" in methods:
+        result["style_context"] = {
+            "with": "adaptive_style", "without": "adaptive",
+            "reward_gain_pct": compare(per_seed("adaptive_style", "reward"), per_seed("adaptive", "reward")),
+        }
+    return result
+
+
+def _fmt(stat: Mapping[str, Any], digits: int = 2) -> str:
+    mean, half = stat["mean"], stat["ci95"]
+    if not math.isfinite(mean):
+        return "n/a"
+    return f"{mean:.{digits}f}" + ("" if not math.isfinite(half) else f" ± {half:.{digits}f}")
+
+
+def _pct(x: float) -> str:
+    return "n/a" if not math.isfinite(x) else f"{x:+.2f}%"
+
+
+def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
+    """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
+    c = summary["comparisons"]
+    n = len(summary["seeds"])
+    lines = [
+        "# Figure 2 reproduction on MixedTraffic-v0",
+        "",
+        f"Command: `{command}`  ",
+        f"Date: {date}  ",
+        f"Seeds: {summary['seeds']} (means ± 95% Student-t intervals over {n} seed(s); "
+        "a single seed has no interval)",
+        "",
+        "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
+        "the per-seed column is the mean ± 95% interval of the per-seed changes.",
+        "",
+        "| claim | ours | per-seed changes | paper |",
+        "|---|---|---|---|",
+    ]
+    rows = (
+        ("(a) offline reward, chunk vs one-step", "offline_reward", "offline_reward_gain_pct"),
+        ("(b) cumulative jerk, chunk vs one-step", "offline_jerk", "offline_jerk_change_pct"),
+        ("(c) online reward, adaptive vs fixed", "online_reward", "online_reward_gain_pct"),
+    )
+    extra = (
+        ("(a') offline reward, chunk with adaptive execution vs one-step", "offline_reward_chunk_adaptive", None),
+        ("(b') cumulative jerk, chunk with adaptive execution vs one-step", "offline_jerk_chunk_adaptive", None),
+    )
+    for label, key, paper_key in (*rows, *extra):
+        if key not in c:
+            continue
+        cmp = c[key]
+        per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
+        paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
+        lines.append(f"| {label} | {_pct(cmp['change_pct'])} | {per_seed} | {paper} |")
+    style = summary.get("style")
+    if style:
+        lines.append(f"| (d) style inference, macro accuracy | {_fmt(style['macro_accuracy'], 3)} | | confusion matrix only |")
+    lines += ["", "## Methods", "",
+              "| method | reward | cum. jerk | collision rate | merge success | mean speed [m/s] | mean L_t |",
+              "|---|---|---|---|---|---|---|"]
+    order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style"]
+    for m in order:
+        if m not in summary["methods"]:
+            continue
+        s = summary["methods"][m]
+        lines.append(
+            f"| {METHOD_LABELS[m]} | {_fmt(s['reward'])} | {_fmt(s['cumulative_jerk'], 1)} | {_fmt(s['collision'])} "
+            f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
+        )
+    if style:
+        lines += ["", "## (d) Driving-style inference", "",
+                  f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
+                  "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
+                  "|---" * (len(style["classes"]) + 1) + "|"]
+        for name, row in zip(style["classes"], style["confusion_matrix"], strict=True):
+            lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
+        if style["baseline_macro_accuracy_per_seed"]:
+            base = t_confidence_interval(style["baseline_macro_accuracy_per_seed"])
+            lines += ["", f"Logistic-regression baseline on summary features: macro accuracy "
+                          f"{_fmt({'mean': base[0], 'ci95': base[1]}, 3)}."]
+    if summary["delta_sweep"]:
+        lines += ["", "## δ sweep (fine-tuned adaptive checkpoint, execution threshold only)", "",
+                  "| δ | mean L_t | reward | cum. jerk |", "|---|---|---|---|"]
+        for row in summary["delta_sweep"]:
+            lines.append(f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
+                         f"| {_fmt(row['cumulative_jerk'], 1)} |")
+    if summary["k_sweep"]:
+        lines += ["", "## k sweep (offline, same data and gradient budget, full chunks)", "",
+                  "| k | reward | cum. jerk | collision rate |", "|---|---|---|---|"]
+        for row in summary["k_sweep"]:
+            lines.append(f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} "
+                         f"| {_fmt(row['collision'])} |")
+    if "style_context" in summary:
+        cmp = summary["style_context"]["reward_gain_pct"]
+        lines += ["", "## Style context c_t (Eq. 6) in the observation", "",
+                  f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
+                  f"{_pct(cmp['change_pct'])} (per seed {_fmt({'mean': cmp['per_seed_mean_pct'], 'ci95': cmp['per_seed_ci95_pct']})}%)."]
+    b = summary["budget"]
+    lines += ["", "## Budget (per seed)", "",
+              f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
+              f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
+              f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
+              f"UA2C {b['algo_kwargs'] or 'defaults'}.", ""]
+    return "\n".join(lines)
+
+
+def _bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(4.2, 3.6), dpi=120)  # no pyplot: the caller's backend stays untouched
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for i, (_label, stat) in enumerate(arms):
+        half = stat["ci95"] if math.isfinite(stat["ci95"]) else 0.0
+        ax.bar(i, stat["mean"], yerr=half, capsize=6, color=("#9e9e9e", "#1f77b4")[i % 2], alpha=0.85)
+        ax.scatter(np.full(len(stat["per_seed"]), i) + np.linspace(-0.15, 0.15, len(stat["per_seed"])),
+                   stat["per_seed"], color="black", s=12, zorder=3)
+    ax.set_xticks(range(len(arms)), [a[0] for a in arms])
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{title}\n{note}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def _sweep_panel(path: Path, summary: Mapping[str, Any]) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8.4, 3.6), dpi=120)
+    FigureCanvasAgg(fig)
+    ax1, ax2 = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    for row in summary["delta_sweep"]:
+        x, y = row["mean_executed_length"], row["reward"]
+        ax1.errorbar(x["mean"], y["mean"], xerr=np.nan_to_num(x["ci95"]), yerr=np.nan_to_num(y["ci95"]), fmt="o")
+        ax1.annotate(f"δ={row['delta']:g}", (x["mean"], y["mean"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax1.set_xlabel("mean executed length L_t")
+    ax1.set_ylabel("episode reward")
+    ax1.set_title("δ sweep (adaptive checkpoint)", fontsize=9)
+    ks = summary["k_sweep"]
+    if ks:
+        ax2.errorbar([r["k"] for r in ks], [r["reward"]["mean"] for r in ks],
+                     yerr=[np.nan_to_num(r["reward"]["ci95"]) for r in ks], fmt="o-")
+    ax2.set_xlabel("chunk length k")
+    ax2.set_ylabel("offline episode reward")
+    ax2.set_title("k sweep (same gradient budget)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def strict_json(obj: Any) -> Any:
+    """A copy of ``obj`` that strict JSON parsers accept: NaN -> ``None``, ±inf -> ``"inf"``/``"-inf"``."""
+    if isinstance(obj, Mapping):
+        return {str(k): strict_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [strict_json(v) for v in obj]
+    if isinstance(obj, float | np.floating):
+        value = float(obj)
+        if math.isnan(value):
+            return None
+        return value if math.isfinite(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date: str) -> list[Path]:
+    """Write ``fig2.json``, ``fig2.md`` and the PNG panels into ``paths.out``; return the files."""
+    from sb3_ua2c.pipeline import write_json
+
+    out = paths.out
+    out.mkdir(parents=True, exist_ok=True)
+    m, c = summary["methods"], summary["comparisons"]
+    files = [write_json(out / "fig2.json", strict_json({**summary, "command": command, "date": date}))]
+    md = out / "fig2.md"
+    md.write_text(format_markdown(summary, command, date))
+    files.append(md)
+    panels = (
+        ("fig2_a_offline_reward.png", "(a) offline reward", "episode reward", ("onestep", "chunk"),
+         "reward", c["offline_reward"]["change_pct"], PAPER["offline_reward_gain_pct"]),
+        ("fig2_b_offline_jerk.png", "(b) offline cumulative jerk", "Σ|jerk| [m/s³]", ("onestep", "chunk"),
+         "cumulative_jerk", c["offline_jerk"]["change_pct"], PAPER["offline_jerk_change_pct"]),
+        ("fig2_c_online_reward.png", "(c) online reward", "episode reward", ("fixed", "adaptive"),
+         "reward", c["online_reward"]["change_pct"], PAPER["online_reward_gain_pct"]),
+    )
+    short = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
+    for name, title, ylabel, arms, key, ours, paper in panels:
+        _bar_panel(out / name, title, ylabel, [(short[a], m[a][key]) for a in arms],
+                   f"ours {_pct(ours)}, paper {paper:+.2f}%")
+        files.append(out / name)
+    if "style" in summary:
+        from sb3_ua2c.style import plot_confusion
+
+        st = summary["style"]
+        plot_confusion(np.asarray(st["confusion_matrix"]), out / "fig2_d_style_confusion.png", st["classes"],
+                       title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")
+        files.append(out / "fig2_d_style_confusion.png")
+    if summary["delta_sweep"] or summary["k_sweep"]:
+        _sweep_panel(out / "fig2_sweeps.png", summary)
+        files.append(out / "fig2_sweeps.png")
+    return files
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line
+# ---------------------------------------------------------------------------------------------
+def _json_object(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python benchmarks/fig2.py",
+        description="Reproduce the UA2C paper's Figure 2 (a)-(d) on MixedTraffic-v0 over several seeds, with the "
+        "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
+    )
+    parser.add_argument("--seeds", type=int, default=5, help="number of seeds 0..N-1 (default: 5)")
+    parser.add_argument("--seed-list", type=int, nargs="+", default=None, help="explicit seeds (overrides --seeds)")
+    parser.add_argument("--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test")
+    parser.add_argument("--budget", type=_json_object, default={},
+                        help='Fig2Budget overrides as JSON, e.g. \'{"pretrain_steps": 4000}\'')
+    parser.add_argument("--out", default="results", help="report directory (default: results)")
+    parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
+    parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
+    parser.add_argument("--workers", type=int, default=2, help="seeds run in parallel processes (default: 2)")
+    parser.add_argument("--report-only", action="store_true", help="only rebuild the report from the raw results")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (2 on a bad argument or missing results)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        base = QUICK_BUDGET if args.quick else FULL_BUDGET
+        budget = base.replace(**args.budget) if args.budget else base
+        if args.seed_list is not None:
+            seeds = list(dict.fromkeys(args.seed_list))
+        else:
+            _positive_int("seeds", args.seeds)
+            seeds = list(range(args.seeds))
+        if any(not 0 <= s < MAX_SEED for s in seeds):
+            raise ValueError(f"seeds must be in [0, {MAX_SEED}), got {seeds}")
+        _positive_int("workers", args.workers)
+    except ValueError as exc:
+        parser.error(str(exc))
+    paths = RunPaths.under(args.out, args.raw, args.work)
+    command = "python benchmarks/fig2.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    t0 = time.perf_counter()
+    try:
+        if not args.report_only:
+            est = estimate_seconds(budget, len(seeds))
+            workers = min(args.workers, len(seeds))
+            wall = est["total"] / len(seeds) * math.ceil(len(seeds) / workers)  # seeds run whole on a worker
+            print(f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
+                  f"~{wall / 60:.0f} min wall before resuming ("
+                  + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total") + " CPU-min)",
+                  flush=True)
+            executed = run_all(seeds, budget, paths, workers)
+            print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
+        else:
+            budget = read_manifest(paths) or budget  # the budget the run was made with
+        summary = aggregate(load_raw(paths, seeds), seeds, budget)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    files = write_report(summary, paths, command, time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
+    for label, key in (("offline reward", "offline_reward_gain_pct"), ("offline jerk", "offline_jerk_change_pct"),
+                       ("online reward", "online_reward_gain_pct")):
+        print(f"{label}: ours {_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
+    print(f"style macro accuracy: {summary['style_macro_accuracy']:.3f}")
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+__all__ = [
+    "FULL_BUDGET", "PAPER", "QUICK_BUDGET", "CostModel", "Fig2Budget", "RunPaths", "aggregate", "check_manifest",
+    "compare", "estimate_seconds", "format_markdown", "load_raw", "main", "read_manifest", "relative_change_pct",
+    "run_all", "run_seed", "strict_json", "student_t_quantile", "student_t_two_sided_cdf", "t_confidence_interval",
+    "write_manifest", "write_report",
+]

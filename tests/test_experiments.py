@@ -1,0 +1,251 @@
+"""Figure-2 experiment runner: statistics, budget validation, aggregation and a quick end-to-end run."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_ua2c import experiments
+from sb3_ua2c.experiments import (
+    FULL_BUDGET,
+    QUICK_BUDGET,
+    CostModel,
+    Fig2Budget,
+    aggregate,
+    compare,
+    delta_name,
+    estimate_seconds,
+    relative_change_pct,
+    strict_json,
+    student_t_quantile,
+    student_t_two_sided_cdf,
+    t_confidence_interval,
+)
+
+
+# ---------------------------------------------------------------------------------------------
+# statistics
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("df", "expected"),  # two-sided 95% critical values of Student's t (standard tables)
+    [(1, 12.7062), (2, 4.3027), (4, 2.7764), (9, 2.2622), (30, 2.0423)],
+)
+def test_student_t_quantile_matches_tables(df: int, expected: float) -> None:
+    assert student_t_quantile(0.95, df) == pytest.approx(expected, abs=1e-4)
+
+
+def test_student_t_cdf_closed_forms() -> None:
+    # df=1 is Cauchy: P(|T| <= 1) = 2 atan(1) / pi = 0.5; df=2: P(|T| <= t) = t / sqrt(2 + t^2)
+    assert student_t_two_sided_cdf(1.0, 1) == pytest.approx(0.5)
+    assert student_t_two_sided_cdf(2.0, 2) == pytest.approx(2.0 / math.sqrt(6.0))
+    assert student_t_two_sided_cdf(0.0, 5) == 0.0
+    assert student_t_two_sided_cdf(math.inf, 3) == 1.0
+    with pytest.raises(ValueError, match="df"):
+        student_t_two_sided_cdf(1.0, 0)
+    with pytest.raises(ValueError, match="confidence"):
+        student_t_quantile(1.5, 3)
+
+
+def test_t_confidence_interval_by_hand() -> None:
+    # [1..5]: mean 3, sd sqrt(2.5), half = 2.776445 * sqrt(2.5) / sqrt(5) = 1.963243
+    mean, half = t_confidence_interval([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert mean == 3.0
+    assert half == pytest.approx(1.963243, abs=1e-5)
+    mean, half = t_confidence_interval([7.5])
+    assert mean == 7.5 and math.isnan(half)
+    with pytest.raises(ValueError, match="finite"):
+        t_confidence_interval([1.0, math.nan])
+    with pytest.raises(ValueError, match="non-empty"):
+        t_confidence_interval([])
+
+
+def test_relative_change_uses_the_magnitude_of_the_baseline() -> None:
+    assert relative_change_pct(110.0, 100.0) == pytest.approx(10.0)
+    assert relative_change_pct(-90.0, -100.0) == pytest.approx(10.0)  # less negative = better
+    assert relative_change_pct(-110.0, -100.0) == pytest.approx(-10.0)
+    assert math.isnan(relative_change_pct(1.0, 0.0))
+
+
+def test_compare_headline_is_the_change_of_the_means() -> None:
+    # means 15 vs 10 -> +50%; per seed +100% and +25% -> mean 62.5, half 12.7062 * 53.033 / sqrt(2)
+    out = compare([20.0, 10.0], [10.0, 8.0])
+    assert out["change_pct"] == pytest.approx(100.0 * (15.0 - 9.0) / 9.0)
+    assert out["per_seed_pct"] == pytest.approx([100.0, 25.0])
+    assert out["per_seed_mean_pct"] == pytest.approx(62.5)
+    assert out["per_seed_ci95_pct"] == pytest.approx(12.7062 * np.std([100.0, 25.0], ddof=1) / math.sqrt(2), rel=1e-4)
+    with pytest.raises(ValueError, match="equal-length"):
+        compare([1.0], [1.0, 2.0])
+
+
+def test_strict_json_and_delta_names() -> None:
+    assert strict_json({"a": [math.nan, math.inf, -math.inf, 1.5, np.int64(2)]}) == {"a": [None, "inf", "-inf", 1.5, 2]}
+    assert [delta_name(d) for d in (0.0, 0.5, -1.0, math.inf)] == ["0", "0.5", "m1", "inf"]
+
+
+# ---------------------------------------------------------------------------------------------
+# budget
+# ---------------------------------------------------------------------------------------------
+def test_budget_validation_names_the_key() -> None:
+    with pytest.raises(ValueError, match="pretrain_stepz"):
+        Fig2Budget.from_dict({"pretrain_stepz": 10})
+    with pytest.raises(ValueError, match="finetune_steps"):
+        Fig2Budget(finetune_steps=0)
+    with pytest.raises(ValueError, match="entropy_threshold"):
+        Fig2Budget(entropy_threshold=math.inf)
+    with pytest.raises(ValueError, match="style_episodes"):
+        Fig2Budget(style_episodes=2)
+    with pytest.raises(ValueError, match="chunk_size"):
+        Fig2Budget(algo_kwargs={"chunk_size": 3})
+    with pytest.raises(ValueError, match="delta_sweep"):
+        Fig2Budget(delta_sweep=(math.nan,))
+    with pytest.raises(ValueError, match="eval_episodes must be <= 1000"):
+        Fig2Budget(eval_episodes=1001)  # would reuse the next seed's evaluation scenarios
+    budget = FULL_BUDGET.replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
+    assert budget.k_sweep == (3, 10) and budget.delta_sweep == (0.0, math.inf)
+    assert budget.pretrain_ks == (1, 3, 5, 10)  # 1 and chunk_size always
+    assert Fig2Budget.from_dict(budget.to_dict()) == budget
+
+
+def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
+    costs = CostModel(collect_ms_per_step=1.0, pretrain_ms_per_step_per_k=10.0, finetune_ms_per_update=100.0,
+                      finetune_ms_per_env_step=0.0, eval_ms_per_step=1.0, style_ms_per_step=1.0,
+                      style_s_per_epoch=0.0, adaptive_plan_length=1.0)
+    budget = Fig2Budget(dataset_episodes=10, pretrain_steps=100, finetune_steps=50, eval_episodes=2, chunk_size=2,
+                        style_episodes=5, delta_sweep=(0.0,), k_sweep=(1,), style_ablation=False)
+    est = estimate_seconds(budget, n_seeds=2, costs=costs)
+    steps = 200  # 40 s / 0.2 s
+    assert est["datasets"] == pytest.approx(2 * 10 * steps * 1e-3)
+    assert est["pretrain"] == pytest.approx(2 * 100 * (1 + 2) * 10e-3)  # k = 1 and k = 2
+    assert est["finetune"] == pytest.approx(2 * 50 * (100 / 1 + 100 / 2) * 1e-3)  # adaptive L=1, fixed L=k
+    assert est["evaluate"] == pytest.approx(2 * (5 + 1 + 1) * 2 * steps * 1e-3)  # 5 arms, 1 δ, 1 k
+    assert est["total"] == pytest.approx(sum(v for k, v in est.items() if k != "total"))
+    full = estimate_seconds(FULL_BUDGET, 5)
+    wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
+    assert 60 * 60 <= wall <= 2.25 * 60 * 60
+
+
+# ---------------------------------------------------------------------------------------------
+# aggregation from hand-made raw results
+# ---------------------------------------------------------------------------------------------
+def _summary(reward: float, jerk: float = 1.0, length: float = 1.0) -> dict[str, float]:
+    return {"reward": reward, "cumulative_jerk": jerk, "collision": 0.0, "merge_success": 1.0,
+            "mean_speed": 20.0, "mean_executed_length": length, "episodes": 1}
+
+
+def test_aggregate_by_hand() -> None:
+    raw = {
+        "onestep": {0: _summary(-10.0, jerk=100.0), 1: _summary(-20.0, jerk=300.0)},
+        "chunk": {0: _summary(-9.0, jerk=80.0), 1: _summary(-18.0, jerk=240.0)},
+        "fixed": {0: _summary(10.0), 1: _summary(30.0)},
+        "adaptive": {0: _summary(12.0, length=2.0), 1: _summary(33.0, length=3.0)},
+        "delta_inf": {0: _summary(1.0, length=5.0), 1: _summary(3.0, length=5.0)},
+    }
+    out = aggregate(raw, [0, 1], QUICK_BUDGET.replace(delta_sweep=[math.inf], k_sweep=[1]))
+    assert out["offline_reward_gain_pct"] == pytest.approx(100 * (-13.5 + 15.0) / 15.0)  # +10%
+    assert out["offline_jerk_change_pct"] == pytest.approx(100 * (160.0 - 200.0) / 200.0)  # -20%
+    assert out["online_reward_gain_pct"] == pytest.approx(100 * (22.5 - 20.0) / 20.0)  # +12.5%
+    assert out["comparisons"]["online_reward"]["per_seed_pct"] == pytest.approx([20.0, 10.0])
+    assert out["methods"]["adaptive"]["mean_executed_length"]["mean"] == pytest.approx(2.5)
+    assert out["delta_sweep"][0]["reward"]["mean"] == pytest.approx(2.0)
+    assert math.isnan(out["style_macro_accuracy"])  # no style results given
+    assert out["k_sweep"] == []  # k1 was not evaluated in this hand-made raw set
+    with pytest.raises(ValueError, match="adaptive"):
+        aggregate({k: v for k, v in raw.items() if k != "adaptive"}, [0, 1], QUICK_BUDGET)
+
+
+# ---------------------------------------------------------------------------------------------
+# end to end: --quick with 2 seeds, then a resumed call that must not train anything
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("fig2")
+    assert experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(out)]) == 0
+    return out
+
+
+def test_quick_run_writes_every_output(quick_run: Path) -> None:
+    for name in ("fig2.md", "fig2.json", "fig2_a_offline_reward.png", "fig2_b_offline_jerk.png",
+                 "fig2_c_online_reward.png", "fig2_d_style_confusion.png", "fig2_sweeps.png"):
+        assert (quick_run / name).is_file(), name
+    assert (quick_run / "fig2_a_offline_reward.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = json.loads((quick_run / "fig2.json").read_text())  # strict JSON: no NaN / Infinity
+    for key in ("offline_reward_gain_pct", "offline_jerk_change_pct", "online_reward_gain_pct", "style_macro_accuracy"):
+        assert isinstance(summary[key], float), key
+    for method in ("onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style", "k2", "delta_0",
+                   "delta_inf"):
+        for metric in ("reward", "collision", "mean_speed", "merge_success", "mean_executed_length", "cumulative_jerk"):
+            assert len(summary["methods"][method][metric]["per_seed"]) == 2, (method, metric)
+    md = (quick_run / "fig2.md").read_text()
+    assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
+    assert "δ sweep" in md and "k sweep" in md and "Style context" in md
+
+
+def test_quick_run_numbers_follow_from_the_raw_data(quick_run: Path) -> None:
+    summary = json.loads((quick_run / "fig2.json").read_text())
+
+    def seed_means(method: str, key: str) -> list[float]:
+        out = []
+        for seed in (0, 1):
+            raw = json.loads((quick_run / "fig2_raw" / f"seed{seed}" / f"{method}.json").read_text())
+            out.append(float(np.mean([ep[key] for ep in raw["episodes"]])))
+        return out
+
+    def gain(method: str, base: str, key: str) -> float:
+        new, ref = np.mean(seed_means(method, key)), np.mean(seed_means(base, key))
+        return 100.0 * (new - ref) / abs(ref)
+
+    assert summary["offline_reward_gain_pct"] == pytest.approx(gain("chunk", "onestep", "reward"))
+    assert summary["offline_jerk_change_pct"] == pytest.approx(gain("chunk", "onestep", "cumulative_jerk"))
+    assert summary["online_reward_gain_pct"] == pytest.approx(gain("adaptive", "fixed", "reward"))
+    mean, half = t_confidence_interval(seed_means("adaptive", "reward"))
+    assert summary["methods"]["adaptive"]["reward"]["mean"] == pytest.approx(mean)
+    assert summary["methods"]["adaptive"]["reward"]["ci95"] == pytest.approx(half)
+    # fixed execution runs whole chunks (k = 3 in quick mode); the one-step baseline one action per plan
+    assert summary["methods"]["fixed"]["mean_executed_length"]["per_seed"] == pytest.approx([3.0, 3.0])
+    assert summary["methods"]["onestep"]["mean_executed_length"]["per_seed"] == pytest.approx([1.0, 1.0])
+    styles = [json.loads((quick_run / "fig2_raw" / f"seed{s}" / "style.json").read_text()) for s in (0, 1)]
+    assert summary["style_macro_accuracy"] == pytest.approx(np.mean([s["macro_accuracy"] for s in styles]))
+    assert summary["style"]["confusion_matrix"] == (
+        np.asarray(styles[0]["confusion_matrix"]) + np.asarray(styles[1]["confusion_matrix"])
+    ).tolist()
+
+
+def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    from sb3_ua2c import offline, pipeline, style
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("a finished unit was run again")
+
+    for module, name in ((offline, "collect_dataset"), (pipeline, "pretrain"), (pipeline, "finetune"),
+                         (pipeline, "evaluate"), (style, "collect_style_dataset"), (style, "train_style_classifier"),
+                         (style, "evaluate_style_classifier")):
+        monkeypatch.setattr(module, name, forbidden)
+    before = json.loads((quick_run / "fig2.json").read_text())
+    assert experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]) == 0
+    assert "0 unit(s) run" in capsys.readouterr().out
+    after = json.loads((quick_run / "fig2.json").read_text())
+    assert after["online_reward_gain_pct"] == before["online_reward_gain_pct"]
+    # another budget must not reuse these units; the report alone uses the recorded budget
+    args = ["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]
+    assert experiments.main([*args, "--budget", '{"pretrain_steps": 9}']) == 2
+    assert "pretrain_steps: recorded 8, now 9" in capsys.readouterr().err
+    assert experiments.main(["--report-only", "--seed-list", "0", "1", "--out", str(quick_run)]) == 0
+    assert json.loads((quick_run / "fig2.json").read_text())["budget"]["pretrain_steps"] == 8
+
+
+def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        experiments.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "pretrain_stepz" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        experiments.main(["--seeds", "0", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        experiments.main(["--seed-list", "100", "--out", str(tmp_path)])
+    assert "seeds must be in [0, 100)" in capsys.readouterr().err
+    assert experiments.main(["--report-only", "--seeds", "1", "--out", str(tmp_path)]) == 2
+    assert "no raw results for seed 0" in capsys.readouterr().err
