@@ -130,7 +130,7 @@ def throughput(steps: int) -> None:
     )
 
 
-def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str], eval_every: int) -> None:
+def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str]) -> None:
     """Mean deterministic return after ``steps`` env steps, UA2C and SAC at default hyperparameters."""
     classes = {"UA2C": UA2C, "SAC": SAC}
     results: dict[str, list[float]] = {name: [] for name in algos}
@@ -175,7 +175,6 @@ def main() -> None:
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--eval-episodes", type=int, default=10)
-    parser.add_argument("--eval-every", type=int, default=20_000, help="learning: intermediate evaluations")
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -185,7 +184,7 @@ def main() -> None:
     elif args.part == "throughput":
         throughput(args.steps or 1000)
     else:
-        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos, args.eval_every)
+        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos)
 
 
 if __name__ == "__main__":
