@@ -10,6 +10,7 @@ Everything runs on one CPU thread. The machine may be shared: read the ratios, n
 from __future__ import annotations
 
 import argparse
+import ast
 import platform
 import statistics
 import time
@@ -106,9 +107,9 @@ def _throughput(model: UA2C | SAC, warm_steps: int, steps: int) -> tuple[float, 
     return steps / wall, steps / cpu, model._n_updates - n0
 
 
-def throughput(steps: int) -> None:
+def throughput(steps: int, ua2c_kwargs: dict) -> None:
     """learn() env steps/s including training, at default hyperparameters, after each warm-up."""
-    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0)
+    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0, **ua2c_kwargs)
     sac = SAC("MlpPolicy", ENV_ID, seed=0)
     ua2c_fps, ua2c_cpu_fps, ua2c_updates = _throughput(ua2c, ua2c.learning_starts + 200, steps)
     sac_fps, sac_cpu_fps, sac_updates = _throughput(sac, sac.learning_starts + 200, steps)
@@ -175,6 +176,12 @@ def main() -> None:
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument(
+        "--ua2c-kwargs",
+        type=ast.literal_eval,
+        default={},
+        help="throughput: UA2C arguments, e.g. \"{'n_target_candidates': 2}\"",
+    )
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -182,7 +189,7 @@ def main() -> None:
     if args.part == "latency":
         latency(args.repeats)
     elif args.part == "throughput":
-        throughput(args.steps or 1000)
+        throughput(args.steps or 1000, args.ua2c_kwargs)
     else:
         learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos)
 

@@ -34,9 +34,13 @@ early stopping, evaluation (accuracy, per-class precision/recall, confusion matr
 inferred and columns = ground truth, as in the paper's Fig. 2d), a logistic-regression baseline
 on summary features, and a command-line interface::
 
-    python -m sb3_ua2c.style collect  --episodes 60 --out style_data.npz
+    python -m sb3_ua2c.style collect  --out style_data.npz          # 1500 episodes, ~5 min
     python -m sb3_ua2c.style train    --data style_data.npz --out style_classifier.pt
     python -m sb3_ua2c.style evaluate --data style_data.npz --model style_classifier.pt
+    # -> results/style_eval.json, results/style_confusion.png
+
+The classifier shipped in ``sb3_ua2c/data/style_classifier.pt`` was made by these three
+commands with their defaults.
 
 Importing this module never needs SUMO; only :func:`collect_style_dataset` builds the
 environment.
@@ -216,8 +220,9 @@ class SlotSequences:
     """Per-slot token sequences ``Z_m`` of the current occupants (paper §3.1).
 
     Call :meth:`update` once per environment step (including the step returned by ``reset``)
-    with ``info["slots"]``. Arrays are right-aligned (newest token last) and kept in place, so an
-    update costs a few microseconds.
+    with ``info["slots"]``. Tokens are right-aligned (newest token last) and kept in place; the
+    per-slot bookkeeping is plain Python over the ``2H`` slots, so an update costs two array
+    copies and a few microseconds.
 
     :param n_slots: number of slots ``2H``
     :param seq_len: tokens per sequence ``ℓ``
@@ -232,21 +237,27 @@ class SlotSequences:
         self.n_slots, self.seq_len, self.n_features = int(n_slots), int(seq_len), int(n_features)
         #: (n_slots, seq_len, n_features) float32 tokens, zeros where invalid
         self.tokens = np.zeros((self.n_slots, self.seq_len, self.n_features), dtype=np.float32)
-        #: (n_slots,) number of valid tokens
-        self.lengths = np.zeros(self.n_slots, dtype=np.int64)
-        #: (n_slots,) True where a new occupant arrived (new sequence) at the last update
-        self.changed = np.zeros(self.n_slots, dtype=bool)
-        #: (n_slots,) True where the slot became empty at the last update
-        self.vacated = np.zeros(self.n_slots, dtype=bool)
         self.ids: list[str] = [""] * self.n_slots
+        self._lengths = [0] * self.n_slots
+        self._changed = [False] * self.n_slots
+        self._vacated = [False] * self.n_slots
+        #: True when some slot got a new occupant / became empty at the last update
+        self.any_changed = False
+        self.any_vacated = False
 
     def reset(self) -> None:
         """Forget every sequence (call at episode start, before the first :meth:`update`)."""
         self.tokens[:] = 0.0
-        self.lengths[:] = 0
-        self.changed[:] = False
-        self.vacated[:] = False
         self.ids = [""] * self.n_slots
+        self._lengths = [0] * self.n_slots
+        self._changed = [False] * self.n_slots
+        self._vacated = [False] * self.n_slots
+        self.any_changed = self.any_vacated = False
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(n_slots,) int64 number of valid tokens per slot."""
+        return np.array(self._lengths, dtype=np.int64)
 
     @property
     def valid(self) -> np.ndarray:
@@ -258,7 +269,17 @@ class SlotSequences:
         """(n_slots,) bool, True where the slot has an occupant."""
         return self.lengths > 0
 
-    def update(self, ids: Sequence[str], features: np.ndarray, present: np.ndarray) -> None:
+    @property
+    def changed(self) -> np.ndarray:
+        """(n_slots,) bool, True where a new occupant arrived (new sequence) at the last update."""
+        return np.array(self._changed, dtype=bool)
+
+    @property
+    def vacated(self) -> np.ndarray:
+        """(n_slots,) bool, True where the slot became empty at the last update."""
+        return np.array(self._vacated, dtype=bool)
+
+    def update(self, ids: Sequence[str], features: np.ndarray, present: Sequence[bool] | np.ndarray) -> None:
         """Append one token per occupied slot.
 
         :param ids: (n_slots,) vehicle ids, ``""`` for an empty slot
@@ -266,50 +287,47 @@ class SlotSequences:
         :param present: (n_slots,) bool, True where the slot is occupied
         """
         features = np.asarray(features, dtype=np.float32)
-        present = np.asarray(present, dtype=bool)
+        flags = present.tolist() if isinstance(present, np.ndarray) else list(present)
         if features.shape != (self.n_slots, self.n_features):
             raise ValueError(
                 f"SlotSequences.update: features must have shape ({self.n_slots}, {self.n_features}), "
                 f"got {features.shape}"
             )
-        if present.shape != (self.n_slots,) or len(ids) != self.n_slots:
+        if len(flags) != self.n_slots or len(ids) != self.n_slots:
             raise ValueError(
                 f"SlotSequences.update: ids and present must have length {self.n_slots}, "
-                f"got {len(ids)} and {present.shape}"
+                f"got {len(ids)} and {len(flags)}"
             )
-        flags = present.tolist()
-        # (n_slots,) same occupant as at the previous update
-        same = np.array([p and i == o for p, i, o in zip(flags, ids, self.ids, strict=True)], dtype=bool)
-        was_present = self.lengths > 0
-        tokens = self.tokens
+        tokens, lengths, old_ids, seq_len = self.tokens, self._lengths, self.ids, self.seq_len
         tokens[:, :-1] = tokens[:, 1:]  # shift left: the newest token goes to index seq_len - 1
-        np.multiply(features, present[:, None], out=tokens[:, -1])  # an empty slot's token is zeros
-        np.minimum(self.lengths + 1, self.seq_len, out=self.lengths)
-        self.lengths *= present
-        self.changed = present & ~same
-        self.vacated = was_present & ~present
-        restart = ~same & (present | was_present)  # new occupant, or slot just emptied
-        if restart.any():  # rare: drop the old history
-            tokens[restart, :-1] = 0.0
-            self.lengths[restart] = present[restart]
+        tokens[:, -1] = features
+        changed, vacated = self._changed, self._vacated
+        for m in range(self.n_slots):
+            if flags[m]:
+                vacated[m] = False
+                if lengths[m] and ids[m] == old_ids[m]:  # same occupant: the sequence grows
+                    changed[m] = False
+                    if lengths[m] < seq_len:
+                        lengths[m] += 1
+                    continue
+                changed[m] = True  # new occupant: a new sequence
+                if lengths[m]:
+                    tokens[m, :-1] = 0.0
+                lengths[m] = 1
+            else:
+                changed[m] = False
+                vacated[m] = lengths[m] > 0
+                if vacated[m]:
+                    tokens[m, :-1] = 0.0
+                tokens[m, -1] = 0.0  # an empty slot holds no token
+                lengths[m] = 0
+        self.any_changed, self.any_vacated = any(changed), any(vacated)
         self.ids = [i if p else "" for i, p in zip(ids, flags, strict=True)]
 
 
 # --------------------------------------------------------------------------------------------
 # The classifier (Eq. 5)
 # --------------------------------------------------------------------------------------------
-_MASK_VALUE = -1e4  # finite: a row without any valid key stays finite (it is discarded anyway)
-
-
-def attention_bias(valid: torch.Tensor) -> torch.Tensor:
-    """Additive attention bias from a key-validity mask.
-
-    :param valid: (batch, seq_len) bool
-    :return: (batch, 1, 1, seq_len) float, 0 for valid keys and a large negative value otherwise
-    """
-    return torch.where(valid, 0.0, _MASK_VALUE)[:, None, None, :]
-
-
 def masked_mean(h: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Mean of ``h`` over the valid positions.
 
@@ -337,28 +355,18 @@ class _EncoderLayer(nn.Module):
         self.norm2 = nn.LayerNorm(d_model)
         self.dropout = nn.Dropout(dropout)
 
-    def forward(self, h: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    def forward(self, h: torch.Tensor, key_valid: torch.Tensor) -> torch.Tensor:
         """:param h: (batch, seq_len, d_model)
-        :param bias: (batch, 1, 1, seq_len) additive attention bias
+        :param key_valid: (batch, 1, 1, seq_len) bool, True for the keys that may be attended
         :return: (batch, seq_len, d_model)
         """
         batch, seq_len, d_model = h.shape
         # (batch, T, 3d) -> (3, batch, heads, T, head_dim)
-        qkv = self.qkv(h).view(batch, seq_len, 3, self.n_heads, self.head_dim).permute(2, 0, 3, 1, 4)
-        q, k, v = qkv.unbind(0)
-        scores = torch.baddbmm(
-            bias.expand(batch, self.n_heads, seq_len, seq_len).reshape(-1, seq_len, seq_len),
-            q.reshape(-1, seq_len, self.head_dim),
-            k.reshape(-1, seq_len, self.head_dim).transpose(1, 2),
-            alpha=self.head_dim**-0.5,
-        )  # (batch*heads, T, T)
-        attn = torch.bmm(scores.softmax(-1), v.reshape(-1, seq_len, self.head_dim))  # (batch*heads, T, hd)
-        # (batch*heads, T, hd) -> (batch, T, d)
-        attn = (
-            attn.view(batch, self.n_heads, seq_len, self.head_dim)
-            .transpose(1, 2)
-            .reshape(batch, seq_len, d_model)
+        q, k, v = (
+            self.qkv(h).view(batch, seq_len, 3, self.n_heads, self.head_dim).permute(2, 0, 3, 1, 4).unbind(0)
         )
+        attn = F.scaled_dot_product_attention(q, k, v, attn_mask=key_valid)  # (batch, heads, T, head_dim)
+        attn = attn.transpose(1, 2).reshape(batch, seq_len, d_model)  # (batch, heads, T, hd) -> (batch, T, d)
         h = self.norm1(h + self.dropout(self.out(attn)))
         return self.norm2(h + self.dropout(self.ff2(self.dropout(F.relu(self.ff1(h))))))
 
@@ -422,11 +430,11 @@ class DrivingStyleClassifier(nn.Module):
         :return: (batch, n_classes) logits
         """
         x = (tokens - self.feature_mean) / self.feature_std
-        x = x * valid.unsqueeze(-1)  # padding carries no information, whatever it held
         h = self.embed(x) + self.position  # (batch, seq_len, d_model)
-        bias = attention_bias(valid)
+        # padded positions are never attended to and never pooled, whatever they hold
+        key_valid = valid[:, None, None, :]  # (batch, 1, 1, seq_len)
         for layer in self.layers:
-            h = layer(h, bias)
+            h = layer(h, key_valid)
         return self.head(masked_mean(h, valid))
 
     def _check_inputs(self, tokens: np.ndarray, valid: np.ndarray) -> None:

@@ -22,6 +22,7 @@ from sb3_ua2c.style import (
     SlotSequences,
     load_classifier,
     read_slots,
+    valid_mask,
 )
 
 
@@ -126,18 +127,18 @@ class DrivingStyleContext(gym.Wrapper):
         seqs.update(slots["ids"], slots["features"], slots["present"])
         tick = self._t % self.update_every == 0
         self._t += 1
-        if seqs.vacated.any():
+        if seqs.any_vacated:
             self.context[seqs.vacated] = self._fill
         if tick:
-            rows = np.flatnonzero(seqs.lengths)  # occupied slots
+            lengths = seqs.lengths
+            rows = np.flatnonzero(lengths)  # occupied slots
             if rows.size:
                 self.n_forwards += 1
+                valid = valid_mask(lengths[rows], seqs.seq_len)  # (n_present, seq_len)
                 with torch.inference_mode():
-                    logits = self.classifier(
-                        torch.from_numpy(seqs.tokens[rows]), torch.from_numpy(seqs.valid[rows])
-                    )  # (n_present, C)
-                    self.context[rows] = logits.softmax(-1).numpy()
-        elif seqs.changed.any():
+                    logits = self.classifier(torch.from_numpy(seqs.tokens[rows]), torch.from_numpy(valid))
+                    self.context[rows] = logits.softmax(-1).numpy()  # (n_present, C)
+        elif seqs.any_changed:
             self.context[seqs.changed] = 1.0 / self.n_classes  # new occupant: style not inferred yet
         # (n_slots, C) -> (n_slots * C,), order l_1..l_H, f_1..f_H as in Eq. 6
         return np.concatenate([np.asarray(obs, dtype=self.observation_space.dtype), self.context.reshape(-1)])

@@ -19,7 +19,6 @@ from sb3_ua2c.style import (
     StyleClassifierConfig,
     StyleDataset,
     StyleTrainConfig,
-    attention_bias,
     classification_metrics,
     collect_style_dataset,
     confusion_matrix,
@@ -124,11 +123,8 @@ def test_config_unknown_key_and_bad_values():
 
 
 # ---------------------------------------------------------------------------- network pieces
-def test_attention_bias_and_masked_mean():
+def test_masked_mean():
     valid = torch.tensor([[False, True, True], [False, False, False]])
-    bias = attention_bias(valid)
-    assert bias.shape == (2, 1, 1, 3)
-    assert bias[0, 0, 0].tolist() == [-1e4, 0.0, 0.0]
     h = torch.tensor([[[9.0], [1.0], [3.0]], [[5.0], [5.0], [5.0]]])
     assert masked_mean(h, valid).tolist() == [[2.0], [0.0]]
 

@@ -23,6 +23,7 @@ def _expected_context(wrapper: DrivingStyleContext) -> np.ndarray:
     return wrapper.classifier.predict_proba(seqs.tokens, seqs.valid, empty=wrapper.empty)
 
 
+@pytest.mark.filterwarnings("ignore:.*different from the unwrapped version")
 def test_observation_space_and_check_env(classifier):
     from stable_baselines3.common.env_checker import check_env
 
