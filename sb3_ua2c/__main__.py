@@ -142,8 +142,12 @@ def cmd_main(args: argparse.Namespace) -> int:
     run = _run_dir(args)
     progress = not args.no_progress
     t0 = time.time()
-    print(f"[1/4] collect {budget['episodes']} episodes of SUMO-driven data -> {run / 'dataset'}")
-    ds = collect_dataset(run / "dataset", budget["episodes"], seed=args.seed, progress_bar=progress, overwrite=True)
+    print(f"[1/4] collect {budget['episodes']} episodes of SUMO-driven data -> {run / 'dataset'}"
+          f"{'' if args.no_style_context else ' (with the driving-style context c_t)'}")
+    style = None if args.no_style_context else "default"
+    ds = collect_dataset(
+        run / "dataset", budget["episodes"], seed=args.seed, style_classifier=style, progress_bar=progress, overwrite=True
+    )
     print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
     pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress)
     print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
@@ -232,6 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("main", help="collect -> pretrain -> finetune -> evaluate, end to end with embedded defaults")
     common(p)
     p.add_argument("--quick", action="store_true", help="a tiny budget (seconds), for smoke tests")
+    p.add_argument("--no-style-context", action="store_true",
+                   help="train on the raw 20-number observation (no driving-style context c_t)")
     p.set_defaults(func=cmd_main)
 
     sub.add_parser("style", help="driving-style classifier: collect / train / evaluate (see 'style --help')",
