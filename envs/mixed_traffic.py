@@ -44,9 +44,11 @@ from envs.scenario import (
     ROUTE_HIGHWAY,
     ROUTE_RAMP,
     STYLE_COLORS,
+    STYLE_SPEED_VARIATION,
     STYLE_VTYPES,
     ScenarioGeometry,
     build_scenario,
+    speed_fluctuation_step,
 )
 
 __all__ = [
@@ -62,6 +64,14 @@ EGO_CONTROLLERS = ("agent", "sumo")
 #: HDVs start at least this far apart on a lane [m], from this road position on [m].
 SPAWN_MIN_SPACING = 25.0
 SPAWN_START = 10.0
+#: Lane sorting of the start state (keep-right traffic): HDV i gets the lane rank of
+#: ``style_i + SPAWN_LANE_MIXING · N(0, 1)`` (style 0 = conservative ... 2 = aggressive) among
+#: the HDVs, each lane receiving a third of them. With 1.2, about 63 % of the conservative
+#: drivers start in the right lane (8 % in the left one) and 62 % of the aggressive ones in the
+#: left lane; with 0 the lanes would be fully sorted by style, with a large value mixed at
+#: random. Without this sorting every lane holds slow drivers and the faster ones queue behind
+#: them at the same speed, which on a keep-right motorway is the exception rather than the rule.
+SPAWN_LANE_MIXING = 1.2
 #: The context subscription around the AV reaches V + this margin [m] (Euclidean range; covers
 #: the ramp's lateral offset and its slightly shorter geometry).
 CONTEXT_MARGIN = 30.0
@@ -85,6 +95,9 @@ class MixedTrafficConfig:
     :param zeta_cap: the lane distance ζ is capped at (and normalised by) this length [m].
     :param hdv_spawn_length: HDVs start spread over the first ``hdv_spawn_length`` metres of the
         highway [m].
+    :param hdv_warmup: the HDVs drive alone for this long before the AV enters and the episode
+        starts [s] (rounded to whole steps), so that the transient of their simultaneous
+        insertion is over; 0 disables it.
     :param ego_controller: ``"agent"`` (the action drives the AV) or ``"sumo"`` (SUMO's own
         car-following and lane-change models drive it; the action is ignored and the performed
         one is reported in ``info["applied_action"]``).
@@ -103,6 +116,7 @@ class MixedTrafficConfig:
     observation_range: float = 30.0
     zeta_cap: float = 300.0
     hdv_spawn_length: float = 800.0
+    hdv_warmup: float = 2.0
     ego_controller: str = "agent"
     geometry: ScenarioGeometry = field(default_factory=ScenarioGeometry)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -131,6 +145,10 @@ class MixedTrafficConfig:
             raise ValueError(
                 f"{name}.step_length must be <= {min_tau:g} s (the smallest HDV time headway), got {self.step_length!r}"
             )
+        if isinstance(self.hdv_warmup, bool) or not (
+            isinstance(self.hdv_warmup, (int, float)) and 0.0 <= self.hdv_warmup <= 600.0
+        ):
+            raise ValueError(f"{name}.hdv_warmup must be a number of seconds in [0, 600], got {self.hdv_warmup!r}")
         if self.time_limit < self.step_length:
             raise ValueError(f"{name}.time_limit must be >= step_length, got {self.time_limit!r}")
         if self.target_speed > self.max_speed:
@@ -192,10 +210,12 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     acceleration lane at x = 400 m that ends at x = 650 m. Human-driven vehicles (HDVs) are
     SUMO vehicles of three driving styles, ``conservative`` / ``neutral`` / ``aggressive``
     (IDM car following and LC2013 lane changing with the parameters of
-    ``envs.scenario.STYLE_VTYPES``: time headway 1.8 / 1.2 / 0.6 s, acceleration 1.2 / 2.0 /
-    3.2 m/s², desired speed 0.8 / 0.9 / 1.05 × the 30 m/s limit, growing lane-change
-    eagerness and assertiveness). HDVs that reach the end of the road re-enter at its start,
-    so the density holds. Paper: §2 and §4.1.
+    ``envs.scenario.STYLE_VTYPES``: time headway 2.0 / 1.2 / 0.6 s, acceleration 1.0 / 2.0 /
+    3.5 m/s², desired speed 0.75 / 0.95 / 1.12 × the 30 m/s limit, growing lane-change
+    eagerness and assertiveness, decreasing cooperation). Each driver's desired speed has its
+    own offset and fluctuates in time, by 1 / 2 / 4 % (``envs.scenario.STYLE_SPEED_VARIATION``),
+    so that each style has a temporal signature. HDVs that reach the end of the road re-enter
+    at its start, so the density holds. Paper: §2 and §4.1.
 
     ## Action space
     ``Box([a_min, -1], [a_max, 1], (2,), float32)``:
@@ -244,15 +264,22 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["reward_terms_raw"]`` the R_α.
 
     ## Start state
-    All randomness comes from ``np_random``. The AV enters the ramp 5–25 m after its start at
-    15–20 m/s. The HDVs (style counts from ``style_mix``, shuffled; lanes balanced) are spread
-    uniformly over the first 800 m of the three highway lanes at least 25 m apart, each with a
-    desired speed of its style's factor × (1 ± 5 %, clipped to ±10 %) × 30 m/s, and inserted
-    front to back at the largest safe speed up to it. ``reset(seed=...)`` restarts SUMO
-    (``load``, SUMO seed drawn from ``np_random``); ``reset()`` without a seed removes and
-    re-inserts all vehicles in the running simulation (≈ 2 ms instead of ≈ 10 ms). Both give the
-    same trajectories: the scenario never uses SUMO's own random numbers (IDM has no noise
-    term), so the same seed gives a bit-identical episode.
+    All randomness comes from ``np_random``. The HDVs (style counts from ``style_mix``,
+    shuffled) are spread uniformly over the first 800 m of the three highway lanes at least
+    25 m apart, a third of them per lane, sorted keep-right style with some mixing (about 63 %
+    of the conservative drivers start in the right lane and 62 % of the aggressive ones in the
+    left lane, see ``SPAWN_LANE_MIXING``). Each has a desired speed of its style's factor ×
+    (1 + per-driver offset, 3 % std) × (1 + fluctuation) × 30 m/s and is inserted front to back
+    at the largest safe speed up to it. The HDVs then drive alone for ``hdv_warmup`` = 2 s (10
+    simulation steps), so that the insertion transient (vehicles inserted below their desired
+    speed accelerate, those inserted too close drop back) is over; only then does the AV enter
+    the ramp, 5–25 m after its start at 15–20 m/s, and the episode (time 0) begin. (A longer
+    warm-up moves the HDVs further downstream of the AV, which then meets fewer of them.)
+    ``reset(seed=...)`` restarts SUMO (``load``, SUMO seed drawn from ``np_random``); ``reset()``
+    without a seed removes and re-inserts all vehicles in the running simulation (≈ 4 ms instead
+    of ≈ 12 ms). Both give the same trajectories: the scenario never uses SUMO's own random
+    numbers (IDM has no noise term; the speed fluctuation is drawn from ``np_random``), so the
+    same seed gives a bit-identical episode.
 
     ## Episode end
     * terminated: collision of the AV (SUMO collision detection: overlap, junctions checked,
@@ -350,8 +377,13 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
             self.sim.load(sumo_seed)
         else:  # ~10x faster than a reload, same dynamics (SUMO's own RNG is never used)
             self.sim.clear((*self._hdv_ids, AV_ID), AV_ID if self._av_subscribed else None, self._context_radius)
-        self._populate()
         self._av_subscribed = False
+        self._populate()
+        for _ in range(int(round(self.config.hdv_warmup / self.config.step_length))):
+            self.sim.step()  # HDVs only: the AV is added afterwards
+            self._after_sim_step()
+        av_pos, av_speed = self._av_start
+        self.sim.add_vehicle(AV_ID, ROUTE_RAMP, AV_TYPE, f"{av_pos:.2f}", "0", f"{av_speed:.2f}")
         for _ in range(50):  # the AV is inserted at the first step; never touch it before
             self.sim.step()
             if AV_ID in self.sim.departed_ids():
@@ -534,20 +566,33 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     # simulation bookkeeping
     # ------------------------------------------------------------------------------------------
     def _populate(self) -> None:
+        """Insert the HDVs (styles, desired speeds, positions from ``np_random``); draw the AV's start."""
         cfg, rng = self.config, self.np_random
+        n = cfg.num_hdvs
         labels = np.repeat(np.arange(len(STYLES)), cfg.style_counts())
         rng.shuffle(labels)
         self._styles = {vid: int(s) for vid, s in zip(self._hdv_ids, labels, strict=True)}
-        # Each HDV's desired speed factor: its style's value × (1 + 5 % noise), clipped to ±10 %.
-        noise = np.clip(1.0 + 0.05 * rng.standard_normal(len(self._hdv_ids)), 0.9, 1.1)
-        self._speed_factors = {
-            vid: float(STYLE_VTYPES[STYLES[self._styles[vid]]]["speedFactor"] * k)
-            for vid, k in zip(self._hdv_ids, noise, strict=True)
-        }
-        # Spread HDVs over three lanes, >= min_gap apart: sorted uniforms + i * min_gap.
-        n = cfg.num_hdvs
-        lane_of = np.arange(n) % 3  # balanced over the lanes, in shuffled order
-        rng.shuffle(lane_of)
+        self._hdv_index = {vid: i for i, vid in enumerate(self._hdv_ids)}
+        # Desired speed factor of HDV i: speedFactor × (1 + δ_i) × (1 + ε_i(t)) (envs.scenario.SpeedVariation).
+        var = [STYLE_SPEED_VARIATION[STYLES[s]] for s in labels]
+        spread = np.array([v.spread for v in var])
+        sigma = np.array([v.fluctuation for v in var])
+        dt = cfg.step_length
+        self._fluct_sigma = sigma
+        self._fluct_rho = np.array([v.autocorrelation for v in var])
+        period = np.array([max(1, int(round(v.update_period / dt))) for v in var], dtype=np.int64)
+        # (update period in steps, indices of the HDVs with that period); usually one group
+        self._fluct_groups = [(int(k), np.flatnonzero(period == k)) for k in np.unique(period)]
+        delta = np.clip(spread * rng.standard_normal(n), -2.0 * spread, 2.0 * spread)
+        self._base_factors = np.array([STYLE_VTYPES[STYLES[s]]["speedFactor"] for s in labels]) * (1.0 + delta)
+        self._fluct = np.clip(sigma * rng.standard_normal(n), -2.0 * sigma, 2.0 * sigma)  # stationary start
+        self._factors = self._base_factors * (1.0 + self._fluct)
+        self._hdv_clock = 0
+        # Lanes: a third of the HDVs each, slow styles mostly right (see SPAWN_LANE_MIXING).
+        rank = np.argsort(labels + SPAWN_LANE_MIXING * rng.standard_normal(n), kind="stable")
+        lane_of = np.empty(n, dtype=np.int64)
+        lane_of[rank] = np.arange(n) * 3 // n  # (n,) lane 0 (right) .. 2 (left) of each HDV
+        # Spread HDVs over their lane, >= min_gap apart: sorted uniforms + i * min_gap.
         min_gap, start = SPAWN_MIN_SPACING, SPAWN_START
         placed: list[tuple[float, int, str]] = []
         for lane in range(3):
@@ -565,11 +610,28 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
             else:
                 route, pos, sumo_lane = ROUTE_FROM_OUT, x - g.merge_end, lane
             self.sim.add_vehicle(vid, route, STYLES[self._styles[vid]], f"{pos:.2f}", str(sumo_lane), "max")
-            self.sim.set_speed_factor(vid, self._speed_factors[vid])
-        av_pos = float(rng.uniform(5.0, 25.0))
-        av_speed = float(rng.uniform(15.0, 20.0))
-        self.sim.add_vehicle(AV_ID, ROUTE_RAMP, AV_TYPE, f"{av_pos:.2f}", "0", f"{av_speed:.2f}")
+            self.sim.set_speed_factor(vid, float(self._factors[self._hdv_index[vid]]))
+        self._av_start = (float(rng.uniform(5.0, 25.0)), float(rng.uniform(15.0, 20.0)))  # ramp position, speed
         self._reenter: list[str] = []
+
+    def _update_speed_fluctuation(self) -> None:
+        """Advance the desired-speed fluctuation ε of the HDVs due at this step (AR(1), ``np_random``)."""
+        self._hdv_clock += 1
+        for period, due in self._fluct_groups:
+            if self._hdv_clock % period == 0 and due.size:
+                self._update_fluctuation_of(due)
+
+    def _update_fluctuation_of(self, due: np.ndarray) -> None:
+        """Draw the next fluctuation of the HDVs ``due`` (int indices) and hand their factors to SUMO."""
+        self._fluct[due] = speed_fluctuation_step(
+            self._fluct[due], self._fluct_rho[due], self._fluct_sigma[due], self.np_random.standard_normal(due.size)
+        )
+        self._factors[due] = self._base_factors[due] * (1.0 + self._fluct[due])
+        waiting = set(self._reenter)  # not in the simulation: they get their factor when re-added
+        ids, factors, sim = self._hdv_ids, self._factors, self.sim
+        for i in due.tolist():
+            if ids[i] not in waiting:
+                sim.set_speed_factor(ids[i], float(factors[i]))
 
     def _after_sim_step(self) -> None:
         sim = self.sim
@@ -581,9 +643,10 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         pending, self._reenter = self._reenter, []
         for vid in pending + [v for v in sim.arrived_ids() if v in self._styles and v not in pending]:
             if sim.try_add_vehicle(vid, ROUTE_HIGHWAY, STYLES[self._styles[vid]], "base", "free", "max"):
-                sim.set_speed_factor(vid, self._speed_factors[vid])
+                sim.set_speed_factor(vid, float(self._factors[self._hdv_index[vid]]))
             else:
                 self._reenter.append(vid)  # not yet released by SUMO: retry next step
+        self._update_speed_fluctuation()
         self._results = sim.context_results(AV_ID) if self._av_subscribed else {}
 
     def _read_state(self) -> None:

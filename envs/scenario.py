@@ -18,7 +18,8 @@ lane only admit the autonomous vehicle (vClass ``custom1``); human-driven vehicl
 highway lanes.
 
 HDV driving styles are SUMO vehicle types (IDM car following, LC2013 lane changing) whose
-parameters are in :data:`STYLE_VTYPES`.
+parameters are in :data:`STYLE_VTYPES`; the per-driver spread and the fluctuation of their
+desired speeds, applied by the environment, are in :data:`STYLE_SPEED_VARIATION`.
 
 The files are built once with the ``netconvert`` binary of the ``eclipse-sumo`` wheel and cached
 under :func:`cache_dir` (``$SB3_UA2C_CACHE``, else ``$XDG_CACHE_HOME/sb3-ua2c``, else
@@ -28,6 +29,7 @@ under :func:`cache_dir` (``$SB3_UA2C_CACHE``, else ``$XDG_CACHE_HOME/sb3-ua2c``,
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import subprocess
 import tempfile
@@ -35,6 +37,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from envs.mdp import STYLES
 
@@ -54,25 +58,115 @@ AV_TYPE = "av"
 AV_VCLASS = "custom1"
 
 #: SUMO vehicle-type attributes of each HDV driving style (index = label in ``STYLES``).
-#: Car following: IDM with maximum acceleration ``accel`` [m/s²], comfortable deceleration
-#: ``decel`` [m/s²], desired time headway ``tau`` [s] and standstill gap ``minGap`` [m]; the
-#: desired speed is ``speedFactor`` × the speed limit (the env draws each vehicle's factor
-#: around it, so SUMO's own random numbers are never used: ``speedDev`` is 0).
-#: Lane changing (LC2013): ``lcSpeedGain`` (eagerness to overtake), ``lcKeepRight``,
-#: ``lcAssertive`` (accepted gaps in the target lane shrink as it grows), ``lcCooperative``.
+#:
+#: Car following is IDM (Treiber et al., 2000) with maximum acceleration ``accel`` [m/s²],
+#: comfortable deceleration ``decel`` [m/s²], desired time headway ``tau`` [s] and standstill
+#: gap ``minGap`` [m]; the desired speed is ``speedFactor`` × the 30 m/s speed limit. Lane
+#: changing is LC2013 (Erdmann, 2014): ``lcSpeedGain`` (eagerness to change lane for speed),
+#: ``lcKeepRight`` (eagerness to return to the right), ``lcAssertive`` (>1 accepts smaller gaps
+#: in the target lane), ``lcCooperative`` (willingness to make room for others, in [0, 1]).
+#:
+#: ============== ======= ======= ====== ====== ============ ========= ========= ========== ==========
+#: style          a_max   b       T      s_0    v0 / limit   speed     keep      assertive  cooperative
+#:                [m/s²]  [m/s²]  [s]    [m]    (km/h)       gain      right
+#: ============== ======= ======= ====== ====== ============ ========= ========= ========== ==========
+#: conservative   1.0     1.8     2.0    4.0    0.75 (81)    0.2       2.0       0.5        1.0
+#: neutral        2.0     3.0     1.2    2.5    0.95 (103)   1.0       1.0       1.0        0.5
+#: aggressive     3.5     4.5     0.6    1.0    1.12 (121)   3.0       0.3       3.0        0.1
+#: ============== ======= ======= ====== ====== ============ ========= ========= ========== ==========
+#:
+#: Conservative and neutral lie in the usual ranges of IDM drivers calibrated on motorway data
+#: (a_max about 1-2 m/s², b 1.5-3 m/s², T 1-2 s, s_0 2-5 m; Treiber & Kesting, *Traffic Flow
+#: Dynamics*, 2013, ch. 11): the conservative driver is a slow right-lane driver keeping the
+#: recommended 2 s. The aggressive driver deliberately exceeds the comfortable values: a_max
+#: 3.5 m/s² (0-100 km/h in about 8 s), firm braking at 4.5 m/s² (still below the 9 m/s²
+#: emergency deceleration), tailgating at 0.6 s and 12 % above the limit. Desired speeds are
+#: 6 m/s and 5 m/s apart, several times the spread within one style (see
+#: :data:`STYLE_SPEED_VARIATION`), so a free-flowing driver's style shows in its speed and a
+#: following driver's in its gap (2.0 s vs 1.2 s vs 0.6 s of headway).
+#: SUMO's own random numbers are never used (``speedDev`` is 0; IDM has no noise term): the
+#: per-driver spread and the desired-speed fluctuation come from the env's seeded generator.
 STYLE_VTYPES: dict[str, dict[str, float]] = {
     "conservative": {
-        "accel": 1.2, "decel": 2.0, "tau": 1.8, "minGap": 3.5, "speedFactor": 0.8,
-        "lcSpeedGain": 0.3, "lcKeepRight": 1.5, "lcAssertive": 0.7, "lcCooperative": 1.0,
+        "accel": 1.0, "decel": 1.8, "tau": 2.0, "minGap": 4.0, "speedFactor": 0.75,
+        "lcSpeedGain": 0.2, "lcKeepRight": 2.0, "lcAssertive": 0.5, "lcCooperative": 1.0,
     },
     "neutral": {
-        "accel": 2.0, "decel": 3.0, "tau": 1.2, "minGap": 2.5, "speedFactor": 0.9,
-        "lcSpeedGain": 1.0, "lcKeepRight": 1.0, "lcAssertive": 1.0, "lcCooperative": 0.8,
+        "accel": 2.0, "decel": 3.0, "tau": 1.2, "minGap": 2.5, "speedFactor": 0.95,
+        "lcSpeedGain": 1.0, "lcKeepRight": 1.0, "lcAssertive": 1.0, "lcCooperative": 0.5,
     },
     "aggressive": {
-        "accel": 3.2, "decel": 4.5, "tau": 0.6, "minGap": 1.0, "speedFactor": 1.05,
-        "lcSpeedGain": 3.0, "lcKeepRight": 0.3, "lcAssertive": 3.0, "lcCooperative": 0.2,
+        "accel": 3.5, "decel": 4.5, "tau": 0.6, "minGap": 1.0, "speedFactor": 1.12,
+        "lcSpeedGain": 3.0, "lcKeepRight": 0.3, "lcAssertive": 3.0, "lcCooperative": 0.1,
     },
+}
+
+
+@dataclass(frozen=True)
+class SpeedVariation:
+    """How the desired speed of the HDVs of one style varies (drawn by the env, never by SUMO).
+
+    Each HDV's speed factor is ``speedFactor × (1 + δ_i) × (1 + ε_i(t))``: ``δ_i`` is fixed per
+    driver (drawn at reset, ``N(0, spread²)`` clipped to ``±2·spread``); ``ε_i(t)`` is an
+    Ornstein-Uhlenbeck fluctuation of stationary standard deviation ``fluctuation`` and
+    correlation time ``correlation_time``, updated every ``update_period`` seconds (the
+    discrete-time AR(1) ``ε ← ρ ε + sqrt(1 − ρ²) · fluctuation · ξ``, ``ρ = exp(−period / T)``)
+    and clipped to ``±2·fluctuation``. IDM then follows the moving desired speed with the
+    style's own acceleration and deceleration, which gives every style a temporal signature
+    in speed and acceleration even in free flow (a calm driver holds its speed; an aggressive
+    one keeps speeding up and braking, cf. the speed-variance findings on driving styles).
+
+    :param spread: per-driver relative spread of the desired speed.
+    :param fluctuation: stationary relative standard deviation of the fluctuation.
+    :param correlation_time: correlation time ``T`` of the fluctuation [s].
+    :param update_period: time between two updates of the fluctuation [s].
+    """
+
+    spread: float
+    fluctuation: float
+    correlation_time: float = 3.0
+    update_period: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("spread", "fluctuation"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0.0 <= float(value) < 0.25):
+                raise ValueError(f"SpeedVariation.{name} must be a number in [0, 0.25), got {value!r}")
+        for name in ("correlation_time", "update_period"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0.0 < float(value) < 1e4):
+                raise ValueError(f"SpeedVariation.{name} must be a positive number, got {value!r}")
+
+    @property
+    def autocorrelation(self) -> float:
+        """``ρ = exp(−update_period / correlation_time)`` of the AR(1) update."""
+        return math.exp(-self.update_period / self.correlation_time)
+
+
+def speed_fluctuation_step(
+    eps: np.ndarray, rho: np.ndarray, sigma: np.ndarray, noise: np.ndarray
+) -> np.ndarray:
+    """One update of the desired-speed fluctuation (see :class:`SpeedVariation`).
+
+    ``ε' = clip(ρ ε + sqrt(1 − ρ²) σ ξ, −2σ, 2σ)``: the exact discretisation of an
+    Ornstein-Uhlenbeck process of stationary standard deviation σ, clipped at two σ.
+
+    :param eps: (n,) current relative fluctuations ε.
+    :param rho: (n,) autocorrelation ρ per update, in [0, 1].
+    :param sigma: (n,) stationary standard deviations σ.
+    :param noise: (n,) standard normal draws ξ.
+    :return: (n,) the new fluctuations.
+    """
+    new = rho * eps + np.sqrt(1.0 - rho**2) * sigma * noise
+    return np.clip(new, -2.0 * sigma, 2.0 * sigma)
+
+
+#: Desired-speed variation of each style (relative to its ``speedFactor``): per-driver spread 3 %,
+#: fluctuation 1 % / 2 % / 4 % (correlation time 3 s, updated every second).
+STYLE_SPEED_VARIATION: dict[str, SpeedVariation] = {
+    "conservative": SpeedVariation(spread=0.03, fluctuation=0.01),
+    "neutral": SpeedVariation(spread=0.03, fluctuation=0.02),
+    "aggressive": SpeedVariation(spread=0.03, fluctuation=0.04),
 }
 #: RGB colour of each style (also used by the renderer): blue, green, orange.
 STYLE_COLORS: dict[str, tuple[int, int, int]] = {
@@ -80,7 +174,7 @@ STYLE_COLORS: dict[str, tuple[int, int, int]] = {
     "neutral": (60, 180, 90),
     "aggressive": (245, 150, 30),
 }
-assert tuple(STYLE_VTYPES) == STYLES and tuple(STYLE_COLORS) == STYLES
+assert tuple(STYLE_VTYPES) == STYLES and tuple(STYLE_COLORS) == STYLES and tuple(STYLE_SPEED_VARIATION) == STYLES
 
 
 @dataclass(frozen=True)

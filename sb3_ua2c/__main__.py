@@ -2,7 +2,7 @@
 
 Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
 ``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
-classifier: collect / train / evaluate). Each run writes into its own run directory
+classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds). Each run writes into its own run directory
 (``--run-dir``, default ``runs/<command>-<date>-<time>``).
 """
 
@@ -242,6 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("style", help="driving-style classifier: collect / train / evaluate (see 'style --help')",
                    add_help=False)
+    sub.add_parser("fig2", help="reproduce the paper's Figure 2 over several seeds (see 'fig2 --help')",
+                   add_help=False)
     return parser
 
 
@@ -249,6 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "style":
         return cmd_style(argv[1:])
+    if argv and argv[0] == "fig2":
+        from sb3_ua2c.experiments import main as fig2_main
+
+        return int(fig2_main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -43,7 +43,8 @@ import math
 import os
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,16 +122,33 @@ class Fig2Budget:
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes",
-                     "chunk_size", "style_max_epochs"):
+        for name in (
+            "dataset_episodes",
+            "pretrain_steps",
+            "finetune_steps",
+            "eval_episodes",
+            "chunk_size",
+            "style_max_epochs",
+        ):
             _positive_int(name, getattr(self, name))
-        if isinstance(self.style_episodes, bool) or not isinstance(self.style_episodes, int) or self.style_episodes < 3:
-            raise ValueError(f"Fig2Budget.style_episodes must be an integer >= 3, got {self.style_episodes!r}")
+        if (
+            isinstance(self.style_episodes, bool)
+            or not isinstance(self.style_episodes, int)
+            or self.style_episodes < 3
+        ):
+            raise ValueError(
+                f"Fig2Budget.style_episodes must be an integer >= 3, got {self.style_episodes!r}"
+            )
         for name, limit in (("dataset_episodes", 9_999), ("style_episodes", 9_999), ("eval_episodes", 1_000)):
             if getattr(self, name) > limit:
-                raise ValueError(f"Fig2Budget.{name} must be <= {limit} (seed ranges), got {getattr(self, name)!r}")
-        if (isinstance(self.entropy_threshold, bool) or not isinstance(self.entropy_threshold, int | float)
-                or not math.isfinite(self.entropy_threshold)):
+                raise ValueError(
+                    f"Fig2Budget.{name} must be <= {limit} (seed ranges), got {getattr(self, name)!r}"
+                )
+        if (
+            isinstance(self.entropy_threshold, bool)
+            or not isinstance(self.entropy_threshold, int | float)
+            or not math.isfinite(self.entropy_threshold)
+        ):
             raise ValueError(
                 f"Fig2Budget.entropy_threshold must be a finite number (the fixed arm is δ=inf), "
                 f"got {self.entropy_threshold!r}"
@@ -148,7 +166,9 @@ class Fig2Budget:
                 raise ValueError(f"Fig2Budget.{name} must be a mapping, got {getattr(self, name)!r}")
         reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
         if reserved:
-            raise ValueError(f"Fig2Budget.algo_kwargs must not set {sorted(reserved)}: they are Fig2Budget fields")
+            raise ValueError(
+                f"Fig2Budget.algo_kwargs must not set {sorted(reserved)}: they are Fig2Budget fields"
+            )
         object.__setattr__(self, "delta_sweep", tuple(sorted(set(deltas))))
         object.__setattr__(self, "k_sweep", tuple(sorted(set(int(k) for k in ks))))
         object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
@@ -160,7 +180,9 @@ class Fig2Budget:
         """Build from a mapping (e.g. JSON); an unknown key raises ``ValueError`` naming it."""
         unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
-            raise ValueError(f"unknown Fig2Budget key(s) {sorted(unknown)}; valid: {sorted(f.name for f in dataclasses.fields(cls))}")
+            raise ValueError(
+                f"unknown Fig2Budget key(s) {sorted(unknown)}; valid: {sorted(f.name for f in dataclasses.fields(cls))}"
+            )
         values = dict(values)
         for name in ("delta_sweep", "k_sweep"):
             if name in values:
@@ -188,9 +210,17 @@ class Fig2Budget:
 FULL_BUDGET = Fig2Budget()
 #: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI.
 QUICK_BUDGET = Fig2Budget(
-    dataset_episodes=3, pretrain_steps=8, finetune_steps=30, eval_episodes=1, style_episodes=6,
-    style_max_epochs=2, delta_sweep=(0.0, math.inf), k_sweep=(1, 2, 3), chunk_size=3,
-    env_kwargs={"time_limit": 4.0}, algo_kwargs={"batch_size": 32},
+    dataset_episodes=3,
+    pretrain_steps=8,
+    finetune_steps=30,
+    eval_episodes=1,
+    style_episodes=6,
+    style_max_epochs=2,
+    delta_sweep=(0.0, math.inf),
+    k_sweep=(1, 2, 3),
+    chunk_size=3,
+    env_kwargs={"time_limit": 4.0},
+    algo_kwargs={"batch_size": 32},
 )
 
 
@@ -231,29 +261,45 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     :return: seconds per stage and ``"total"`` (summed over seeds, before resuming)
     """
     c = costs or CostModel()
-    steps_per_episode = float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
+    steps_per_episode = float(budget.env_kwargs.get("time_limit", 40.0)) / float(
+        budget.env_kwargs.get("step_length", 0.2)
+    )
     ms = 1e-3
     data = budget.dataset_episodes * steps_per_episode * c.collect_ms_per_step * ms
     pre = sum(budget.pretrain_steps * k * c.pretrain_ms_per_step_per_k * ms for k in budget.pretrain_ks)
     updates_scale = budget.algo_kwargs.get("batch_size", 256) / 256
 
     def online(plan_length: float) -> float:
-        return budget.finetune_steps * (
-            c.finetune_ms_per_env_step + c.finetune_ms_per_update * updates_scale / plan_length
-        ) * ms
+        return (
+            budget.finetune_steps
+            * (c.finetune_ms_per_env_step + c.finetune_ms_per_update * updates_scale / plan_length)
+            * ms
+        )
 
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
-    n_evals = len(MAIN_METHODS) + 1 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+    n_evals = (
+        len(MAIN_METHODS) + 1 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+    )
     evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
-    style = (budget.style_episodes * steps_per_episode * c.style_ms_per_step * ms
-             + budget.style_max_epochs * c.style_s_per_epoch * budget.style_episodes / 60)
+    style = (
+        budget.style_episodes * steps_per_episode * c.style_ms_per_step * ms
+        + budget.style_max_epochs * c.style_s_per_epoch * budget.style_episodes / 60
+    )
     ablation = 0.0
     if budget.style_ablation:
-        ablation = (data * c.style_context_factor
-                    + budget.pretrain_steps * budget.chunk_size * c.pretrain_ms_per_step_per_k * ms
-                    + online(c.adaptive_plan_length))
-    stages = {"datasets": data, "pretrain": pre, "finetune": fine, "evaluate": evals, "style": style,
-              "style_ablation": ablation}
+        ablation = (
+            data * c.style_context_factor
+            + budget.pretrain_steps * budget.chunk_size * c.pretrain_ms_per_step_per_k * ms
+            + online(c.adaptive_plan_length)
+        )
+    stages = {
+        "datasets": data,
+        "pretrain": pre,
+        "finetune": fine,
+        "evaluate": evals,
+        "style": style,
+        "style_ablation": ablation,
+    }
     out = {name: n_seeds * value for name, value in stages.items()}
     out["total"] = sum(out.values())
     return out
@@ -350,7 +396,9 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     """
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
-        raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
+        raise ValueError(
+            f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}"
+        )
     per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
     finite = [p for p in per_seed if math.isfinite(p)]
     mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
@@ -379,8 +427,12 @@ class RunPaths:
     work: Path
 
     @classmethod
-    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
-              work: str | os.PathLike | None = None) -> RunPaths:
+    def under(
+        cls,
+        out: str | os.PathLike,
+        raw: str | os.PathLike | None = None,
+        work: str | os.PathLike | None = None,
+    ) -> RunPaths:
         """Default layout: ``<out>/fig2_raw`` and ``<out>/fig2_work`` unless given."""
         out = Path(out)
         return cls(out, Path(raw) if raw else out / "fig2_raw", Path(work) if work else out / "fig2_work")
@@ -397,8 +449,31 @@ def delta_name(delta: float) -> str:
     return "inf" if math.isinf(delta) else f"{delta:g}".replace("-", "m")
 
 
-def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any],
-             style_classifier: str | None, log: list[str], unit: str):
+class UnitLog(list):
+    """Names of the units run, in order, and their wall-clock seconds (``seconds[name]``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def timed(self, name: str) -> Iterator[None]:
+        """Record unit ``name`` and the time the ``with`` block takes (only if it completes)."""
+        start = time.perf_counter()
+        yield
+        self.append(name)
+        self.seconds[name] = time.perf_counter() - start
+
+
+def _dataset(
+    path: Path,
+    n_episodes: int,
+    seed: int,
+    env_kwargs: dict[str, Any],
+    style_classifier: str | None,
+    log: UnitLog,
+    unit: str,
+):
     """Load the dataset at ``path``, or collect it (unit ``unit``) when missing or damaged."""
     from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, collect_dataset, load_dataset
 
@@ -407,31 +482,62 @@ def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any],
             return load_dataset(path)
         except OfflineDatasetError:
             pass  # damaged: collect again
-    log.append(unit)
-    return collect_dataset(path, n_episodes, env_kwargs=env_kwargs, style_classifier=style_classifier,
-                           seed=seed, overwrite=True)
+    with log.timed(unit):
+        return collect_dataset(
+            path,
+            n_episodes,
+            env_kwargs=env_kwargs,
+            style_classifier=style_classifier,
+            seed=seed,
+            overwrite=True,
+        )
 
 
-def _evaluation(raw: Path, method: str, checkpoint: Path, seed: int, budget: Fig2Budget, settings: dict[str, Any],
-                entropy_threshold: float | None, log: list[str]) -> None:
+def _evaluation(
+    raw: Path,
+    method: str,
+    checkpoint: Path,
+    seed: int,
+    budget: Fig2Budget,
+    settings: dict[str, Any],
+    entropy_threshold: float | None,
+    log: UnitLog,
+) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists."""
     from sb3_ua2c.pipeline import evaluate, summarize, write_json
 
     path = raw / f"{method}.json"
     if path.is_file():
         return
-    log.append(f"seed{seed}/evaluate/{method}")
-    episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(EVAL_SEED_BASE + seed,),
-                        env_settings_=settings, entropy_threshold=entropy_threshold)
-    write_json(path, {
-        "method": method, "seed": seed, "checkpoint": checkpoint.name,
-        "entropy_threshold": None if entropy_threshold is None else delta_name(float(entropy_threshold)),
-        "eval_seed": EVAL_SEED_BASE + seed, "summary": summarize(episodes), "episodes": episodes,
-    })
+    with log.timed(f"seed{seed}/evaluate/{method}"):
+        episodes = evaluate(
+            checkpoint,
+            n_episodes=budget.eval_episodes,
+            seeds=(EVAL_SEED_BASE + seed,),
+            env_settings_=settings,
+            entropy_threshold=entropy_threshold,
+        )
+        write_json(
+            path,
+            {
+                "method": method,
+                "seed": seed,
+                "checkpoint": checkpoint.name,
+                "entropy_threshold": None
+                if entropy_threshold is None
+                else delta_name(float(entropy_threshold)),
+                "eval_seed": EVAL_SEED_BASE + seed,
+                "summary": summarize(episodes),
+                "episodes": episodes,
+            },
+        )
 
 
 def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     """Run (or resume) every unit of one seed; return the names of the units actually executed.
+
+    The wall-clock seconds of every unit run are merged into ``<work>/seed<s>/unit_seconds.json``
+    (measured cost of the run, next to :func:`estimate_seconds`).
 
     :param seed: the seed (datasets, networks, online env, evaluation scenarios derive from it)
     :param budget: the run's budget
@@ -439,38 +545,67 @@ def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     """
     import torch
 
-    from sb3_ua2c.pipeline import env_settings, finetune, pretrain
-
     torch.set_num_threads(1)
     work, raw = paths.seed_work(seed), paths.seed_raw(seed)
     work.mkdir(parents=True, exist_ok=True)
     raw.mkdir(parents=True, exist_ok=True)
-    log: list[str] = []
+    log = UnitLog()
+    try:
+        _run_seed_units(seed, budget, work, raw, log)
+    finally:  # also on an interruption: the finished units' times are kept
+        _merge_seconds(work / "unit_seconds.json", log.seconds)
+    return list(log)
+
+
+def _merge_seconds(path: Path, seconds: Mapping[str, float]) -> None:
+    from sb3_ua2c.pipeline import write_json
+
+    if not seconds:
+        return
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    write_json(path, {**old, **seconds})
+
+
+def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
+    """The units of :func:`run_seed`, in dependency order."""
+    from sb3_ua2c.pipeline import env_settings, finetune, pretrain
+
     env_kwargs = dict(budget.env_kwargs)
-    ds = _dataset(work / "dataset", budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * seed, env_kwargs,
-                  None, log, f"seed{seed}/dataset")
+    ds = _dataset(
+        work / "dataset",
+        budget.dataset_episodes,
+        DATASET_SEED_BASE + 10_000 * seed,
+        env_kwargs,
+        None,
+        log,
+        f"seed{seed}/dataset",
+    )
     settings = env_settings(ds)
 
     def pretrained(k: int, dataset: Any, name: str) -> Path:
         path = work / f"{name}.zip"
         if not path.is_file():
-            log.append(f"seed{seed}/pretrain/{name}")
             kwargs = {**budget.algo_kwargs, "chunk_size": k, "entropy_threshold": budget.entropy_threshold}
-            pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=kwargs)
+            with log.timed(f"seed{seed}/pretrain/{name}"):
+                pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=kwargs)
         return path
 
     def finetuned(start: Path, dataset: Any, name: str, delta: float) -> Path:
         path = work / f"{name}.zip"
         if not path.is_file():
-            log.append(f"seed{seed}/finetune/{name}")
-            finetune(start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed)
+            with log.timed(f"seed{seed}/finetune/{name}"):
+                finetune(
+                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed
+                )
         return path
 
     # (a), (b) and the k sweep: same data, same gradient budget
     ckpt = {k: pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
     _evaluation(raw, "onestep", ckpt[1], seed, budget, settings, None, log)
     _evaluation(raw, "chunk", ckpt[budget.chunk_size], seed, budget, settings, math.inf, log)
-    _evaluation(raw, "chunk_adaptive", ckpt[budget.chunk_size], seed, budget, settings, budget.entropy_threshold, log)
+    _evaluation(
+        raw, "chunk_adaptive", ckpt[budget.chunk_size], seed, budget, settings, budget.entropy_threshold, log
+    )
     for k in budget.k_sweep:
         _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
     # (c): both from the same chunk checkpoint, same online budget
@@ -484,51 +619,81 @@ def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     classifier = _style_unit(seed, budget, work, raw, log)
     # beyond the paper: the style context c_t appended to the observation (Eq. 6)
     if budget.style_ablation:
-        ds_style = _dataset(work / "dataset_style", budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * seed,
-                            env_kwargs, str(classifier.resolve()), log, f"seed{seed}/dataset_style")
+        ds_style = _dataset(
+            work / "dataset_style",
+            budget.dataset_episodes,
+            DATASET_SEED_BASE + 10_000 * seed,
+            env_kwargs,
+            str(classifier.resolve()),
+            log,
+            f"seed{seed}/dataset_style",
+        )
         pre_style = pretrained(budget.chunk_size, ds_style, "pretrain_style")
         fine_style = finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
-        _evaluation(raw, "adaptive_style", fine_style, seed, budget, env_settings(ds_style),
-                    budget.entropy_threshold, log)
-    return log
+        _evaluation(
+            raw,
+            "adaptive_style",
+            fine_style,
+            seed,
+            budget,
+            env_settings(ds_style),
+            budget.entropy_threshold,
+            log,
+        )
 
 
-def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: list[str]) -> Path:
+def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> Path:
     """Style data, classifier (Eq. 5) and its held-out evaluation of one seed; returns the classifier path."""
     from sb3_ua2c import style
     from sb3_ua2c.pipeline import write_json
 
-    data_path, model_path, result_path = work / "style_data.npz", work / "style_classifier.pt", raw / "style.json"
+    data_path, model_path, result_path = (
+        work / "style_data.npz",
+        work / "style_classifier.pt",
+        raw / "style.json",
+    )
     if data_path.is_file():
         data = style.StyleDataset.load(data_path)
     else:
-        log.append(f"seed{seed}/style/collect")
-        data = style.collect_style_dataset(
-            budget.style_episodes, seed=STYLE_SEED_BASE + 10_000 * seed, env_kwargs=dict(budget.env_kwargs),
-            progress_bar=False,
-        )
-        tmp = data_path.with_name(".style_data.tmp.npz")
-        data.save(tmp)
-        os.replace(tmp, data_path)
+        with log.timed(f"seed{seed}/style/collect"):
+            data = style.collect_style_dataset(
+                budget.style_episodes,
+                seed=STYLE_SEED_BASE + 10_000 * seed,
+                env_kwargs=dict(budget.env_kwargs),
+                progress_bar=False,
+            )
+            tmp = data_path.with_name(".style_data.tmp.npz")
+            data.save(tmp)
+            os.replace(tmp, data_path)
     if model_path.is_file():
         model = style.DrivingStyleClassifier.load(model_path)
     else:
-        log.append(f"seed{seed}/style/train")
-        model, _ = style.train_style_classifier(
-            data, train_config={"max_epochs": budget.style_max_epochs, "seed": seed}, progress_bar=False
-        )
-        tmp = model_path.with_name(".style_classifier.tmp.pt")
-        model.save(tmp)
-        os.replace(tmp, model_path)
+        with log.timed(f"seed{seed}/style/train"):
+            model, _ = style.train_style_classifier(
+                data, train_config={"max_epochs": budget.style_max_epochs, "seed": seed}, progress_bar=False
+            )
+            tmp = model_path.with_name(".style_classifier.tmp.pt")
+            model.save(tmp)
+            os.replace(tmp, model_path)
     if not result_path.is_file():
-        log.append(f"seed{seed}/style/evaluate")
-        write_json(result_path, {"seed": seed, **style.evaluate_style_classifier(model, data)})
+        with log.timed(f"seed{seed}/style/evaluate"):
+            write_json(result_path, {"seed": seed, **style.evaluate_style_classifier(model, data)})
     return model_path
 
 
 #: Budget fields that change what an existing unit holds; the sweeps may grow between calls.
-UNIT_FIELDS = ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes", "chunk_size",
-               "entropy_threshold", "style_episodes", "style_max_epochs", "env_kwargs", "algo_kwargs")
+UNIT_FIELDS = (
+    "dataset_episodes",
+    "pretrain_steps",
+    "finetune_steps",
+    "eval_episodes",
+    "chunk_size",
+    "entropy_threshold",
+    "style_episodes",
+    "style_max_epochs",
+    "env_kwargs",
+    "algo_kwargs",
+)
 MANIFEST = "fig2_budget.json"
 
 
@@ -547,7 +712,9 @@ def check_manifest(paths: RunPaths, budget: Fig2Budget) -> Fig2Budget | None:
         return None
     differ = [name for name in UNIT_FIELDS if getattr(recorded, name) != getattr(budget, name)]
     if differ:
-        details = ", ".join(f"{n}: recorded {getattr(recorded, n)!r}, now {getattr(budget, n)!r}" for n in differ)
+        details = ", ".join(
+            f"{n}: recorded {getattr(recorded, n)!r}, now {getattr(budget, n)!r}" for n in differ
+        )
         raise ValueError(
             f"the run in {paths.work} was made with another budget ({details}); "
             "pass the same budget to resume it, or another --out/--work to start a new run"
@@ -572,13 +739,44 @@ def write_manifest(paths: RunPaths, budget: Fig2Budget) -> None:
     write_json(paths.work / MANIFEST, strict_json(budget.to_dict()))
 
 
+def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
+    """Wall-clock seconds of the units run so far, by the stages of :func:`estimate_seconds`.
+
+    :param paths: the run's directories (reads ``<work>/seed<s>/unit_seconds.json``)
+    :param seeds: the seeds to count
+    :return: seconds per stage and ``"total"`` (stages without a record are absent)
+    """
+    out: dict[str, float] = {}
+    for s in seeds:
+        path = paths.seed_work(s) / "unit_seconds.json"
+        if not path.is_file():
+            continue
+        for name, seconds in json.loads(path.read_text()).items():
+            parts = name.split("/")  # seed<s>/<stage>[/<what>]
+            if name.endswith("_style"):
+                stage = "style_ablation"
+            else:
+                stage = {
+                    "dataset": "datasets",
+                    "pretrain": "pretrain",
+                    "finetune": "finetune",
+                    "evaluate": "evaluate",
+                    "style": "style",
+                }.get(parts[1], parts[1])
+            out[stage] = out.get(stage, 0.0) + float(seconds)
+    if out:
+        out["total"] = sum(out.values())
+    return out
+
+
 def _run_seed_worker(args: tuple[int, dict[str, Any], RunPaths]) -> list[str]:
     seed, budget, paths = args
     return run_seed(seed, Fig2Budget.from_dict(budget), paths)
 
 
-def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1,
-            printer: Any = print) -> list[str]:
+def run_all(
+    seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print
+) -> list[str]:
     """Run (or resume) every seed, ``workers`` seeds at a time in separate processes (one SUMO
     simulation per process); ``workers=1`` runs in this process.
 
@@ -632,7 +830,9 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
     return out
 
 
-def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
+def aggregate(
+    raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget
+) -> dict[str, Any]:
     """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
 
     :param raw: output of :func:`load_raw`
@@ -655,7 +855,11 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         "offline_reward_gain_pct": offline_reward["change_pct"],
         "offline_jerk_change_pct": offline_jerk["change_pct"],
         "online_reward_gain_pct": online_reward["change_pct"],
-        "comparisons": {"offline_reward": offline_reward, "offline_jerk": offline_jerk, "online_reward": online_reward},
+        "comparisons": {
+            "offline_reward": offline_reward,
+            "offline_jerk": offline_jerk,
+            "online_reward": online_reward,
+        },
         "paper": dict(PAPER),
         "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
         "methods": methods,
@@ -671,7 +875,9 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         result["style"] = {
             "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
             "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
-            "baseline_macro_accuracy_per_seed": [float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
+            "baseline_macro_accuracy_per_seed": [
+                float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r
+            ],
             "confusion_matrix": matrix.tolist(),
             "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds",
             "classes": styles[0]["classes"],
@@ -679,22 +885,37 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     else:
         result["style_macro_accuracy"] = math.nan
     result["delta_sweep"] = [
-        {"delta": d, "method": f"delta_{delta_name(d)}", **{k: methods[f"delta_{delta_name(d)}"][k]
-                                                             for k in ("reward", "mean_executed_length", "cumulative_jerk")}}
-        for d in budget.delta_sweep if f"delta_{delta_name(d)}" in methods
+        {
+            "delta": d,
+            "method": f"delta_{delta_name(d)}",
+            **{
+                k: methods[f"delta_{delta_name(d)}"][k]
+                for k in ("reward", "mean_executed_length", "cumulative_jerk")
+            },
+        }
+        for d in budget.delta_sweep
+        if f"delta_{delta_name(d)}" in methods
     ]
     result["k_sweep"] = [
-        {"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in ("reward", "cumulative_jerk", "collision")}}
-        for k in budget.k_sweep if f"k{k}" in methods
+        {
+            "k": k,
+            "method": f"k{k}",
+            **{key: methods[f"k{k}"][key] for key in ("reward", "cumulative_jerk", "collision")},
+        }
+        for k in budget.k_sweep
+        if f"k{k}" in methods
     ]
     if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
         result["comparisons"]["offline_reward_chunk_adaptive"] = compare(
-            per_seed("chunk_adaptive", "reward"), per_seed("onestep", "reward"))
+            per_seed("chunk_adaptive", "reward"), per_seed("onestep", "reward")
+        )
         result["comparisons"]["offline_jerk_chunk_adaptive"] = compare(
-            per_seed("chunk_adaptive", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
+            per_seed("chunk_adaptive", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk")
+        )
     if "adaptive_style" in methods:
         result["style_context"] = {
-            "with": "adaptive_style", "without": "adaptive",
+            "with": "adaptive_style",
+            "without": "adaptive",
             "reward_gain_pct": compare(per_seed("adaptive_style", "reward"), per_seed("adaptive", "reward")),
         }
     return result
@@ -735,8 +956,16 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         ("(c) online reward, adaptive vs fixed", "online_reward", "online_reward_gain_pct"),
     )
     extra = (
-        ("(a') offline reward, chunk with adaptive execution vs one-step", "offline_reward_chunk_adaptive", None),
-        ("(b') cumulative jerk, chunk with adaptive execution vs one-step", "offline_jerk_chunk_adaptive", None),
+        (
+            "(a') offline reward, chunk with adaptive execution vs one-step",
+            "offline_reward_chunk_adaptive",
+            None,
+        ),
+        (
+            "(b') cumulative jerk, chunk with adaptive execution vs one-step",
+            "offline_jerk_chunk_adaptive",
+            None,
+        ),
     )
     for label, key, paper_key in (*rows, *extra):
         if key not in c:
@@ -747,10 +976,16 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         lines.append(f"| {label} | {_pct(cmp['change_pct'])} | {per_seed} | {paper} |")
     style = summary.get("style")
     if style:
-        lines.append(f"| (d) style inference, macro accuracy | {_fmt(style['macro_accuracy'], 3)} | | confusion matrix only |")
-    lines += ["", "## Methods", "",
-              "| method | reward | cum. jerk | collision rate | merge success | mean speed [m/s] | mean L_t |",
-              "|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| (d) style inference, macro accuracy | {_fmt(style['macro_accuracy'], 3)} | | confusion matrix only |"
+        )
+    lines += [
+        "",
+        "## Methods",
+        "",
+        "| method | reward | cum. jerk | collision rate | merge success | mean speed [m/s] | mean L_t |",
+        "|---|---|---|---|---|---|---|",
+    ]
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style"]
     for m in order:
         if m not in summary["methods"]:
@@ -761,43 +996,92 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
         )
     if style:
-        lines += ["", "## (d) Driving-style inference", "",
-                  f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
-                  "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
-                  "|---" * (len(style["classes"]) + 1) + "|"]
+        lines += [
+            "",
+            "## (d) Driving-style inference",
+            "",
+            f"Confusion matrix ({style['confusion_matrix_layout']}):",
+            "",
+            "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
+            "|---" * (len(style["classes"]) + 1) + "|",
+        ]
         for name, row in zip(style["classes"], style["confusion_matrix"], strict=True):
             lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
         if style["baseline_macro_accuracy_per_seed"]:
             base = t_confidence_interval(style["baseline_macro_accuracy_per_seed"])
-            lines += ["", f"Logistic-regression baseline on summary features: macro accuracy "
-                          f"{_fmt({'mean': base[0], 'ci95': base[1]}, 3)}."]
+            lines += [
+                "",
+                f"Logistic-regression baseline on summary features: macro accuracy "
+                f"{_fmt({'mean': base[0], 'ci95': base[1]}, 3)}.",
+            ]
     if summary["delta_sweep"]:
-        lines += ["", "## δ sweep (fine-tuned adaptive checkpoint, execution threshold only)", "",
-                  "| δ | mean L_t | reward | cum. jerk |", "|---|---|---|---|"]
+        lines += [
+            "",
+            "## δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
+            "",
+            "| δ | mean L_t | reward | cum. jerk |",
+            "|---|---|---|---|",
+        ]
         for row in summary["delta_sweep"]:
-            lines.append(f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
-                         f"| {_fmt(row['cumulative_jerk'], 1)} |")
+            lines.append(
+                f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
+                f"| {_fmt(row['cumulative_jerk'], 1)} |"
+            )
     if summary["k_sweep"]:
-        lines += ["", "## k sweep (offline, same data and gradient budget, full chunks)", "",
-                  "| k | reward | cum. jerk | collision rate |", "|---|---|---|---|"]
+        lines += [
+            "",
+            "## k sweep (offline, same data and gradient budget, full chunks)",
+            "",
+            "| k | reward | cum. jerk | collision rate |",
+            "|---|---|---|---|",
+        ]
         for row in summary["k_sweep"]:
-            lines.append(f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} "
-                         f"| {_fmt(row['collision'])} |")
+            lines.append(
+                f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} "
+                f"| {_fmt(row['collision'])} |"
+            )
     if "style_context" in summary:
         cmp = summary["style_context"]["reward_gain_pct"]
-        lines += ["", "## Style context c_t (Eq. 6) in the observation", "",
-                  f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
-                  f"{_pct(cmp['change_pct'])} (per seed {_fmt({'mean': cmp['per_seed_mean_pct'], 'ci95': cmp['per_seed_ci95_pct']})}%)."]
+        lines += [
+            "",
+            "## Style context c_t (Eq. 6) in the observation",
+            "",
+            f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
+            f"{_pct(cmp['change_pct'])} (per seed {_fmt({'mean': cmp['per_seed_mean_pct'], 'ci95': cmp['per_seed_ci95_pct']})}%).",
+        ]
     b = summary["budget"]
-    lines += ["", "## Budget (per seed)", "",
-              f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
-              f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
-              f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
-              f"UA2C {b['algo_kwargs'] or 'defaults'}.", ""]
+    lines += [
+        "",
+        "## Budget (per seed)",
+        "",
+        f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
+        f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
+        f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
+        f"UA2C {b['algo_kwargs'] or 'defaults'}.",
+    ]
+    seconds = summary.get("seconds", {})
+    if seconds.get("measured"):
+        measured, estimated = seconds["measured"], seconds.get("estimated", {})
+        lines += [
+            "",
+            "Compute, summed over seeds (one worker = one core; measured = units run by the calls "
+            "that built these results):",
+            "",
+            "| stage | measured [min] | estimated [min] |",
+            "|---|---|---|",
+        ]
+        for stage in (*[k for k in estimated if k != "total"], "total"):
+            got = measured.get(stage)
+            lines.append(
+                f"| {stage} | {'n/a' if got is None else f'{got / 60:.1f}'} | {estimated.get(stage, math.nan) / 60:.1f} |"
+            )
+    lines.append("")
     return "\n".join(lines)
 
 
-def _bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str) -> None:
+def _bar_panel(
+    path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str
+) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -807,8 +1091,13 @@ def _bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Ma
     for i, (_label, stat) in enumerate(arms):
         half = stat["ci95"] if math.isfinite(stat["ci95"]) else 0.0
         ax.bar(i, stat["mean"], yerr=half, capsize=6, color=("#9e9e9e", "#1f77b4")[i % 2], alpha=0.85)
-        ax.scatter(np.full(len(stat["per_seed"]), i) + np.linspace(-0.15, 0.15, len(stat["per_seed"])),
-                   stat["per_seed"], color="black", s=12, zorder=3)
+        ax.scatter(
+            np.full(len(stat["per_seed"]), i) + np.linspace(-0.15, 0.15, len(stat["per_seed"])),
+            stat["per_seed"],
+            color="black",
+            s=12,
+            zorder=3,
+        )
     ax.set_xticks(range(len(arms)), [a[0] for a in arms])
     ax.set_ylabel(ylabel)
     ax.set_title(f"{title}\n{note}", fontsize=9)
@@ -825,15 +1114,27 @@ def _sweep_panel(path: Path, summary: Mapping[str, Any]) -> None:
     ax1, ax2 = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     for row in summary["delta_sweep"]:
         x, y = row["mean_executed_length"], row["reward"]
-        ax1.errorbar(x["mean"], y["mean"], xerr=np.nan_to_num(x["ci95"]), yerr=np.nan_to_num(y["ci95"]), fmt="o")
-        ax1.annotate(f"δ={row['delta']:g}", (x["mean"], y["mean"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax1.errorbar(
+            x["mean"], y["mean"], xerr=np.nan_to_num(x["ci95"]), yerr=np.nan_to_num(y["ci95"]), fmt="o"
+        )
+        ax1.annotate(
+            f"δ={row['delta']:g}",
+            (x["mean"], y["mean"]),
+            fontsize=7,
+            xytext=(3, 3),
+            textcoords="offset points",
+        )
     ax1.set_xlabel("mean executed length L_t")
     ax1.set_ylabel("episode reward")
     ax1.set_title("δ sweep (adaptive checkpoint)", fontsize=9)
     ks = summary["k_sweep"]
     if ks:
-        ax2.errorbar([r["k"] for r in ks], [r["reward"]["mean"] for r in ks],
-                     yerr=[np.nan_to_num(r["reward"]["ci95"]) for r in ks], fmt="o-")
+        ax2.errorbar(
+            [r["k"] for r in ks],
+            [r["reward"]["mean"] for r in ks],
+            yerr=[np.nan_to_num(r["reward"]["ci95"]) for r in ks],
+            fmt="o-",
+        )
     ax2.set_xlabel("chunk length k")
     ax2.set_ylabel("offline episode reward")
     ax2.set_title("k sweep (same gradient budget)", fontsize=9)
@@ -869,24 +1170,54 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
     md.write_text(format_markdown(summary, command, date))
     files.append(md)
     panels = (
-        ("fig2_a_offline_reward.png", "(a) offline reward", "episode reward", ("onestep", "chunk"),
-         "reward", c["offline_reward"]["change_pct"], PAPER["offline_reward_gain_pct"]),
-        ("fig2_b_offline_jerk.png", "(b) offline cumulative jerk", "Σ|jerk| [m/s³]", ("onestep", "chunk"),
-         "cumulative_jerk", c["offline_jerk"]["change_pct"], PAPER["offline_jerk_change_pct"]),
-        ("fig2_c_online_reward.png", "(c) online reward", "episode reward", ("fixed", "adaptive"),
-         "reward", c["online_reward"]["change_pct"], PAPER["online_reward_gain_pct"]),
+        (
+            "fig2_a_offline_reward.png",
+            "(a) offline reward",
+            "episode reward",
+            ("onestep", "chunk"),
+            "reward",
+            c["offline_reward"]["change_pct"],
+            PAPER["offline_reward_gain_pct"],
+        ),
+        (
+            "fig2_b_offline_jerk.png",
+            "(b) offline cumulative jerk",
+            "Σ|jerk| [m/s³]",
+            ("onestep", "chunk"),
+            "cumulative_jerk",
+            c["offline_jerk"]["change_pct"],
+            PAPER["offline_jerk_change_pct"],
+        ),
+        (
+            "fig2_c_online_reward.png",
+            "(c) online reward",
+            "episode reward",
+            ("fixed", "adaptive"),
+            "reward",
+            c["online_reward"]["change_pct"],
+            PAPER["online_reward_gain_pct"],
+        ),
     )
     short = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
     for name, title, ylabel, arms, key, ours, paper in panels:
-        _bar_panel(out / name, title, ylabel, [(short[a], m[a][key]) for a in arms],
-                   f"ours {_pct(ours)}, paper {paper:+.2f}%")
+        _bar_panel(
+            out / name,
+            title,
+            ylabel,
+            [(short[a], m[a][key]) for a in arms],
+            f"ours {_pct(ours)}, paper {paper:+.2f}%",
+        )
         files.append(out / name)
     if "style" in summary:
         from sb3_ua2c.style import plot_confusion
 
         st = summary["style"]
-        plot_confusion(np.asarray(st["confusion_matrix"]), out / "fig2_d_style_confusion.png", st["classes"],
-                       title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")
+        plot_confusion(
+            np.asarray(st["confusion_matrix"]),
+            out / "fig2_d_style_confusion.png",
+            st["classes"],
+            title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}",
+        )
         files.append(out / "fig2_d_style_confusion.png")
     if summary["delta_sweep"] or summary["k_sweep"]:
         _sweep_panel(out / "fig2_sweeps.png", summary)
@@ -914,15 +1245,25 @@ def build_parser() -> argparse.ArgumentParser:
         "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
     )
     parser.add_argument("--seeds", type=int, default=5, help="number of seeds 0..N-1 (default: 5)")
-    parser.add_argument("--seed-list", type=int, nargs="+", default=None, help="explicit seeds (overrides --seeds)")
-    parser.add_argument("--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test")
-    parser.add_argument("--budget", type=_json_object, default={},
-                        help='Fig2Budget overrides as JSON, e.g. \'{"pretrain_steps": 4000}\'')
+    parser.add_argument(
+        "--seed-list", type=int, nargs="+", default=None, help="explicit seeds (overrides --seeds)"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test"
+    )
+    parser.add_argument(
+        "--budget",
+        type=_json_object,
+        default={},
+        help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'",
+    )
     parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
     parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
     parser.add_argument("--workers", type=int, default=2, help="seeds run in parallel processes (default: 2)")
-    parser.add_argument("--report-only", action="store_true", help="only rebuild the report from the raw results")
+    parser.add_argument(
+        "--report-only", action="store_true", help="only rebuild the report from the raw results"
+    )
     return parser
 
 
@@ -951,21 +1292,31 @@ def main(argv: Sequence[str] | None = None) -> int:
             est = estimate_seconds(budget, len(seeds))
             workers = min(args.workers, len(seeds))
             wall = est["total"] / len(seeds) * math.ceil(len(seeds) / workers)  # seeds run whole on a worker
-            print(f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
-                  f"~{wall / 60:.0f} min wall before resuming ("
-                  + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total") + " CPU-min)",
-                  flush=True)
+            print(
+                f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
+                f"~{wall / 60:.0f} min wall before resuming ("
+                + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total")
+                + " CPU-min)",
+                flush=True,
+            )
             executed = run_all(seeds, budget, paths, workers)
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
         else:
             budget = read_manifest(paths) or budget  # the budget the run was made with
         summary = aggregate(load_raw(paths, seeds), seeds, budget)
+        summary["seconds"] = {
+            "measured": measured_seconds(paths, seeds),
+            "estimated": estimate_seconds(budget, len(seeds)),
+        }
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     files = write_report(summary, paths, command, time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
-    for label, key in (("offline reward", "offline_reward_gain_pct"), ("offline jerk", "offline_jerk_change_pct"),
-                       ("online reward", "online_reward_gain_pct")):
+    for label, key in (
+        ("offline reward", "offline_reward_gain_pct"),
+        ("offline jerk", "offline_jerk_change_pct"),
+        ("online reward", "online_reward_gain_pct"),
+    ):
         print(f"{label}: ours {_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
     print(f"style macro accuracy: {summary['style_macro_accuracy']:.3f}")
     print("wrote " + ", ".join(str(f) for f in files))
@@ -973,8 +1324,28 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 __all__ = [
-    "FULL_BUDGET", "PAPER", "QUICK_BUDGET", "CostModel", "Fig2Budget", "RunPaths", "aggregate", "check_manifest",
-    "compare", "estimate_seconds", "format_markdown", "load_raw", "main", "read_manifest", "relative_change_pct",
-    "run_all", "run_seed", "strict_json", "student_t_quantile", "student_t_two_sided_cdf", "t_confidence_interval",
-    "write_manifest", "write_report",
+    "FULL_BUDGET",
+    "PAPER",
+    "QUICK_BUDGET",
+    "CostModel",
+    "Fig2Budget",
+    "RunPaths",
+    "aggregate",
+    "check_manifest",
+    "compare",
+    "estimate_seconds",
+    "format_markdown",
+    "load_raw",
+    "main",
+    "measured_seconds",
+    "read_manifest",
+    "relative_change_pct",
+    "run_all",
+    "run_seed",
+    "strict_json",
+    "student_t_quantile",
+    "student_t_two_sided_cdf",
+    "t_confidence_interval",
+    "write_manifest",
+    "write_report",
 ]

@@ -128,6 +128,7 @@ def finetune(
     seed: int = 0,
     progress_bar: bool = False,
     callback: Any = None,
+    algo_overrides: dict[str, Any] | None = None,
 ) -> Path:
     """Phase 2: online adaptation from a pre-trained checkpoint with adaptive execution (Eq. 7, 8).
 
@@ -144,13 +145,18 @@ def finetune(
     :param entropy_threshold: override δ (``inf`` = fixed chunk execution)
     :param seed: seed of the online phase
     :param callback: SB3 callback(s) passed to ``learn``
+    :param algo_overrides: further attributes to override on load (e.g. ``{"gradient_steps": 1}``);
+        shape-changing arguments (``chunk_size``, ``history_len``, ``policy_kwargs``) are refused
     :return: the fine-tuned checkpoint path
     """
     ds = None
     if dataset is not None:
         ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
     settings = env_settings(ds) if ds is not None else dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
-    overrides: dict[str, Any] = {"learning_starts": 0}
+    shape_args = {"chunk_size", "history_len", "policy_kwargs"} & set(algo_overrides or {})
+    if shape_args:
+        raise ValueError(f"algo_overrides cannot change the network shapes of a checkpoint: {sorted(shape_args)}")
+    overrides: dict[str, Any] = {"learning_starts": 0, **(algo_overrides or {})}
     if offline_ratio is not None:
         overrides["offline_ratio"] = offline_ratio
     if entropy_threshold is not None:

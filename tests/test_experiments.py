@@ -76,13 +76,17 @@ def test_compare_headline_is_the_change_of_the_means() -> None:
     assert out["change_pct"] == pytest.approx(100.0 * (15.0 - 9.0) / 9.0)
     assert out["per_seed_pct"] == pytest.approx([100.0, 25.0])
     assert out["per_seed_mean_pct"] == pytest.approx(62.5)
-    assert out["per_seed_ci95_pct"] == pytest.approx(12.7062 * np.std([100.0, 25.0], ddof=1) / math.sqrt(2), rel=1e-4)
+    assert out["per_seed_ci95_pct"] == pytest.approx(
+        12.7062 * np.std([100.0, 25.0], ddof=1) / math.sqrt(2), rel=1e-4
+    )
     with pytest.raises(ValueError, match="equal-length"):
         compare([1.0], [1.0, 2.0])
 
 
 def test_strict_json_and_delta_names() -> None:
-    assert strict_json({"a": [math.nan, math.inf, -math.inf, 1.5, np.int64(2)]}) == {"a": [None, "inf", "-inf", 1.5, 2]}
+    assert strict_json({"a": [math.nan, math.inf, -math.inf, 1.5, np.int64(2)]}) == {
+        "a": [None, "inf", "-inf", 1.5, 2]
+    }
     assert [delta_name(d) for d in (0.0, 0.5, -1.0, math.inf)] == ["0", "0.5", "m1", "inf"]
 
 
@@ -111,11 +115,27 @@ def test_budget_validation_names_the_key() -> None:
 
 
 def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
-    costs = CostModel(collect_ms_per_step=1.0, pretrain_ms_per_step_per_k=10.0, finetune_ms_per_update=100.0,
-                      finetune_ms_per_env_step=0.0, eval_ms_per_step=1.0, style_ms_per_step=1.0,
-                      style_s_per_epoch=0.0, adaptive_plan_length=1.0)
-    budget = Fig2Budget(dataset_episodes=10, pretrain_steps=100, finetune_steps=50, eval_episodes=2, chunk_size=2,
-                        style_episodes=5, delta_sweep=(0.0,), k_sweep=(1,), style_ablation=False)
+    costs = CostModel(
+        collect_ms_per_step=1.0,
+        pretrain_ms_per_step_per_k=10.0,
+        finetune_ms_per_update=100.0,
+        finetune_ms_per_env_step=0.0,
+        eval_ms_per_step=1.0,
+        style_ms_per_step=1.0,
+        style_s_per_epoch=0.0,
+        adaptive_plan_length=1.0,
+    )
+    budget = Fig2Budget(
+        dataset_episodes=10,
+        pretrain_steps=100,
+        finetune_steps=50,
+        eval_episodes=2,
+        chunk_size=2,
+        style_episodes=5,
+        delta_sweep=(0.0,),
+        k_sweep=(1,),
+        style_ablation=False,
+    )
     est = estimate_seconds(budget, n_seeds=2, costs=costs)
     steps = 200  # 40 s / 0.2 s
     assert est["datasets"] == pytest.approx(2 * 10 * steps * 1e-3)
@@ -132,8 +152,15 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
 # aggregation from hand-made raw results
 # ---------------------------------------------------------------------------------------------
 def _summary(reward: float, jerk: float = 1.0, length: float = 1.0) -> dict[str, float]:
-    return {"reward": reward, "cumulative_jerk": jerk, "collision": 0.0, "merge_success": 1.0,
-            "mean_speed": 20.0, "mean_executed_length": length, "episodes": 1}
+    return {
+        "reward": reward,
+        "cumulative_jerk": jerk,
+        "collision": 0.0,
+        "merge_success": 1.0,
+        "mean_speed": 20.0,
+        "mean_executed_length": length,
+        "episodes": 1,
+    }
 
 
 def test_aggregate_by_hand() -> None:
@@ -168,17 +195,51 @@ def quick_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_quick_run_writes_every_output(quick_run: Path) -> None:
-    for name in ("fig2.md", "fig2.json", "fig2_a_offline_reward.png", "fig2_b_offline_jerk.png",
-                 "fig2_c_online_reward.png", "fig2_d_style_confusion.png", "fig2_sweeps.png"):
+    for name in (
+        "fig2.md",
+        "fig2.json",
+        "fig2_a_offline_reward.png",
+        "fig2_b_offline_jerk.png",
+        "fig2_c_online_reward.png",
+        "fig2_d_style_confusion.png",
+        "fig2_sweeps.png",
+    ):
         assert (quick_run / name).is_file(), name
     assert (quick_run / "fig2_a_offline_reward.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((quick_run / "fig2.json").read_text())  # strict JSON: no NaN / Infinity
-    for key in ("offline_reward_gain_pct", "offline_jerk_change_pct", "online_reward_gain_pct", "style_macro_accuracy"):
+    for key in (
+        "offline_reward_gain_pct",
+        "offline_jerk_change_pct",
+        "online_reward_gain_pct",
+        "style_macro_accuracy",
+    ):
         assert isinstance(summary[key], float), key
-    for method in ("onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style", "k2", "delta_0",
-                   "delta_inf"):
-        for metric in ("reward", "collision", "mean_speed", "merge_success", "mean_executed_length", "cumulative_jerk"):
+    for method in (
+        "onestep",
+        "chunk",
+        "chunk_adaptive",
+        "fixed",
+        "adaptive",
+        "adaptive_style",
+        "k2",
+        "delta_0",
+        "delta_inf",
+    ):
+        for metric in (
+            "reward",
+            "collision",
+            "mean_speed",
+            "merge_success",
+            "mean_executed_length",
+            "cumulative_jerk",
+        ):
             assert len(summary["methods"][method][metric]["per_seed"]) == 2, (method, metric)
+    measured = summary["seconds"]["measured"]  # wall-clock seconds of every unit, by stage
+    assert set(measured) == {"datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation", "total"}
+    assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
+    units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
+    # dataset 1, pretrain k=1,2,3 3, offline evals 6, finetune 2, online evals 2, δ sweep 2, style 3, ablation 4
+    assert len(units) == 23 and "seed0/pretrain/pretrain_k2" in units
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md
@@ -209,9 +270,10 @@ def test_quick_run_numbers_follow_from_the_raw_data(quick_run: Path) -> None:
     assert summary["methods"]["onestep"]["mean_executed_length"]["per_seed"] == pytest.approx([1.0, 1.0])
     styles = [json.loads((quick_run / "fig2_raw" / f"seed{s}" / "style.json").read_text()) for s in (0, 1)]
     assert summary["style_macro_accuracy"] == pytest.approx(np.mean([s["macro_accuracy"] for s in styles]))
-    assert summary["style"]["confusion_matrix"] == (
-        np.asarray(styles[0]["confusion_matrix"]) + np.asarray(styles[1]["confusion_matrix"])
-    ).tolist()
+    assert (
+        summary["style"]["confusion_matrix"]
+        == (np.asarray(styles[0]["confusion_matrix"]) + np.asarray(styles[1]["confusion_matrix"])).tolist()
+    )
 
 
 def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
@@ -220,12 +282,20 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     def forbidden(*args, **kwargs):
         raise AssertionError("a finished unit was run again")
 
-    for module, name in ((offline, "collect_dataset"), (pipeline, "pretrain"), (pipeline, "finetune"),
-                         (pipeline, "evaluate"), (style, "collect_style_dataset"), (style, "train_style_classifier"),
-                         (style, "evaluate_style_classifier")):
+    for module, name in (
+        (offline, "collect_dataset"),
+        (pipeline, "pretrain"),
+        (pipeline, "finetune"),
+        (pipeline, "evaluate"),
+        (style, "collect_style_dataset"),
+        (style, "train_style_classifier"),
+        (style, "evaluate_style_classifier"),
+    ):
         monkeypatch.setattr(module, name, forbidden)
     before = json.loads((quick_run / "fig2.json").read_text())
-    assert experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]) == 0
+    assert (
+        experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]) == 0
+    )
     assert "0 unit(s) run" in capsys.readouterr().out
     after = json.loads((quick_run / "fig2.json").read_text())
     assert after["online_reward_gain_pct"] == before["online_reward_gain_pct"]
