@@ -581,8 +581,12 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         self._fluct_sigma = sigma
         self._fluct_rho = np.array([v.autocorrelation for v in var])
         period = np.array([max(1, int(round(v.update_period / dt))) for v in var], dtype=np.int64)
-        # (update period in steps, indices of the HDVs with that period); usually one group
-        self._fluct_groups = [(int(k), np.flatnonzero(period == k)) for k in np.unique(period)]
+        # (update period in steps, indices and ids of the HDVs with that period); usually one group
+        self._fluct_groups = [
+            (int(k), idx, [self._hdv_ids[i] for i in idx.tolist()])
+            for k in np.unique(period)
+            for idx in (np.flatnonzero(period == k),)
+        ]
         delta = np.clip(spread * rng.standard_normal(n), -2.0 * spread, 2.0 * spread)
         self._base_factors = np.array([STYLE_VTYPES[STYLES[s]]["speedFactor"] for s in labels]) * (1.0 + delta)
         self._fluct = np.clip(sigma * rng.standard_normal(n), -2.0 * sigma, 2.0 * sigma)  # stationary start
@@ -617,21 +621,22 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     def _update_speed_fluctuation(self) -> None:
         """Advance the desired-speed fluctuation ε of the HDVs due at this step (AR(1), ``np_random``)."""
         self._hdv_clock += 1
-        for period, due in self._fluct_groups:
+        for period, due, ids in self._fluct_groups:
             if self._hdv_clock % period == 0 and due.size:
-                self._update_fluctuation_of(due)
+                self._update_fluctuation_of(due, ids)
 
-    def _update_fluctuation_of(self, due: np.ndarray) -> None:
-        """Draw the next fluctuation of the HDVs ``due`` (int indices) and hand their factors to SUMO."""
-        self._fluct[due] = speed_fluctuation_step(
+    def _update_fluctuation_of(self, due: np.ndarray, ids: list[str]) -> None:
+        """Draw the next fluctuation of the HDVs ``due`` (indices; ``ids`` their ids) and set their factors."""
+        eps = speed_fluctuation_step(
             self._fluct[due], self._fluct_rho[due], self._fluct_sigma[due], self.np_random.standard_normal(due.size)
         )
-        self._factors[due] = self._base_factors[due] * (1.0 + self._fluct[due])
-        waiting = set(self._reenter)  # not in the simulation: they get their factor when re-added
-        ids, factors, sim = self._hdv_ids, self._factors, self.sim
-        for i in due.tolist():
-            if ids[i] not in waiting:
-                sim.set_speed_factor(ids[i], float(factors[i]))
+        self._fluct[due] = eps
+        factors = self._base_factors[due] * (1.0 + eps)
+        self._factors[due] = factors
+        set_factor, waiting = self.sim.set_speed_factor, self._reenter
+        for vid, factor in zip(ids, factors.tolist(), strict=True):
+            if not waiting or vid not in waiting:  # waiting ones get their factor when re-added
+                set_factor(vid, factor)
 
     def _after_sim_step(self) -> None:
         sim = self.sim

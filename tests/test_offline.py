@@ -216,6 +216,8 @@ def test_mismatched_dataset_or_checkpoint_raises(traffic_dataset, tmp_path: Path
     pendulum_model.save(tmp_path / "pendulum.zip")
     with pytest.raises(OfflineDatasetError, match="checkpoint .* has observation_space"):
         finetune(tmp_path / "pendulum.zip", tmp_path / "y.zip", 10, dataset=traffic_dataset)
+    with pytest.raises(ValueError, match=r"network shapes of a checkpoint: \['chunk_size'\]"):
+        finetune(tmp_path / "pendulum.zip", tmp_path / "y.zip", 10, algo_overrides={"chunk_size": 2})
     with pytest.raises(FileNotFoundError, match="does not exist"):
         evaluate(tmp_path / "missing.zip", env_settings_={"env_kwargs": SHORT_ENV})
     (tmp_path / "junk.zip").write_bytes(b"junk")
