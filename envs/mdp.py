@@ -176,6 +176,15 @@ def observation_vector(
 REWARD_TERMS = ("speed", "leader_distance", "follower_distance", "merge", "jerk", "lane_change", "collision")
 
 
+def dataclass_from_dict(cls: type, values: Mapping[str, Any]) -> Any:
+    """Build the dataclass ``cls`` from a mapping; an unknown key raises ``ValueError`` naming it."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} key(s) {unknown}; valid keys: {sorted(known)}")
+    return cls(**dict(values))
+
+
 def _check_number(owner: str, name: str, value: Any, low: float = 0.0, strict: bool = False) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
         raise ValueError(f"{owner}.{name} must be a number, got {value!r}")
@@ -221,11 +230,7 @@ class RewardConfig:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> RewardConfig:
         """Build from a mapping; an unknown key raises ``ValueError`` naming it."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown RewardConfig key(s) {unknown}; valid keys: {sorted(known)}")
-        return cls(**dict(values))
+        return dataclass_from_dict(cls, values)
 
     def weights(self) -> dict[str, float]:
         """``{term: η}`` in :data:`REWARD_TERMS` order."""

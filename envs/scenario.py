@@ -34,13 +34,13 @@ import os
 import subprocess
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from envs.mdp import STYLES
+from envs.mdp import STYLES, dataclass_from_dict
 
 #: Environment variable that overrides the cache directory of generated scenario files.
 CACHE_ENV_VAR = "SB3_UA2C_CACHE"
@@ -211,11 +211,7 @@ class ScenarioGeometry:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> ScenarioGeometry:
         """Build from a mapping; an unknown key raises ``ValueError`` naming it."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown ScenarioGeometry key(s) {unknown}; valid keys: {sorted(known)}")
-        return cls(**dict(values))
+        return dataclass_from_dict(cls, values)
 
     @property
     def road_length(self) -> float:

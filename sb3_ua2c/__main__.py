@@ -19,7 +19,8 @@ from typing import Any
 DEFAULT_RUNS = Path("runs")
 
 
-def _json_arg(text: str) -> dict[str, Any]:
+def json_object_arg(text: str) -> dict[str, Any]:
+    """argparse type: a JSON object (``dict``), else a clear usage error."""
     try:
         value = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -184,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     def env_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--env-kwargs", type=_json_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
+        p.add_argument("--env-kwargs", type=json_object_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
         p.add_argument("--style-classifier", default=None,
                        help="append the driving-style context c_t (Eq. 6): a classifier path or 'default'")
 
@@ -205,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", required=True, help="dataset directory")
     p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/pretrained.zip)")
     p.add_argument("--steps", type=int, default=20_000, help="gradient steps")
-    p.add_argument("--hyperparams", type=_json_arg, default={},
+    p.add_argument("--hyperparams", type=json_object_arg, default={},
                    help='UA2C arguments as JSON, e.g. \'{"chunk_size": 1}\' for the one-step baseline')
     p.add_argument("--verbose", type=int, default=0)
     p.set_defaults(func=cmd_pretrain)

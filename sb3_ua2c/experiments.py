@@ -51,6 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from sb3_ua2c.__main__ import json_object_arg
+
 #: The paper's Fig. 2 figures (one seed), in percent.
 PAPER = {
     "offline_reward_gain_pct": 6.70,
@@ -1228,14 +1230,6 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
 # ---------------------------------------------------------------------------------------------
 # Command line
 # ---------------------------------------------------------------------------------------------
-def _json_object(text: str) -> dict[str, Any]:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1253,7 +1247,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--budget",
-        type=_json_object,
+        type=json_object_arg,
         default={},
         help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'",
     )

@@ -1,5 +1,6 @@
 import os
 
+import gymnasium as gym
 import pytest
 import torch
 
@@ -11,3 +12,20 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 @pytest.fixture(autouse=True)
 def _seed_torch():
     torch.manual_seed(0)
+
+
+@pytest.fixture
+def make_env():
+    """Factory of ``MixedTraffic-v0`` envs, all closed at teardown (libsumo: one live simulation per process)."""
+    import envs  # noqa: F401  (registers MixedTraffic-v0)
+
+    created = []
+
+    def factory(**kwargs):
+        env = gym.make("MixedTraffic-v0", **kwargs)
+        created.append(env)
+        return env
+
+    yield factory
+    for env in created:
+        env.close()

@@ -18,21 +18,6 @@ pytest.importorskip("libsumo")
 A_MAX, A_MIN, DT = 3.0, -4.5, 0.2
 
 
-@pytest.fixture
-def make_env():
-    """Factory of envs that are all closed at teardown (libsumo: one live simulation per process)."""
-    created = []
-
-    def factory(**kwargs):
-        env = gym.make("MixedTraffic-v0", **kwargs)
-        created.append(env)
-        return env
-
-    yield factory
-    for env in created:
-        env.close()
-
-
 def act(accel=0.0, lane_change=0.0):
     return np.array([accel, lane_change], dtype=np.float32)
 

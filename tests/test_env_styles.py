@@ -3,7 +3,6 @@
 import copy
 import math
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -20,20 +19,6 @@ from envs.scenario import (
 )
 
 DT = 0.2
-
-
-@pytest.fixture
-def make_env():
-    created = []
-
-    def factory(**kwargs):
-        env = gym.make("MixedTraffic-v0", **kwargs)
-        created.append(env)
-        return env
-
-    yield factory
-    for env in created:
-        env.close()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,19 +12,9 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+from ua2c_helpers import FAST
 
 from sb3_ua2c import UA2C, MlpPolicy, UA2CPolicy
-
-TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
-FAST = dict(
-    policy_kwargs=TINY,
-    learning_starts=50,
-    batch_size=16,
-    buffer_size=1000,
-    flow_steps=3,
-    n_candidates=4,
-    n_target_candidates=2,
-)
 
 
 class TwoDimEnv(gym.Env):

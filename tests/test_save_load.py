@@ -8,20 +8,10 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.evaluation import evaluate_policy
+from ua2c_helpers import FAST
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.buffers import ChunkReplayBuffer
-
-TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
-FAST = dict(
-    policy_kwargs=TINY,
-    learning_starts=50,
-    batch_size=16,
-    buffer_size=1000,
-    flow_steps=3,
-    n_candidates=4,
-    n_target_candidates=2,
-)
 
 
 def params(model: UA2C) -> dict[str, th.Tensor]:
