@@ -1,6 +1,6 @@
 """rl-zoo integration benchmark: launcher overhead and multi-worker Optuna sweeps on PostgreSQL.
 
-Runs, side by side in one session (the machine is shared, so only ratios measured together mean
+Runs, side by side in one run (the machine is shared, so only ratios measured together mean
 something):
 
 1. launcher overhead: ``python -m sb3_ua2c.zoo train --algo sac`` against rl-zoo3's own
