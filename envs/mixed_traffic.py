@@ -477,6 +477,15 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         if not self._needs_reset:
             self._apply_controller()
 
+    def set_ego_driver_style(self, style: str) -> None:
+        """Give SUMO's driver model of the AV the parameters of an HDV style (``STYLES``) until the
+        next reset; it matters while ``ego_controller == "sumo"`` (human-like offline data)."""
+        if style not in STYLES:
+            raise ValueError(f"style must be one of {STYLES}, got {style!r}")
+        if self._needs_reset:
+            raise RuntimeError("call reset() before set_ego_driver_style()")
+        self.sim.set_driver(AV_ID, STYLE_VTYPES[style])
+
     @property
     def ego_controller(self) -> str:
         return self._ego_controller

@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import shutil
 import weakref
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -293,6 +293,21 @@ class SumoSimulation:
 
     def remove(self, vehicle_id: str) -> None:
         self.libsumo.vehicle.remove(vehicle_id)
+
+    def set_driver(self, vehicle_id: str, params: Mapping[str, float]) -> None:
+        """Set one vehicle's car-following and lane-change parameters (SUMO vType attribute names:
+        ``accel``, ``decel``, ``tau``, ``minGap``, ``speedFactor`` and LC2013's ``lc*``)."""
+        self._check_running()
+        v = self.libsumo.vehicle
+        setters = {"accel": v.setAccel, "decel": v.setDecel, "tau": v.setTau, "minGap": v.setMinGap,
+                   "speedFactor": v.setSpeedFactor}
+        for key, value in params.items():
+            if key in setters:
+                setters[key](vehicle_id, float(value))
+            elif key.startswith("lc"):
+                v.setParameter(vehicle_id, f"laneChangeModel.{key}", str(float(value)))
+            else:
+                raise ValueError(f"unknown driver parameter {key!r}")
 
     def set_external_control(self, vehicle_id: str) -> None:
         """Hand all speed and lane decisions of ``vehicle_id`` to the caller.

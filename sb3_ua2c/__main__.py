@@ -51,7 +51,7 @@ def _behaviour(args: argparse.Namespace):
 
     return BehaviourConfig(
         sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob,
-        accel_noise=args.accel_noise, lane_change_prob=args.lane_change_prob,
+        accel_noise=args.accel_noise, lane_change_prob=args.lane_change_prob, driver_style=args.driver_style,
     )
 
 
@@ -198,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--perturb-prob", type=float, default=0.1, help="per-step takeover probability in SUMO episodes")
     p.add_argument("--accel-noise", type=float, default=1.0, help="takeover acceleration noise std [m/s^2]")
     p.add_argument("--lane-change-prob", type=float, default=0.02, help="per-step random lane-change probability")
+    p.add_argument("--driver-style", default="default",
+                   choices=("default", "conservative", "neutral", "aggressive", "mixed"),
+                   help="SUMO driver parameters of the AV ('mixed': one style drawn per episode)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_collect)
 

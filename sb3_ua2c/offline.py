@@ -249,6 +249,10 @@ def load_dataset(path: str | os.PathLike) -> OfflineDataset:
 BehaviourPolicy = Callable[[np.ndarray, dict[str, Any], np.random.Generator], np.ndarray | None]
 
 
+#: ``BehaviourConfig.driver_style`` values (the middle three are ``envs.STYLES``).
+DRIVER_STYLES = ("default", "conservative", "neutral", "aggressive", "mixed")
+
+
 @dataclass(frozen=True)
 class BehaviourConfig:
     """Behaviour policy of an offline collection run on ``MixedTraffic-v0`` (human-like driving).
@@ -265,12 +269,16 @@ class BehaviourConfig:
     :param perturb_prob: per-step probability of a perturbed takeover in SUMO episodes, in [0, 1]
     :param accel_noise: standard deviation of the perturbation [m/s²], >= 0
     :param lane_change_prob: per-step probability of a random lane change (takeovers, random episodes)
+    :param driver_style: parameters of SUMO's driver model for the AV: ``"default"`` (the AV's own
+        moderate IDM type), an HDV style (``"conservative"``, ``"neutral"``, ``"aggressive"``) or
+        ``"mixed"`` (one of the three drawn per episode)
     """
 
     sumo_fraction: float = 0.8
     perturb_prob: float = 0.1
     accel_noise: float = 1.0
     lane_change_prob: float = 0.02
+    driver_style: str = "default"
 
     def __post_init__(self) -> None:
         for name in ("sumo_fraction", "perturb_prob", "lane_change_prob"):
@@ -281,6 +289,8 @@ class BehaviourConfig:
             np.isfinite(self.accel_noise) and self.accel_noise >= 0
         ):
             raise ValueError(f"BehaviourConfig.accel_noise must be a finite number >= 0, got {self.accel_noise!r}")
+        if self.driver_style not in DRIVER_STYLES:
+            raise ValueError(f"BehaviourConfig.driver_style must be one of {DRIVER_STYLES}, got {self.driver_style!r}")
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> BehaviourConfig:
@@ -350,6 +360,11 @@ def collect_episodes(
     for i in iterator:
         sumo_driven = bool(rng.random() < behaviour.sumo_fraction)
         obs, info = env.reset(seed=seed + i, options={"ego_controller": "sumo" if sumo_driven else "agent"})
+        style = behaviour.driver_style
+        if style == "mixed":
+            style = DRIVER_STYLES[1 + int(rng.integers(3))]
+        if sumo_driven and style != "default":
+            base.set_ego_driver_style(style)
         observations, actions, rewards, terminations, truncations = [obs], [], [], [], []
         last_accel = 0.0
         done = False

@@ -156,6 +156,27 @@ def test_collected_dataset_records_the_performed_actions(traffic_dataset) -> Non
         np.testing.assert_array_equal(a.actions, b.actions)
 
 
+def test_behaviour_driver_style_changes_how_sumo_drives_the_av(tmp_path: Path) -> None:
+    import envs  # noqa: F401
+    from sb3_ua2c.offline import collect_episodes, make_env
+
+    env = make_env(env_kwargs={"time_limit": 10.0})
+    try:
+        accel = {}
+        for style in ("conservative", "aggressive"):
+            behaviour = BehaviourConfig(sumo_fraction=1.0, perturb_prob=0.0, lane_change_prob=0.0, driver_style=style)
+            (ep,) = collect_episodes(env, 1, behaviour, seed=5)
+            accel[style] = float(ep.actions[:, 0].max())
+        # IDM never exceeds a_max: 1.0 m/s² conservative, 3.5 m/s² aggressive
+        assert accel["conservative"] <= 1.0 + 1e-3 < accel["aggressive"]
+        with pytest.raises(ValueError, match="style must be one of"):
+            env.unwrapped.set_ego_driver_style("reckless")
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="driver_style"):
+        BehaviourConfig(driver_style="reckless")
+
+
 TINY = {
     "chunk_size": 3, "history_len": 2, "n_candidates": 4, "n_target_candidates": 2, "flow_steps": 2,
     "batch_size": 16,
