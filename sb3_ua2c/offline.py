@@ -156,7 +156,7 @@ def write_dataset(
 
     if not episodes:
         raise ValueError("episodes must not be empty")
-    path = Path(path)
+    path = Path(path).absolute()  # Minari resolves its root from an environment variable: no relative paths
     if path.exists() and not overwrite:
         raise FileExistsError(f"dataset {path} already exists (pass overwrite=True to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)

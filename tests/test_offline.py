@@ -62,6 +62,14 @@ def test_dataset_round_trip(tmp_path: Path) -> None:
         write_dataset(episodes, path, PENDULUM_OBS, PENDULUM_ACT)
 
 
+def test_relative_dataset_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    path = write_dataset([hand_episode()], Path("runs") / "ds", PENDULUM_OBS, PENDULUM_ACT)
+    assert path == tmp_path / "runs" / "ds"
+    assert load_dataset(Path("runs") / "ds").total_steps == 4
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["ds"]  # no temporary directory left
+
+
 def test_missing_and_corrupt_datasets_raise(tmp_path: Path) -> None:
     with pytest.raises(OfflineDatasetError, match="no dataset at"):
         load_dataset(tmp_path / "nothing")
