@@ -5,6 +5,7 @@ import sys
 import warnings
 
 import gymnasium as gym
+import libsumo  # noqa: F401  (a required dependency: a broken install must fail, not skip)
 import numpy as np
 import pytest
 
@@ -12,8 +13,6 @@ import envs
 from envs.mdp import SLOT_FEATURES, STYLES
 from envs.mixed_traffic import AV_ID, MixedTrafficEnv
 from envs.sumo import SumoProcessBusyError
-
-pytest.importorskip("libsumo")
 
 A_MAX, A_MIN, DT = 3.0, -4.5, 0.2
 
@@ -446,7 +445,6 @@ def test_hdvs_reenter_and_av_leaves_the_road(make_env):
 
 
 def test_record_video(tmp_path):
-    pytest.importorskip("moviepy")
     from gymnasium.wrappers import RecordVideo
 
     env = RecordVideo(

@@ -203,7 +203,6 @@ def test_geometry_rejects_bad_values():
 
 
 def test_scenario_cache_dir_override_and_reuse(tmp_path, monkeypatch):
-    pytest.importorskip("sumo")  # netconvert comes with the eclipse-sumo wheel
     from envs.scenario import CACHE_ENV_VAR, build_scenario, cache_dir
 
     monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
