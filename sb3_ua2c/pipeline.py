@@ -219,7 +219,7 @@ def evaluate(
         else:
             model = load_checkpoint(checkpoint, env)
         if entropy_threshold is not None:
-            model.entropy_threshold = model.policy.entropy_threshold = float(entropy_threshold)
+            model.set_entropy_threshold(entropy_threshold)
         results = []
         for s in seeds:
             for i in range(n_episodes):

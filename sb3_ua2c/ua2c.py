@@ -13,7 +13,7 @@ import math
 import pathlib
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -573,6 +573,16 @@ class UA2C(OffPolicyAlgorithm):
             self.logger.record("rollout/entropy_first", float(np.mean(entropy[:, 0])))
             self.logger.record("rollout/entropy_last", float(np.mean(entropy[:, -1])))
         super().dump_logs()
+
+    def set_entropy_threshold(self, entropy_threshold: float) -> None:
+        """
+        Change δ of Eq. 7 (execution only; the losses do not depend on it), e.g. to evaluate one
+        checkpoint with fixed (``inf``) and adaptive execution.
+
+        :param entropy_threshold: the new threshold (validated like the constructor argument)
+        """
+        self.config = replace(self.config, entropy_threshold=float(entropy_threshold))
+        self.entropy_threshold = self.policy.entropy_threshold = float(self.config.entropy_threshold)
 
     @property
     def last_executed_length(self) -> float:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import gymnasium as gym
@@ -267,6 +268,11 @@ def test_evaluate_reports_every_metric(traffic_dataset, tmp_path: Path) -> None:
         assert r.mean_executed_length == 3.0
     summary = summarize(results)
     assert summary["episodes"] == 2 and summary["mean_executed_length"] == 3.0
+    # the same checkpoint executed one action per plan: δ below every possible entropy
+    results = evaluate(ckpt, n_episodes=1, seeds=(0,), env_settings_={"env_kwargs": SHORT_ENV}, entropy_threshold=-1e9)
+    assert results[0].mean_executed_length == 1.0
+    with pytest.raises(ValueError, match="entropy_threshold"):
+        evaluate(ckpt, n_episodes=1, env_settings_={"env_kwargs": SHORT_ENV}, entropy_threshold=-math.inf)
 
 
 def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
