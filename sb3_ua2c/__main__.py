@@ -50,8 +50,8 @@ def _behaviour(args: argparse.Namespace):
     from sb3_ua2c.offline import BehaviourConfig
 
     return BehaviourConfig(
-        sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob,
-        accel_noise=args.accel_noise, lane_change_prob=args.lane_change_prob, driver_style=args.driver_style,
+        sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob, accel_noise=args.accel_noise,
+        perturb_steps=args.perturb_steps, lane_change_prob=args.lane_change_prob, driver_style=args.driver_style,
     )
 
 
@@ -194,11 +194,19 @@ def build_parser() -> argparse.ArgumentParser:
     env_args(p)
     p.add_argument("--out", default=None, help="dataset directory (default: <run-dir>/dataset)")
     p.add_argument("--episodes", type=int, default=100)
-    p.add_argument("--sumo-fraction", type=float, default=0.8, help="fraction of episodes driven by SUMO's model")
-    p.add_argument("--perturb-prob", type=float, default=0.1, help="per-step takeover probability in SUMO episodes")
-    p.add_argument("--accel-noise", type=float, default=1.0, help="takeover acceleration noise std [m/s^2]")
-    p.add_argument("--lane-change-prob", type=float, default=0.02, help="per-step random lane-change probability")
-    p.add_argument("--driver-style", default="default",
+    from sb3_ua2c.offline import BehaviourConfig  # the behaviour defaults live in one place
+
+    b = BehaviourConfig()
+    p.add_argument("--sumo-fraction", type=float, default=b.sumo_fraction,
+                   help="fraction of episodes driven by SUMO's model")
+    p.add_argument("--perturb-prob", type=float, default=b.perturb_prob,
+                   help="per-step probability that a takeover starts in SUMO episodes")
+    p.add_argument("--accel-noise", type=float, default=b.accel_noise,
+                   help="std of a takeover's acceleration offset [m/s^2]")
+    p.add_argument("--perturb-steps", type=int, default=b.perturb_steps, help="length of a takeover [steps]")
+    p.add_argument("--lane-change-prob", type=float, default=b.lane_change_prob,
+                   help="per-step random lane-change probability")
+    p.add_argument("--driver-style", default=b.driver_style,
                    choices=("default", "conservative", "neutral", "aggressive", "mixed"),
                    help="SUMO driver parameters of the AV ('mixed': one style drawn per episode)")
     p.add_argument("--overwrite", action="store_true")

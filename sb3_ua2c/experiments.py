@@ -95,7 +95,9 @@ class Fig2Budget:
     :param dataset_episodes: offline episodes collected per seed (behaviour policy of
         :class:`~sb3_ua2c.offline.BehaviourConfig`)
     :param pretrain_steps: Phase-1 gradient steps, the same for every pre-trained arm
-    :param finetune_steps: Phase-2 environment steps, the same for adaptive and fixed
+    :param finetune_steps: Phase-2 environment steps, the same for adaptive and fixed; both arms make
+        one gradient step per ``chunk_size`` environment steps (the same number of updates, whatever
+        the executed lengths)
     :param eval_episodes: evaluation episodes per method and seed (same scenarios for all methods)
     :param chunk_size: ``k`` of the chunk policy
     :param entropy_threshold: δ of the adaptive arm (Eq. 7); the fixed arm uses ``inf``
@@ -110,14 +112,14 @@ class Fig2Budget:
     """
 
     dataset_episodes: int = 100
-    pretrain_steps: int = 2000
+    pretrain_steps: int = 3000
     finetune_steps: int = 3000
-    eval_episodes: int = 10
+    eval_episodes: int = 20
     chunk_size: int = 5
     entropy_threshold: float = 0.0
-    style_episodes: int = 60
+    style_episodes: int = 400
     style_max_epochs: int = 40
-    delta_sweep: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0, math.inf)
+    delta_sweep: tuple[float, ...] = (-0.5, 0.0, 0.25, 0.5, 1.0, math.inf)
     k_sweep: tuple[int, ...] = (1, 3, 5, 10)
     style_ablation: bool = True
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -232,26 +234,30 @@ class CostModel:
     one torch thread (torch 2.13 CPU, default UA2C networks, batch 256, 200-step episodes).
 
     :param collect_ms_per_step: behaviour-policy collection, per env step
-    :param pretrain_ms_per_step_per_k: Phase-1 gradient step, per unit of chunk length (k=1: 20 ms,
-        k=5: 109 ms measured)
-    :param finetune_ms_per_update: Phase-2 gradient step of the k=5 policy incl. its replanning
+    :param pretrain_ms_per_step: Phase-1 gradient step, part independent of the chunk length
+    :param pretrain_ms_per_step_per_k: Phase-1 gradient step, per unit of chunk length (measured:
+        k=1: 20 ms, k=5: 40 ms, k=10: 65 ms)
+    :param finetune_ms_per_update: Phase-2 gradient step of the k=5 policy
     :param finetune_ms_per_env_step: Phase-2 env step excluding updates
     :param eval_ms_per_step: evaluation (replanning amortised), per env step
     :param style_ms_per_step: style-data collection, per env step
     :param style_s_per_epoch: style classifier training, per epoch of a 60-episode dataset
     :param style_context_factor: slowdown of env steps with the style wrapper
-    :param adaptive_plan_length: assumed mean ``L_t`` of the adaptive arm (updates = steps / L)
+    :param adaptive_plan_length: assumed mean ``L_t`` of the adaptive arm (one replanning per L steps)
+    :param plan_ms: one replanning during Phase 2
     """
 
     collect_ms_per_step: float = 1.6
-    pretrain_ms_per_step_per_k: float = 22.0
-    finetune_ms_per_update: float = 125.0
+    pretrain_ms_per_step: float = 15.0
+    pretrain_ms_per_step_per_k: float = 5.0
+    finetune_ms_per_update: float = 45.0
     finetune_ms_per_env_step: float = 5.0
     eval_ms_per_step: float = 4.0
     style_ms_per_step: float = 1.6
     style_s_per_epoch: float = 0.3
     style_context_factor: float = 2.0
     adaptive_plan_length: float = 1.0
+    plan_ms: float = 4.0
 
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None = None) -> dict[str, float]:
@@ -268,15 +274,20 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     )
     ms = 1e-3
     data = budget.dataset_episodes * steps_per_episode * c.collect_ms_per_step * ms
-    pre = sum(budget.pretrain_steps * k * c.pretrain_ms_per_step_per_k * ms for k in budget.pretrain_ks)
+
+    def pretrain_s(k: int) -> float:
+        return budget.pretrain_steps * (c.pretrain_ms_per_step + k * c.pretrain_ms_per_step_per_k) * ms
+
+    pre = sum(pretrain_s(k) for k in budget.pretrain_ks)
     updates_scale = budget.algo_kwargs.get("batch_size", 256) / 256
 
-    def online(plan_length: float) -> float:
-        return (
-            budget.finetune_steps
-            * (c.finetune_ms_per_env_step + c.finetune_ms_per_update * updates_scale / plan_length)
-            * ms
+    def online(plan_length: float) -> float:  # one update per chunk_size env steps (both arms)
+        per_step = (
+            c.finetune_ms_per_env_step
+            + c.plan_ms / plan_length
+            + c.finetune_ms_per_update * updates_scale / budget.chunk_size
         )
+        return budget.finetune_steps * per_step * ms
 
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
     n_evals = (
@@ -291,7 +302,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     if budget.style_ablation:
         ablation = (
             data * c.style_context_factor
-            + budget.pretrain_steps * budget.chunk_size * c.pretrain_ms_per_step_per_k * ms
+            + pretrain_s(budget.chunk_size)
             + online(c.adaptive_plan_length)
         )
     stages = {
@@ -535,6 +546,15 @@ def _evaluation(
         )
 
 
+def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
+    """Phase-2 update cadence of every fine-tuned arm: one gradient step per ``chunk_size`` env steps.
+
+    UA2C's default (one update per plan) would give the adaptive arm, whose plans are shorter,
+    up to ``k`` times the updates of the fixed arm for the same environment steps.
+    """
+    return {"train_freq": budget.chunk_size, "gradient_steps": 1}
+
+
 def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     """Run (or resume) every unit of one seed; return the names of the units actually executed.
 
@@ -597,7 +617,8 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
         if not path.is_file():
             with log.timed(f"seed{seed}/finetune/{name}"):
                 finetune(
-                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed
+                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed,
+                    algo_overrides=finetune_overrides(budget),
                 )
         return path
 

@@ -259,26 +259,32 @@ class BehaviourConfig:
 
     Per episode, SUMO's own car-following and lane-change models drive the AV with probability
     ``sumo_fraction``; the recorded action is the one SUMO actually performed
-    (``info["applied_action"]``). To widen state coverage, each step of a SUMO-driven episode is,
-    with probability ``perturb_prob``, taken over by a perturbed action: the last performed
-    acceleration plus Gaussian noise of standard deviation ``accel_noise`` [m/s²], and a random
-    lane change with probability ``lane_change_prob``. The remaining episodes use a random policy
+    (``info["applied_action"]``). To widen state coverage, at each step of a SUMO-driven episode a
+    takeover starts with probability ``perturb_prob``: for ``perturb_steps`` steps the AV holds the
+    last performed acceleration plus Gaussian noise of standard deviation ``accel_noise`` [m/s²]
+    (drawn once per takeover), with a random lane change at its first step with probability
+    ``lane_change_prob``. Long takeovers are lapses of attention: the AV keeps accelerating towards
+    a slower leader or the end of the acceleration lane and SUMO's driver takes back control late,
+    sometimes too late, so the data also hold the near-misses and collisions a value function
+    needs to learn what unsafe chunks cost. The remaining episodes use a random policy
     (uniform acceleration, lane change with probability ``lane_change_prob`` per step).
 
     :param sumo_fraction: fraction of episodes driven by SUMO's driver model, in [0, 1]
-    :param perturb_prob: per-step probability of a perturbed takeover in SUMO episodes, in [0, 1]
-    :param accel_noise: standard deviation of the perturbation [m/s²], >= 0
+    :param perturb_prob: per-step probability that a takeover starts in SUMO episodes, in [0, 1]
+    :param accel_noise: standard deviation of a takeover's acceleration offset [m/s²], >= 0
+    :param perturb_steps: length of a takeover in environment steps, >= 1
     :param lane_change_prob: per-step probability of a random lane change (takeovers, random episodes)
     :param driver_style: parameters of SUMO's driver model for the AV: ``"default"`` (the AV's own
         moderate IDM type), an HDV style (``"conservative"``, ``"neutral"``, ``"aggressive"``) or
         ``"mixed"`` (one of the three drawn per episode)
     """
 
-    sumo_fraction: float = 0.8
-    perturb_prob: float = 0.1
-    accel_noise: float = 1.0
+    sumo_fraction: float = 1.0
+    perturb_prob: float = 0.03
+    accel_noise: float = 2.5
+    perturb_steps: int = 15
     lane_change_prob: float = 0.02
-    driver_style: str = "default"
+    driver_style: str = "mixed"
 
     def __post_init__(self) -> None:
         for name in ("sumo_fraction", "perturb_prob", "lane_change_prob"):
@@ -289,6 +295,12 @@ class BehaviourConfig:
             np.isfinite(self.accel_noise) and self.accel_noise >= 0
         ):
             raise ValueError(f"BehaviourConfig.accel_noise must be a finite number >= 0, got {self.accel_noise!r}")
+        if (
+            isinstance(self.perturb_steps, bool)
+            or not isinstance(self.perturb_steps, int | np.integer)
+            or self.perturb_steps < 1
+        ):
+            raise ValueError(f"BehaviourConfig.perturb_steps must be an integer >= 1, got {self.perturb_steps!r}")
         if self.driver_style not in DRIVER_STYLES:
             raise ValueError(f"BehaviourConfig.driver_style must be one of {DRIVER_STYLES}, got {self.driver_style!r}")
 
@@ -367,14 +379,21 @@ def collect_episodes(
             base.set_ego_driver_style(style)
         observations, actions, rewards, terminations, truncations = [obs], [], [], [], []
         last_accel = 0.0
+        takeover_left, takeover_accel = 0, 0.0  # steps left in the current takeover, its acceleration
         done = False
         while not done:
             lane_change = float(rng.choice((-1.0, 1.0))) if rng.random() < behaviour.lane_change_prob else 0.0
             if sumo_driven:
-                takeover = bool(rng.random() < behaviour.perturb_prob)
-                base.set_ego_controller("agent" if takeover else "sumo")
-                accel = last_accel + behaviour.accel_noise * float(rng.standard_normal())
-                action = np.array([accel, lane_change if takeover else 0.0])
+                starts = bool(rng.random() < behaviour.perturb_prob)
+                noise = float(rng.standard_normal())  # drawn every step: the same stream for any perturb_steps
+                if takeover_left == 0 and starts:
+                    takeover_left = behaviour.perturb_steps
+                    takeover_accel = last_accel + behaviour.accel_noise * noise
+                else:
+                    lane_change = 0.0  # random lane changes only at the first step of a takeover
+                base.set_ego_controller("agent" if takeover_left > 0 else "sumo")
+                action = np.array([takeover_accel, lane_change])
+                takeover_left = max(takeover_left - 1, 0)
             else:
                 action = np.array([rng.uniform(low[0], high[0]), lane_change])
             action = np.clip(action, low, high).astype(env.action_space.dtype)

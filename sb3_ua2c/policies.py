@@ -108,22 +108,27 @@ class _EnsembleLinear(nn.Module):
         self.bias = nn.Parameter(th.empty(n, 1, out_features).uniform_(-bound, bound))
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        if x.ndim == 2:  # shared input (M, in) for all members
-            return th.matmul(x, self.weight) + self.bias
+        if x.ndim == 2:  # shared input (M, in) for all members: one (M, in) x (in, n*out) matmul
+            n, n_in, n_out = self.weight.shape
+            stacked = self.weight.permute(1, 0, 2).reshape(n_in, n * n_out)  # (in, n*out)
+            return th.mm(x, stacked).reshape(-1, n, n_out).transpose(0, 1) + self.bias  # (n, M, out)
         return th.baddbmm(self.bias, x, self.weight)
 
 
-class _EnsembleLayerNorm(nn.Module):
-    """Layer norm with per-member affine parameters, input ``(n, M, d)``."""
+class _EnsembleRMSNorm(nn.Module):
+    """RMS norm (Zhang & Sennrich, 2019) with a per-member gain, input ``(n, M, d)``.
 
-    def __init__(self, n: int, dim: int) -> None:
+    ``x / sqrt(mean(x^2) + eps) * g``: on CPU it is several times faster than a layer norm over
+    rows of a few dozen numbers, which dominate the critics' cost (B * Q target sequences).
+    """
+
+    def __init__(self, n: int, dim: int, eps: float = 1e-6) -> None:
         super().__init__()
         self.weight = nn.Parameter(th.ones(n, 1, dim))
-        self.bias = nn.Parameter(th.zeros(n, 1, dim))
-        self.dim = dim
+        self.dim, self.eps = dim, eps
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        return th.addcmul(self.bias, F.layer_norm(x, (self.dim,)), self.weight)
+        return F.rms_norm(x, (self.dim,), eps=self.eps) * self.weight
 
 
 class _EnsembleBlock(nn.Module):
@@ -132,10 +137,10 @@ class _EnsembleBlock(nn.Module):
     def __init__(self, n: int, dim: int, n_heads: int, ff_dim: int, activation_fn: type[nn.Module]) -> None:
         super().__init__()
         self.n_heads = n_heads
-        self.norm1 = _EnsembleLayerNorm(n, dim)
+        self.norm1 = _EnsembleRMSNorm(n, dim)
         self.qkv = _EnsembleLinear(n, dim, 3 * dim)
         self.out = _EnsembleLinear(n, dim, dim)
-        self.norm2 = _EnsembleLayerNorm(n, dim)
+        self.norm2 = _EnsembleRMSNorm(n, dim)
         self.ff1 = _EnsembleLinear(n, dim, ff_dim)
         self.act = activation_fn()
         self.ff2 = _EnsembleLinear(n, ff_dim, dim)
@@ -206,7 +211,7 @@ class ChunkCritics(nn.Module):
         self.blocks = nn.ModuleList(
             [_EnsembleBlock(n_critics, embed_dim, n_heads, ff_dim, activation_fn) for _ in range(n_layers)]
         )
-        self.norm = _EnsembleLayerNorm(n_critics, embed_dim)
+        self.norm = _EnsembleRMSNorm(n_critics, embed_dim)
         self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
 
     def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
@@ -249,7 +254,7 @@ class UA2CPolicy(BasePolicy):
     :param n_critics: number of critics
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
-    :param optimizer_kwargs: extra optimizer arguments
+    :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
     """
 
     def __init__(
@@ -279,6 +284,9 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(
                 f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}"
             )
+        if optimizer_kwargs is None and optimizer_class in (th.optim.Adam, th.optim.AdamW):
+            # the fused kernel updates all parameters at once: ~6x faster than the per-tensor loop on CPU
+            optimizer_kwargs = {"fused": True}
         super().__init__(
             observation_space,
             action_space,

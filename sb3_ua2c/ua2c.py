@@ -71,7 +71,7 @@ class UA2CConfig:
     flow_steps: int = 10
     target_flow_steps: int = 2
     n_candidates: int = 32
-    n_target_candidates: int = 4
+    n_target_candidates: int = 2
     entropy_threshold: float = 0.0
     q_weight: float = 1.0
     offline_ratio: float = 0.5
@@ -195,7 +195,7 @@ class UA2C(OffPolicyAlgorithm):
         flow_steps: int = 10,
         target_flow_steps: int = 2,
         n_candidates: int = 32,
-        n_target_candidates: int = 4,
+        n_target_candidates: int = 2,
         entropy_threshold: float = 0.0,
         q_weight: float = 1.0,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,

@@ -117,6 +117,7 @@ def test_budget_validation_names_the_key() -> None:
 def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     costs = CostModel(
         collect_ms_per_step=1.0,
+        pretrain_ms_per_step=4.0,
         pretrain_ms_per_step_per_k=10.0,
         finetune_ms_per_update=100.0,
         finetune_ms_per_env_step=0.0,
@@ -124,6 +125,7 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
         style_ms_per_step=1.0,
         style_s_per_epoch=0.0,
         adaptive_plan_length=1.0,
+        plan_ms=2.0,
     )
     budget = Fig2Budget(
         dataset_episodes=10,
@@ -139,13 +141,14 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     est = estimate_seconds(budget, n_seeds=2, costs=costs)
     steps = 200  # 40 s / 0.2 s
     assert est["datasets"] == pytest.approx(2 * 10 * steps * 1e-3)
-    assert est["pretrain"] == pytest.approx(2 * 100 * (1 + 2) * 10e-3)  # k = 1 and k = 2
-    assert est["finetune"] == pytest.approx(2 * 50 * (100 / 1 + 100 / 2) * 1e-3)  # adaptive L=1, fixed L=k
+    assert est["pretrain"] == pytest.approx(2 * 100 * ((4 + 10) + (4 + 20)) * 1e-3)  # k = 1 and k = 2
+    # both arms: one update per k = 2 env steps; replanning every L = 1 (adaptive) or 2 (fixed) steps
+    assert est["finetune"] == pytest.approx(2 * 50 * ((2 / 1 + 100 / 2) + (2 / 2 + 100 / 2)) * 1e-3)
     assert est["evaluate"] == pytest.approx(2 * (5 + 1 + 1) * 2 * steps * 1e-3)  # 5 arms, 1 δ, 1 k
     assert est["total"] == pytest.approx(sum(v for k, v in est.items() if k != "total"))
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
-    assert 60 * 60 <= wall <= 2.25 * 60 * 60
+    assert 30 * 60 <= wall <= 2.25 * 60 * 60
 
 
 # ---------------------------------------------------------------------------------------------
@@ -243,6 +246,18 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md
+
+
+def test_quick_run_gives_adaptive_and_fixed_the_same_online_updates(quick_run: Path) -> None:
+    from sb3_ua2c import UA2C
+
+    start = UA2C.load(quick_run / "fig2_work" / "seed0" / "pretrain_k3.zip", device="cpu")._n_updates
+    online = {}
+    for arm in ("adaptive", "fixed"):
+        model = UA2C.load(quick_run / "fig2_work" / "seed0" / f"{arm}.zip", device="cpu")
+        assert (model.train_freq.frequency, model.gradient_steps) == (3, 1)  # one update per k = 3 steps
+        online[arm] = model._n_updates - start
+    assert online["adaptive"] == online["fixed"] == 30 // 3  # 30 env steps in quick mode
 
 
 def test_quick_run_numbers_follow_from_the_raw_data(quick_run: Path) -> None:

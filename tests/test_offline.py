@@ -186,6 +186,27 @@ def test_behaviour_driver_style_changes_how_sumo_drives_the_av(tmp_path: Path) -
         BehaviourConfig(driver_style="reckless")
 
 
+def test_behaviour_takeover_holds_its_acceleration_for_perturb_steps() -> None:
+    import envs  # noqa: F401
+    from sb3_ua2c.offline import collect_episodes, make_env
+
+    env = make_env(env_kwargs={"time_limit": 4.0})
+    try:
+        behaviour = BehaviourConfig(
+            sumo_fraction=1.0, perturb_prob=1.0, perturb_steps=5, accel_noise=0.5, lane_change_prob=0.0
+        )
+        (ep,) = collect_episodes(env, 1, behaviour, seed=2)
+        accel = ep.actions[:, 0]
+        # every step starts a takeover when none is running: runs of 5 equal accelerations
+        for start in range(0, 15, 5):
+            np.testing.assert_array_equal(accel[start : start + 5], np.full(5, accel[start]))
+            assert accel[start + 5] != accel[start]
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="perturb_steps"):
+        BehaviourConfig(perturb_steps=0)
+
+
 TINY = {
     "chunk_size": 3, "history_len": 2, "n_candidates": 4, "n_target_candidates": 2, "flow_steps": 2,
     "batch_size": 16,
