@@ -111,8 +111,8 @@ class Fig2Budget:
     :param algo_kwargs: extra UA2C constructor arguments of every arm (e.g. ``batch_size``)
     """
 
-    dataset_episodes: int = 100
-    pretrain_steps: int = 3000
+    dataset_episodes: int = 200
+    pretrain_steps: int = 6000
     finetune_steps: int = 3000
     eval_episodes: int = 20
     chunk_size: int = 5
@@ -235,8 +235,8 @@ class CostModel:
 
     :param collect_ms_per_step: behaviour-policy collection, per env step
     :param pretrain_ms_per_step: Phase-1 gradient step, part independent of the chunk length
-    :param pretrain_ms_per_step_per_k: Phase-1 gradient step, per unit of chunk length (measured:
-        k=1: 20 ms, k=5: 40 ms, k=10: 65 ms)
+    :param pretrain_ms_per_step_per_k: Phase-1 gradient step, per unit of chunk length (measured
+        on 2026-11-23: k=1: 18 ms, k=3: 20 ms, k=5: 27 ms, k=10: 42 ms)
     :param finetune_ms_per_update: Phase-2 gradient step of the k=5 policy
     :param finetune_ms_per_env_step: Phase-2 env step excluding updates
     :param eval_ms_per_step: evaluation (replanning amortised), per env step
@@ -247,14 +247,14 @@ class CostModel:
     :param plan_ms: one replanning during Phase 2
     """
 
-    collect_ms_per_step: float = 1.6
-    pretrain_ms_per_step: float = 15.0
-    pretrain_ms_per_step_per_k: float = 5.0
-    finetune_ms_per_update: float = 45.0
-    finetune_ms_per_env_step: float = 5.0
-    eval_ms_per_step: float = 4.0
-    style_ms_per_step: float = 1.6
-    style_s_per_epoch: float = 0.3
+    collect_ms_per_step: float = 0.4
+    pretrain_ms_per_step: float = 14.0
+    pretrain_ms_per_step_per_k: float = 2.8
+    finetune_ms_per_update: float = 20.0
+    finetune_ms_per_env_step: float = 3.0
+    eval_ms_per_step: float = 1.5
+    style_ms_per_step: float = 0.3
+    style_s_per_epoch: float = 0.05
     style_context_factor: float = 2.0
     adaptive_plan_length: float = 1.0
     plan_ms: float = 4.0
