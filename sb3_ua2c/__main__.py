@@ -122,7 +122,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 #: Embedded defaults of ``main``: a few minutes on 2 cores.
 MAIN_BUDGET = {
-    "full": {"episodes": 40, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 5},
+    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 10},
     "quick": {"episodes": 4, "pretrain_steps": 30, "finetune_steps": 200, "eval_episodes": 1},
 }
 
