@@ -248,6 +248,16 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md
 
 
+def test_paper_verdict_by_hand() -> None:
+    from sb3_ua2c.experiments import paper_verdict
+
+    assert paper_verdict("offline_reward_gain_pct", 6.70) == "at or beyond"  # paper: +6.70 %
+    assert paper_verdict("offline_reward_gain_pct", 6.69) == "short"
+    assert paper_verdict("offline_jerk_change_pct", -20.0) == "at or beyond"  # paper: -18.37 %, lower is better
+    assert paper_verdict("offline_jerk_change_pct", 5.0) == "short"
+    assert paper_verdict("online_reward_gain_pct", float("nan")) == "short"
+
+
 def test_quick_run_gives_adaptive_and_fixed_the_same_online_updates(quick_run: Path) -> None:
     from sb3_ua2c import UA2C
 
