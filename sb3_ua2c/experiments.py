@@ -1311,7 +1311,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)
-    command = "python benchmarks/fig2.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = " ".join(["python benchmarks/fig2.py", *(sys.argv[1:] if argv is None else argv)])
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     t0 = time.perf_counter()
     try:
         if not args.report_only:
@@ -1329,6 +1330,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
         else:
             budget = read_manifest(paths) or budget  # the budget the run was made with
+            previous = paths.out / "fig2.json"
+            if previous.is_file():  # a rebuilt report keeps the command and date of the run
+                recorded = json.loads(previous.read_text())
+                command, date = recorded.get("command", command), recorded.get("date", date)
         summary = aggregate(load_raw(paths, seeds), seeds, budget)
         summary["seconds"] = {
             "measured": measured_seconds(paths, seeds),
@@ -1337,7 +1342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    files = write_report(summary, paths, command, time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
+    files = write_report(summary, paths, command, date)
     for label, key in (
         ("offline reward", "offline_reward_gain_pct"),
         ("offline jerk", "offline_jerk_change_pct"),

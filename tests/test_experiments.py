@@ -328,8 +328,13 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     args = ["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]
     assert experiments.main([*args, "--budget", '{"pretrain_steps": 9}']) == 2
     assert "pretrain_steps: recorded 8, now 9" in capsys.readouterr().err
+    run_record = json.loads((quick_run / "fig2.json").read_text())
     assert experiments.main(["--report-only", "--seed-list", "0", "1", "--out", str(quick_run)]) == 0
-    assert json.loads((quick_run / "fig2.json").read_text())["budget"]["pretrain_steps"] == 8
+    rebuilt = json.loads((quick_run / "fig2.json").read_text())
+    assert rebuilt["budget"]["pretrain_steps"] == 8
+    # the rebuilt report keeps the command and date of the run that produced the results
+    assert (rebuilt["command"], rebuilt["date"]) == (run_record["command"], run_record["date"])
+    assert rebuilt["command"].startswith("python benchmarks/fig2.py --quick")
 
 
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
