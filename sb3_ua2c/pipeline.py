@@ -18,7 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from sb3_ua2c.offline import OfflineDataset, OfflineDatasetError, check_spaces_match, load_dataset, make_env
+from sb3_ua2c.offline import (
+    OfflineDataset,
+    OfflineDatasetError,
+    check_count,
+    check_spaces_match,
+    load_dataset,
+    make_env,
+)
 from sb3_ua2c.ua2c import UA2C
 
 #: UA2C arguments for ``MixedTraffic-v0`` (the lane change, action dim 1, is categorical).
@@ -208,8 +215,7 @@ def evaluate(
     :param entropy_threshold: override δ for execution
     :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
     """
-    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
-        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    check_count("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
     env = make_env(**settings)
     try:
