@@ -3,6 +3,7 @@
     python benchmarks/bench_ua2c.py latency      # replanning (S=32, k=10, N=10) vs SAC predict
     python benchmarks/bench_ua2c.py throughput   # learn() env steps/s on Pendulum-v1, default hyperparameters
     python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
+    python benchmarks/bench_ua2c.py learning --algos UA2C --ua2c-kwargs "{'chunk_size': 1}"
 
 Everything runs on one CPU thread. The machine may be shared: read the ratios, not the absolute times.
 """
@@ -131,16 +132,20 @@ def throughput(steps: int, ua2c_kwargs: dict) -> None:
     )
 
 
-def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str]) -> None:
-    """Mean deterministic return after ``steps`` env steps, UA2C and SAC at default hyperparameters."""
+def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str], ua2c_kwargs: dict) -> None:
+    """Mean deterministic return after ``steps`` env steps, SAC at default hyperparameters and UA2C at
+    its defaults updated with ``ua2c_kwargs``."""
     classes = {"UA2C": UA2C, "SAC": SAC}
+    if ua2c_kwargs:
+        print(f"UA2C arguments: {ua2c_kwargs}")
     results: dict[str, list[float]] = {name: [] for name in algos}
     lengths = []
     for seed in seeds:
         for name in algos:
             cls = classes[name]
             start = time.perf_counter()
-            model = cls("MlpPolicy", ENV_ID, seed=seed)
+            kwargs = ua2c_kwargs if cls is UA2C else {}
+            model = cls("MlpPolicy", ENV_ID, seed=seed, **kwargs)
             model.learn(steps)
             eval_env = gym.make(ENV_ID)
             eval_env.reset(seed=10_000 + seed)
@@ -180,7 +185,7 @@ def main() -> None:
         "--ua2c-kwargs",
         type=ast.literal_eval,
         default={},
-        help="throughput: UA2C arguments, e.g. \"{'n_target_candidates': 2}\"",
+        help="throughput and learning: UA2C arguments, e.g. \"{'chunk_size': 1}\"",
     )
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
     args = parser.parse_args()
@@ -191,7 +196,7 @@ def main() -> None:
     elif args.part == "throughput":
         throughput(args.steps or 1000, args.ua2c_kwargs)
     else:
-        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos)
+        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos, args.ua2c_kwargs)
 
 
 if __name__ == "__main__":

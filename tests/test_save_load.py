@@ -59,6 +59,20 @@ def test_deterministic_predict_is_a_function_of_the_history():
     np.testing.assert_array_equal(a1, a2)
 
 
+def test_predict_leaves_the_networks_in_eval_mode():
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    obs = np.array([1.0, 0.0, 0.5], np.float32)
+    model.policy.set_training_mode(False)
+    a_eval, _ = model.predict(obs, deterministic=True)
+    switches = [model.actor.train, model.critic.train, model.policy.set_training_mode]
+    for switch in switches:  # predict after a train() of the actor, the critics or the whole policy
+        switch(True)
+        a, _ = model.predict(obs, deterministic=True)
+        assert not model.actor.training and not model.critic.training
+        assert not any(m.training for m in model.critic.modules())
+        np.testing.assert_array_equal(a, a_eval)
+
+
 def test_set_parameters_and_resume_from_loaded_weights(tmp_path):
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).learn(100)
     model.save(tmp_path / "m.zip")
