@@ -338,6 +338,33 @@ class UA2C(OffPolicyAlgorithm):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "actor.optimizer", "critic.optimizer"], []
 
+    def set_parameters(
+        self,
+        load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """
+        SB3's ``set_parameters``; a checkpoint whose networks do not fit this model (other sizes,
+        or the layer-norm critics of early development versions, whose ``norm*.bias`` entries the
+        RMS-norm critics no longer have) raises a ``ValueError`` that says so.
+        """
+        try:
+            super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
+        except RuntimeError as error:
+            if "state_dict" not in str(error):
+                raise
+            hint = ""
+            if ".norm" in str(error) and ".bias" in str(error):
+                hint = (
+                    " The checkpoint has layer-norm biases in its critics: it was saved by an early"
+                    " development version (the critics now use RMS norms); retrain it."
+                )
+            raise ValueError(
+                f"the checkpoint's networks do not match this UA2C model (chunk_size, history_len, "
+                f"policy_kwargs and the spaces must be those it was trained with).{hint}\n{error}"
+            ) from error
+
     def load_replay_buffer(
         self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
     ) -> None:

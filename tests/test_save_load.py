@@ -93,6 +93,20 @@ def test_set_parameters_and_resume_from_loaded_weights(tmp_path):
     assert any(not th.equal(v, resumed.policy.state_dict()[k]) for k, v in saved.items())
 
 
+def test_loading_mismatched_networks_raises_a_clear_error(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    state = model.policy.state_dict()
+    # a critic of an early development version: layer norms with a bias
+    old = {**state, "critic.blocks.0.norm1.bias": th.zeros_like(state["critic.blocks.0.norm1.weight"])}
+    with pytest.raises(ValueError, match="layer-norm biases"):
+        model.set_parameters({"policy": old})
+    model.save(tmp_path / "m.zip")
+    other = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **{**FAST, "chunk_size": 3})
+    with pytest.raises(ValueError, match="do not match this UA2C model") as info:
+        other.set_parameters(str(tmp_path / "m.zip"))
+    assert "layer-norm" not in str(info.value) and "size mismatch" in str(info.value)
+
+
 def test_replay_buffer_save_load(tmp_path):
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).learn(80)
     model.save_replay_buffer(tmp_path / "buffer.pkl")
