@@ -76,7 +76,18 @@ def flow_matching_loss(velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor) -> th.
     return (velocity - target_velocity(x0, x1)).pow(2).mean()
 
 
-def euler_sample(velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int) -> th.Tensor:
+def euler_times(n_steps: int, dtype: th.dtype = th.float32, device: th.device | str = "cpu") -> th.Tensor:
+    """
+    Flow times of ``n_steps`` explicit Euler steps over [0, 1]: ``tau_i = i / N``, shape ``(N,)``.
+    """
+    if n_steps < 1:
+        raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+    return th.arange(n_steps, dtype=dtype, device=device) * (1.0 / n_steps)
+
+
+def euler_sample(
+    velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int, step_inputs: th.Tensor | None = None
+) -> th.Tensor:
     """
     Integrate ``dx/dtau = v(x, tau)`` from ``tau = 0`` to ``1`` with ``n_steps`` explicit Euler steps.
 
@@ -84,15 +95,19 @@ def euler_sample(velocity_fn: VelocityFn, x0: th.Tensor, n_steps: int) -> th.Ten
         scalar-valued ``tau`` tensor of shape ``()`` to a velocity of the same shape as ``x``
     :param x0: initial noise, shape ``(*batch, k, action_dim)``
     :param n_steps: number of Euler steps ``N`` (>= 1)
+    :param step_inputs: optional ``(N, ...)`` tensor whose row ``i`` replaces ``tau_i`` as the second
+        argument of ``velocity_fn`` (e.g. time features of :func:`euler_times` computed once)
     :return: ``x1`` (not clipped), same shape as ``x0``
     """
-    if n_steps < 1:
-        raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+    taus = euler_times(n_steps, x0.dtype, x0.device)
+    if step_inputs is None:
+        step_inputs = taus
+    elif step_inputs.shape[0] != n_steps:
+        raise ValueError(f"step_inputs must have {n_steps} rows, got {tuple(step_inputs.shape)}")
     x = x0
     dt = 1.0 / n_steps
-    taus = th.arange(n_steps, dtype=x0.dtype, device=x0.device) * dt
     for i in range(n_steps):
-        x = th.add(x, velocity_fn(x, taus[i]), alpha=dt)  # x + dt * v(x, tau_i)
+        x = th.add(x, velocity_fn(x, step_inputs[i]), alpha=dt)  # x + dt * v(x, tau_i)
     return x
 
 

@@ -24,7 +24,7 @@ from sb3_ua2c.chunking import (
     chunk_entropy,
     executable_prefix_length,
 )
-from sb3_ua2c.flow import euler_sample
+from sb3_ua2c.flow import euler_sample, euler_times
 
 #: seed of the noise used by ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_SEED = 0
@@ -73,6 +73,30 @@ class VelocityField(nn.Module):
         """
         return self.history_layer(history)
 
+    def time_condition(self, tau: th.Tensor, cond: th.Tensor, n_extra: int = 0) -> th.Tensor:
+        """
+        History and time part of the first layer, ``W_h h + b + w_tau tau``.
+
+        :param tau: flow times, shape ``(batch,)`` or ``()`` (shared), or ``(N, 1)`` for N Euler steps
+        :param cond: history features from :meth:`condition`, shape ``(batch, hidden)``
+        :param n_extra: candidate dims of the chunks to broadcast over
+        :return: shape ``(*tau_rows, batch, *[1] * n_extra, hidden)``: ``(batch, ..., hidden)`` for a
+            ``(batch,)`` or scalar ``tau``, ``(N, batch, ..., hidden)`` for ``(N, 1)``
+        """
+        time = tau.to(cond.dtype).unsqueeze(-1) * self.time_weight  # (..., 1 or batch, hidden)
+        first = cond + time  # (batch, hidden) or (N, batch, hidden)
+        return first.reshape(*first.shape[:-1], *([1] * n_extra), first.shape[-1])
+
+    def flat_velocity(self, x_flat: th.Tensor, first: th.Tensor) -> th.Tensor:
+        """
+        Velocity of flattened chunks given the first layer's history/time part.
+
+        :param x_flat: chunks, shape ``(batch, *extra, k * action_dim)``
+        :param first: from :meth:`time_condition`, broadcastable to ``(batch, *extra, hidden)``
+        :return: velocities, shape ``(batch, *extra, k * action_dim)``
+        """
+        return self.trunk(self.chunk_layer(x_flat) + first)
+
     def forward(self, x: th.Tensor, tau: th.Tensor, cond: th.Tensor) -> th.Tensor:
         """
         :param x: chunks, shape ``(batch, *extra, k, action_dim)``
@@ -80,15 +104,23 @@ class VelocityField(nn.Module):
         :param cond: history features from :meth:`condition`, shape ``(batch, hidden)``
         :return: velocities, same shape as ``x``
         """
-        b = x.shape[0]
-        n_extra = x.ndim - 3
         # the first layer is W_x x + w_tau tau + W_h h (+ b): the history/time part once per history
-        cond = cond + tau.to(x.dtype).reshape(-1, 1) * self.time_weight  # (batch, hidden)
-        cond = cond.reshape(b, *([1] * n_extra), -1)  # broadcast over the candidate dims
-        h = (
-            self.chunk_layer(x.flatten(-2)) + cond
-        )  # (batch, *extra, k, action_dim) -> (batch, *extra, hidden)
-        return self.trunk(h).reshape(x.shape)
+        first = self.time_condition(tau.reshape(-1), cond, x.ndim - 3)  # (batch, *[1] * extra, hidden)
+        return self.flat_velocity(x.flatten(-2), first).reshape(x.shape)
+
+    def sample(self, x0: th.Tensor, cond: th.Tensor, n_steps: int) -> th.Tensor:
+        """
+        Euler integration (:func:`~sb3_ua2c.flow.euler_sample`) of the velocity field from ``x0``,
+        with the history/time part of the first layer computed once for all ``N`` steps.
+
+        :param x0: noise, shape ``(batch, *extra, k, action_dim)``
+        :param cond: history features from :meth:`condition`, shape ``(batch, hidden)``
+        :param n_steps: Euler steps ``N``
+        :return: ``x1`` (not clipped), same shape as ``x0``
+        """
+        taus = euler_times(n_steps, x0.dtype, x0.device)
+        first = self.time_condition(taus.unsqueeze(-1), cond, x0.ndim - 3)  # (N, batch, *[1]*extra, hidden)
+        return euler_sample(self.flat_velocity, x0.flatten(-2), n_steps, first).reshape(x0.shape)
 
 
 def _softmax(x: th.Tensor) -> th.Tensor:
@@ -401,7 +433,7 @@ class UA2CPolicy(BasePolicy):
         """
         shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
         x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
-        return euler_sample(lambda x, tau: self.actor(x, tau, cond), x0, n_steps)
+        return self.actor.sample(x0, cond, n_steps)
 
     def plan_tensors(
         self, obs_history: th.Tensor, action_history: th.Tensor, generator: th.Generator | None = None

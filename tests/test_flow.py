@@ -9,10 +9,12 @@ from sb3_ua2c.flow import (
     actor_loss,
     estimate_terminal,
     euler_sample,
+    euler_times,
     flow_matching_loss,
     interpolate,
     target_velocity,
 )
+from sb3_ua2c.policies import VelocityField
 
 
 def chunk(*values: float) -> th.Tensor:
@@ -73,6 +75,30 @@ def test_euler_constant_and_linear_fields():
 def test_euler_rejects_zero_steps():
     with pytest.raises(ValueError, match="n_steps"):
         euler_sample(lambda x, t: x, chunk(0.0), 0)
+
+
+def test_euler_times_and_step_inputs():
+    assert th.equal(euler_times(4), th.tensor([0.0, 0.25, 0.5, 0.75]))
+    # step inputs replace tau_i: v = row i of (10, 20) with 2 steps: x0 + 0.5 * 10 + 0.5 * 20
+    x0 = chunk(1.0, -2.0)
+    rows = th.tensor([10.0, 20.0])
+    assert th.allclose(euler_sample(lambda x, r: th.ones_like(x) * r, x0, 2, rows), x0 + 15.0)
+    with pytest.raises(ValueError, match="step_inputs must have 3 rows"):
+        euler_sample(lambda x, r: x, x0, 3, rows)
+
+
+def test_velocity_field_sample_is_euler_over_forward():
+    """The precomputed history/time terms of ``VelocityField.sample`` give exactly the Euler
+    integration of ``forward`` (same float operations in the same order)."""
+    th.manual_seed(0)
+    field = VelocityField(history_dim=6, chunk_size=3, action_dim=2, net_arch=[16, 16])
+    cond = field.condition(th.randn(4, 6))  # (B=4, hidden)
+    x0 = th.randn(4, 5, 3, 2)  # (B, S=5, k, A)
+    with th.no_grad():
+        reference = euler_sample(lambda x, tau: field(x, tau, cond), x0, 7)
+        assert th.equal(field.sample(x0, cond, 7), reference)
+        # the velocity of one chunk does not depend on the other candidates of its history
+        assert th.allclose(field.sample(x0[:, :1], cond, 7), reference[:, :1], atol=1e-6)
 
 
 def test_actor_loss_hand_computed():
