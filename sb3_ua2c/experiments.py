@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from sb3_ua2c.__main__ import json_object_arg
+from sb3_ua2c.checks import check_int
 
 #: The paper's Fig. 2 figures (one seed), in percent.
 PAPER = {
@@ -82,11 +83,6 @@ MAX_SEED = 100
 # ---------------------------------------------------------------------------------------------
 # Configuration
 # ---------------------------------------------------------------------------------------------
-def _positive_int(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"Fig2Budget.{name} must be an integer >= 1, got {value!r}")
-
-
 @dataclass(frozen=True)
 class Fig2Budget:
     """Budget and hyperparameters of one Figure-2 run (per seed); an unknown key or a bad value
@@ -134,7 +130,7 @@ class Fig2Budget:
             "chunk_size",
             "style_max_epochs",
         ):
-            _positive_int(name, getattr(self, name))
+            check_int(f"Fig2Budget.{name}", getattr(self, name))
         if (
             isinstance(self.style_episodes, bool)
             or not isinstance(self.style_episodes, int)
@@ -162,7 +158,7 @@ class Fig2Budget:
             raise ValueError(f"Fig2Budget.delta_sweep must hold numbers > -inf, got {self.delta_sweep!r}")
         ks = tuple(self.k_sweep)
         for k in ks:
-            _positive_int("k_sweep", k)
+            check_int("Fig2Budget.k_sweep", k)
         if not isinstance(self.style_ablation, bool):
             raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
         for name in ("env_kwargs", "algo_kwargs"):
@@ -805,7 +801,7 @@ def run_all(
 
     :return: the units executed, over all seeds
     """
-    _positive_int("workers", workers)
+    check_int("Fig2Budget.workers", workers)
     check_manifest(paths, budget)
     write_manifest(paths, budget)
     executed: list[str] = []
@@ -1303,11 +1299,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.seed_list is not None:
             seeds = list(dict.fromkeys(args.seed_list))
         else:
-            _positive_int("seeds", args.seeds)
+            check_int("Fig2Budget.seeds", args.seeds)
             seeds = list(range(args.seeds))
         if any(not 0 <= s < MAX_SEED for s in seeds):
             raise ValueError(f"seeds must be in [0, {MAX_SEED}), got {seeds}")
-        _positive_int("workers", args.workers)
+        check_int("Fig2Budget.workers", args.workers)
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)

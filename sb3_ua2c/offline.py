@@ -27,6 +27,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ua2c.checks import check_int
+
 METADATA_FILE = "ua2c_metadata.json"
 
 
@@ -253,12 +255,6 @@ BehaviourPolicy = Callable[[np.ndarray, dict[str, Any], np.random.Generator], np
 DRIVER_STYLES = ("default", "conservative", "neutral", "aggressive", "mixed")
 
 
-def check_count(name: str, value: Any) -> None:
-    """Raise ``ValueError`` naming ``name`` unless ``value`` is an integer >= 1 (``bool`` is refused)."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-
-
 @dataclass(frozen=True)
 class BehaviourConfig:
     """Behaviour policy of an offline collection run on ``MixedTraffic-v0`` (human-like driving).
@@ -301,7 +297,7 @@ class BehaviourConfig:
             np.isfinite(self.accel_noise) and self.accel_noise >= 0
         ):
             raise ValueError(f"BehaviourConfig.accel_noise must be a finite number >= 0, got {self.accel_noise!r}")
-        check_count("BehaviourConfig.perturb_steps", self.perturb_steps)
+        check_int("BehaviourConfig.perturb_steps", self.perturb_steps)
         if self.driver_style not in DRIVER_STYLES:
             raise ValueError(f"BehaviourConfig.driver_style must be one of {DRIVER_STYLES}, got {self.driver_style!r}")
 
@@ -356,7 +352,7 @@ def collect_episodes(
     :param progress_bar: show a tqdm progress bar
     :return: the episodes, actions in the environment's units
     """
-    check_count("n_episodes", n_episodes)
+    check_int("n_episodes", n_episodes)
     behaviour = behaviour or BehaviourConfig()
     base = env.unwrapped
     if not hasattr(base, "set_ego_controller"):

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import (
     OfflineDataset,
     OfflineDatasetError,
-    check_count,
     check_spaces_match,
     load_dataset,
     make_env,
@@ -215,7 +215,7 @@ def evaluate(
     :param entropy_threshold: override δ for execution
     :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
     """
-    check_count("n_episodes", n_episodes)
+    check_int("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
     env = make_env(**settings)
     try:

@@ -36,6 +36,7 @@ from stable_baselines3.common.utils import (
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ExecutorStep,
@@ -85,9 +86,7 @@ class UA2CConfig:
             "n_candidates",
             "n_target_candidates",
         ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_int(name, getattr(self, name))
         for name in ("entropy_threshold", "q_weight", "offline_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
@@ -231,8 +230,7 @@ class UA2C(OffPolicyAlgorithm):
             ("buffer_size", buffer_size, 1),
             ("learning_starts", learning_starts, 0),
         ]:
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+            check_int(name, value, low)
         if not 0.0 <= gamma <= 1.0:
             raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
         if not 0.0 < tau <= 1.0:
@@ -423,12 +421,7 @@ class UA2C(OffPolicyAlgorithm):
         :param log_interval: dump the logger every ``log_interval`` gradient steps
         :return: this model
         """
-        if (
-            isinstance(n_gradient_steps, bool)
-            or not isinstance(n_gradient_steps, int | np.integer)
-            or n_gradient_steps < 0
-        ):
-            raise ValueError(f"n_gradient_steps must be an integer >= 0, got {n_gradient_steps!r}")
+        check_int("n_gradient_steps", n_gradient_steps, low=0)
         if log_interval < 1:
             raise ValueError(f"log_interval must be >= 1, got {log_interval!r}")
         n_online, n_offline = self.replay_buffer.n_samples()

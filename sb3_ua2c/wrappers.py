@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.style import (
     EMPTY_OUTPUTS,
     SLOT_NAMES,
@@ -75,14 +76,7 @@ class DrivingStyleContext(gym.Wrapper):
         empty: str = "zeros",
     ):
         super().__init__(env)
-        if (
-            isinstance(update_every, bool)
-            or not isinstance(update_every, (int, np.integer))
-            or update_every < 1
-        ):
-            raise ValueError(
-                f"DrivingStyleContext: update_every must be an integer >= 1, got {update_every!r}"
-            )
+        check_int("DrivingStyleContext: update_every", update_every)
         if empty not in EMPTY_OUTPUTS:
             raise ValueError(f"DrivingStyleContext: empty must be one of {EMPTY_OUTPUTS}, got {empty!r}")
         obs_space = env.observation_space

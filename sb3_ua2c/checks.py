@@ -1,0 +1,22 @@
+"""Argument checks shared by the configuration classes and entry points: a bad value raises a
+``ValueError`` that names the parameter."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def check_int(name: str, value: Any, low: int = 1) -> None:
+    """
+    Raise ``ValueError`` naming ``name`` unless ``value`` is an integer ``>= low``.
+
+    ``bool`` is refused (``True`` is an ``int`` in Python); NumPy integers are accepted.
+
+    :param name: the parameter's name as the user wrote it (e.g. ``"Fig2Budget.seeds"``)
+    :param value: the value to check
+    :param low: smallest allowed value
+    """
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
