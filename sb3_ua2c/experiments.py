@@ -109,7 +109,7 @@ class Fig2Budget:
 
     dataset_episodes: int = 200
     pretrain_steps: int = 6000
-    finetune_steps: int = 3000
+    finetune_steps: int = 10000
     eval_episodes: int = 20
     chunk_size: int = 5
     entropy_threshold: float = 0.0
