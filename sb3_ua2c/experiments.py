@@ -131,14 +131,7 @@ class Fig2Budget:
             "style_max_epochs",
         ):
             check_int(f"Fig2Budget.{name}", getattr(self, name))
-        if (
-            isinstance(self.style_episodes, bool)
-            or not isinstance(self.style_episodes, int)
-            or self.style_episodes < 3
-        ):
-            raise ValueError(
-                f"Fig2Budget.style_episodes must be an integer >= 3, got {self.style_episodes!r}"
-            )
+        check_int("Fig2Budget.style_episodes", self.style_episodes, low=3)
         for name, limit in (("dataset_episodes", 9_999), ("style_episodes", 9_999), ("eval_episodes", 1_000)):
             if getattr(self, name) > limit:
                 raise ValueError(

@@ -99,11 +99,10 @@ def euler_sample(
         argument of ``velocity_fn`` (e.g. time features of :func:`euler_times` computed once)
     :return: ``x1`` (not clipped), same shape as ``x0``
     """
-    taus = euler_times(n_steps, x0.dtype, x0.device)
     if step_inputs is None:
-        step_inputs = taus
-    elif step_inputs.shape[0] != n_steps:
-        raise ValueError(f"step_inputs must have {n_steps} rows, got {tuple(step_inputs.shape)}")
+        step_inputs = euler_times(n_steps, x0.dtype, x0.device)  # raises for n_steps < 1
+    elif n_steps < 1 or step_inputs.shape[0] != n_steps:
+        raise ValueError(f"step_inputs must have {n_steps} rows (n_steps >= 1), got {tuple(step_inputs.shape)}")
     x = x0
     dt = 1.0 / n_steps
     for i in range(n_steps):

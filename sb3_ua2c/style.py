@@ -65,6 +65,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from sb3_ua2c.checks import check_int
+
 # --------------------------------------------------------------------------------------------
 # Contract with the environment (mirrors ``envs.mixed_traffic``; a test checks they agree).
 # --------------------------------------------------------------------------------------------
@@ -101,11 +103,6 @@ def _config_from_dict(cls: type, values: dict[str, Any]) -> Any:
     return cls(**values)
 
 
-def _check_positive_int(owner: str, name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
-        raise ValueError(f"{owner}: {name} must be a positive integer, got {value!r}")
-
-
 @dataclass(frozen=True)
 class StyleClassifierConfig:
     """Architecture of :class:`DrivingStyleClassifier`.
@@ -131,15 +128,8 @@ class StyleClassifierConfig:
 
     def __post_init__(self) -> None:
         for name in ("n_features", "seq_len", "d_model", "n_heads", "n_layers", "dim_feedforward"):
-            _check_positive_int("StyleClassifierConfig", name, getattr(self, name))
-        if (
-            isinstance(self.n_classes, bool)
-            or not isinstance(self.n_classes, (int, np.integer))
-            or self.n_classes < 2
-        ):
-            raise ValueError(
-                f"StyleClassifierConfig: n_classes must be an integer >= 2, got {self.n_classes!r}"
-            )
+            check_int(f"StyleClassifierConfig: {name}", getattr(self, name))
+        check_int("StyleClassifierConfig: n_classes", self.n_classes, low=2)
         if self.d_model % self.n_heads != 0:
             raise ValueError(
                 f"StyleClassifierConfig: n_heads={self.n_heads} must divide d_model={self.d_model}"
@@ -181,7 +171,7 @@ class StyleTrainConfig:
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "max_epochs", "patience"):
-            _check_positive_int("StyleTrainConfig", name, getattr(self, name))
+            check_int(f"StyleTrainConfig: {name}", getattr(self, name))
         if not (self.learning_rate > 0 and math.isfinite(self.learning_rate)):
             raise ValueError(f"StyleTrainConfig: learning_rate must be > 0, got {self.learning_rate!r}")
         if self.weight_decay < 0:
@@ -233,7 +223,7 @@ class SlotSequences:
         self, n_slots: int = len(SLOT_NAMES), seq_len: int = 20, n_features: int = len(SLOT_FEATURES)
     ):
         for name, value in (("n_slots", n_slots), ("seq_len", seq_len), ("n_features", n_features)):
-            _check_positive_int("SlotSequences", name, value)
+            check_int(f"SlotSequences: {name}", value)
         self.n_slots, self.seq_len, self.n_features = int(n_slots), int(seq_len), int(n_features)
         #: (n_slots, seq_len, n_features) float32 tokens, zeros where invalid
         self.tokens = np.zeros((self.n_slots, self.seq_len, self.n_features), dtype=np.float32)
@@ -618,7 +608,7 @@ class StyleDataset:
 
         :param seq_len: new sequence length, at most the current one
         """
-        _check_positive_int("StyleDataset.truncate", "seq_len", seq_len)
+        check_int("StyleDataset.truncate: seq_len", seq_len)
         if seq_len > self.tokens.shape[1]:
             raise ValueError(
                 f"StyleDataset.truncate: seq_len={seq_len} exceeds the stored {self.tokens.shape[1]}"
@@ -720,7 +710,7 @@ class RandomDriver:
         high = np.asarray(action_space.high, dtype=np.float32)
         if low.shape != (2,):
             raise ValueError(f"RandomDriver expects a Box(2) action space, got shape {low.shape}")
-        _check_positive_int("RandomDriver", "hold_steps", hold_steps)
+        check_int("RandomDriver: hold_steps", hold_steps)
         self.low, self.high = low, high
         self.hold_steps, self.lane_change_prob = hold_steps, float(lane_change_prob)
         self.rng = np.random.default_rng(seed)
@@ -800,9 +790,9 @@ def collect_style_dataset(
     """
     import gymnasium as gym
 
-    _check_positive_int("collect_style_dataset", "n_episodes", n_episodes)
-    _check_positive_int("collect_style_dataset", "seq_len", seq_len)
-    _check_positive_int("collect_style_dataset", "stride", stride)
+    check_int("collect_style_dataset: n_episodes", n_episodes)
+    check_int("collect_style_dataset: seq_len", seq_len)
+    check_int("collect_style_dataset: stride", stride)
     if not (0.0 <= sumo_driver_fraction <= 1.0):
         raise ValueError(
             f"collect_style_dataset: sumo_driver_fraction must be in [0, 1], got {sumo_driver_fraction!r}"
