@@ -120,6 +120,40 @@ def chunk_entropy(
     return total
 
 
+def select_chunk(
+    candidates: th.Tensor,
+    values: th.Tensor,
+    n_elite: int = 1,
+    discrete_dims: Mapping[int, int] | None = None,
+) -> th.Tensor:
+    """
+    The chunk a replanning executes, from its S candidates and their values ``min_j Q_j``.
+
+    ``n_elite = 1`` keeps the candidate of highest value (best-of-S). ``n_elite = m > 1`` averages the
+    continuous action dims of the ``m`` highest-valued candidates position by position (an elite mean,
+    as in the cross-entropy method): the value still chooses which samples count, and the flow's
+    sampling noise, independent between candidates, shrinks by about ``sqrt(m)`` inside the chunk.
+    Categorical dims are never averaged: they keep the best candidate's value.
+
+    :param candidates: clipped candidate chunks, shape ``(m, S, k, action_dim)``
+    :param values: their values, shape ``(m, S)``
+    :param n_elite: number of best candidates averaged, in ``[1, S]``
+    :param discrete_dims: ``{dim: n_categories}`` of categorical dims
+    :return: selected chunks, shape ``(m, k, action_dim)``
+    """
+    m, s = values.shape
+    if not 1 <= n_elite <= s:
+        raise ValueError(f"n_elite must be in [1, {s}] (the number of candidates), got {n_elite}")
+    rows = th.arange(m, device=candidates.device)
+    if n_elite == 1:
+        return candidates[rows, values.argmax(dim=1)]
+    elite = values.topk(n_elite, dim=1).indices  # (m, n_elite), best first
+    chunks = candidates[rows.unsqueeze(1), elite].mean(dim=1)  # (m, n_elite, k, A) -> (m, k, A)
+    for dim in discrete_dims or {}:
+        chunks[..., dim] = candidates[rows, elite[:, 0], :, dim]
+    return chunks
+
+
 def executable_prefix_length(entropy: th.Tensor, threshold: float) -> th.Tensor:
     """
     Executable prefix length of Eq. 7: the largest ``u`` such that ``H_1..H_u <= delta``, at least 1.

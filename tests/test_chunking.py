@@ -19,6 +19,7 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     gaussian_entropy,
     normalize_discrete_dims,
+    select_chunk,
 )
 
 LOG_2PIE = math.log(2 * math.pi * math.e)
@@ -194,3 +195,26 @@ def test_executor_noise_is_clipped_and_recorded_in_history():
     step = ex.act(np.zeros((1, 1)), np.array([True]), ScriptedPlanner(2, [2]), noise=np.array([[5.0]]))
     assert step.actions.item() == 1.0
     assert ex.action_history.item() == 1.0
+
+
+def test_select_chunk_best_and_elite_mean_hand_computed():
+    # m = 1 history, S = 3 candidates, k = 2, action_dim = 2 (dim 1 categorical with 3 values)
+    candidates = th.tensor(
+        [[[[0.2, 1.0], [0.4, 1.0]], [[0.6, -1.0], [0.0, -1.0]], [[-0.8, 0.0], [-0.8, 0.0]]]]
+    )
+    values = th.tensor([[1.0, 3.0, 2.0]])  # best: candidate 1, then 2
+    assert th.equal(select_chunk(candidates, values), candidates[0, 1].unsqueeze(0))
+    elite = select_chunk(candidates, values, n_elite=2, discrete_dims={1: 3})
+    # continuous dim: mean of candidates 1 and 2 -> (0.6 - 0.8) / 2 = -0.1, (0.0 - 0.8) / 2 = -0.4;
+    # categorical dim: the best candidate's lane change (-1), never an average
+    assert th.allclose(elite, th.tensor([[[-0.1, -1.0], [-0.4, -1.0]]]))
+    # without categorical dims every dim is averaged: (-1 + 0) / 2 = -0.5
+    assert th.allclose(select_chunk(candidates, values, n_elite=2)[0, :, 1], th.tensor([-0.5, -0.5]))
+    # n_elite = S: the mean of all candidates
+    assert th.allclose(select_chunk(candidates, values, n_elite=3), candidates.mean(dim=1))
+
+
+@pytest.mark.parametrize("n_elite", [0, 4])
+def test_select_chunk_rejects_bad_elite_size(n_elite):
+    with pytest.raises(ValueError, match="n_elite"):
+        select_chunk(th.zeros(1, 3, 2, 1), th.zeros(1, 3), n_elite=n_elite)
