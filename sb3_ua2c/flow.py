@@ -7,7 +7,6 @@ can be tested against hand-computed values.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import torch as th
@@ -75,40 +74,6 @@ def flow_matching_loss(velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor) -> th.
     :return: scalar loss
     """
     return (velocity - target_velocity(x0, x1)).pow(2).mean()
-
-
-def chunk_noise(
-    shape: tuple[int, ...],
-    correlation: float = 0.0,
-    generator: th.Generator | None = None,
-    dtype: th.dtype = th.float32,
-    device: th.device | str = "cpu",
-) -> th.Tensor:
-    """
-    Source noise ``x0`` of the flow (Eq. 2) for chunks of shape ``(*batch, k, action_dim)``:
-    ``x0 = sqrt(rho) z_shared + sqrt(1 - rho) z_u`` with ``z_shared ~ N(0, I)`` of shape
-    ``(*batch, 1, action_dim)`` shared by the ``k`` positions and ``z_u ~ N(0, I)`` per position.
-
-    Every entry stays standard normal; two positions of one action dim have correlation ``rho``.
-    ``rho = 0`` is the paper's ``x0 ~ N(0, I)`` and draws exactly ``th.randn(shape)``. Flow matching
-    transports any source distribution to the data, so the choice of ``rho`` does not change what a
-    fitted flow samples; a flow that is not fully fitted keeps part of its source's structure, and a
-    correlated source then leaves less step-to-step noise inside a chunk.
-
-    :param shape: ``(*batch, k, action_dim)``
-    :param correlation: ``rho`` in ``[0, 1)``
-    :param generator: optional random generator
-    :return: noise chunks, shape ``shape``
-    """
-    if len(shape) < 2:
-        raise ValueError(f"shape must be (*batch, k, action_dim), got {tuple(shape)}")
-    if not 0.0 <= correlation < 1.0:
-        raise ValueError(f"noise_correlation must be in [0, 1), got {correlation!r}")
-    z = th.randn(shape, generator=generator, dtype=dtype, device=device)
-    if correlation == 0.0:
-        return z
-    shared = th.randn((*shape[:-2], 1, shape[-1]), generator=generator, dtype=dtype, device=device)
-    return math.sqrt(correlation) * shared + math.sqrt(1.0 - correlation) * z  # (*batch, k, action_dim)
 
 
 def euler_times(n_steps: int, dtype: th.dtype = th.float32, device: th.device | str = "cpu") -> th.Tensor:

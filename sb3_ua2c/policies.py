@@ -26,7 +26,7 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     select_chunk,
 )
-from sb3_ua2c.flow import chunk_noise, euler_sample, euler_times
+from sb3_ua2c.flow import euler_sample, euler_times
 
 #: seed of the noise used by ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_SEED = 0
@@ -179,12 +179,7 @@ class _EnsembleBlock(nn.Module):
         self.act = activation_fn()
         self.ff2 = _EnsembleLinear(n, ff_dim, dim)
 
-    def forward(self, x: th.Tensor, key_bias: th.Tensor | None = None) -> th.Tensor:
-        """
-        :param x: tokens, shape ``(n, B, T, d)``
-        :param key_bias: optional additive attention bias per key (0 or ``-inf``), shape ``(B, 1, T)``
-        :return: shape ``(n, B, T, d)``
-        """
+    def forward(self, x: th.Tensor) -> th.Tensor:
         n, b, t, d = x.shape
         h = d // self.n_heads
         flat = x.reshape(n, b * t, d)  # (n, B, T, d) -> (n, B*T, d)
@@ -199,9 +194,6 @@ class _EnsembleBlock(nn.Module):
                 .reshape(3, n * b, self.n_heads, t, h)
             )
         scores = th.matmul(q, k.transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, [heads,] T, T)
-        if key_bias is not None:  # (B, 1, T) -> (n*B, [1,] 1, T): masked keys get no attention
-            bias = key_bias.repeat(n, 1, 1)
-            scores = scores + (bias if self.n_heads == 1 else bias.unsqueeze(1))
         att = th.matmul(_softmax(scores), v)
         if self.n_heads == 1:
             att = att.reshape(n, b * t, d)
@@ -210,20 +202,6 @@ class _EnsembleBlock(nn.Module):
         flat = flat + self.out(att)
         flat = flat + self.ff2(self.act(self.ff1(self.norm2(flat))))
         return flat.reshape(n, b, t, d)
-
-
-def horizon_token_mask(horizon: th.Tensor, chunk_size: int, n_candidates: int = 1) -> th.Tensor:
-    """
-    Which critic tokens a horizon ``L`` keeps: the observation token and the action tokens ``u < L``.
-
-    :param horizon: ``L`` per history, shape ``(B,)`` (any numeric dtype)
-    :param chunk_size: ``k``
-    :param n_candidates: ``C`` chunks per history sharing its horizon
-    :return: bool mask of shape ``(B*C, 1 + k)``
-    """
-    u = th.arange(chunk_size + 1, device=horizon.device)  # token 0 = observation history, u + 1 = a_{t+u}
-    keep = u.unsqueeze(0) <= horizon.reshape(-1, 1).to(u.dtype)  # (B, 1+k)
-    return keep.repeat_interleave(n_candidates, dim=0)  # (B*C, 1+k)
 
 
 class ChunkCritics(nn.Module):
@@ -235,11 +213,6 @@ class ChunkCritics(nn.Module):
     ``ℓ * obs_dim`` numbers) followed by ``k`` action tokens, each with a learned position
     embedding; the value is a learned linear read-out of all ``1 + k`` output tokens, so that every
     action position keeps its own non-linear path (a chunk return is a sum over its steps).
-
-    An optional horizon ``L`` per chunk evaluates ``Q(o-history, a_{t:t+L-1})``, the value of executing
-    only the first ``L`` actions before replanning (the semantics of Eq. 8): action tokens at
-    ``u >= L`` receive no attention and are left out of the read-out, so they cannot change the value.
-    ``L = k`` (or no horizon) is the full chunk of Eq. 3 / 4.
 
     :param obs_history_dim: ``ℓ * obs_dim``
     :param chunk_size: ``k``
@@ -275,14 +248,10 @@ class ChunkCritics(nn.Module):
         self.norm = _EnsembleRMSNorm(n_critics, embed_dim)
         self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
 
-    def forward(
-        self, obs_history: th.Tensor, chunks: th.Tensor, horizon: th.Tensor | None = None
-    ) -> th.Tensor:
+    def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
         """
         :param obs_history: flattened observation histories, shape ``(B, ℓ*obs_dim)``
         :param chunks: ``C`` candidate chunks per history, shape ``(B, C, k, action_dim)``
-        :param horizon: optional executed length ``L`` in ``[1, k]`` per history, shape ``(B,)``
-            (``None`` = ``k``: the whole chunk)
         :return: Q-values, shape ``(n_critics, B, C)``
         """
         b, c, k, a = chunks.shape
@@ -291,16 +260,10 @@ class ChunkCritics(nn.Module):
         obs_tok = obs_tok.reshape(n, b, 1, 1, d).expand(n, b, c, 1, d)  # shared by the C candidates
         act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b, c, k, d)
         x = th.cat([obs_tok, act_tok], dim=3).reshape(n, b * c, k + 1, d) + self.position  # (n, B*C, 1+k, d)
-        key_bias = keep = None
-        if horizon is not None:
-            keep = horizon_token_mask(horizon, k, c).to(x.dtype)  # (B*C, 1+k), 1 = token used
-            key_bias = th.log(keep).unsqueeze(1)  # (B*C, 1, 1+k): 0 for kept keys, -inf for the tail
         for block in self.blocks:
-            x = block(x, key_bias)
-        x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, k + 1, d)
-        if keep is not None:
-            x = x * keep.unsqueeze(-1)  # the tail's output tokens leave the read-out
-        return self.head(x.reshape(n, b * c, (k + 1) * d)).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
+            x = block(x)
+        x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, (k + 1) * d)  # (n, B*C, (1+k)*d)
+        return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
 
 
 class UA2CPolicy(BasePolicy):
@@ -317,11 +280,6 @@ class UA2CPolicy(BasePolicy):
     :param n_candidates: chunks ``S`` sampled per replanning
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
     :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
-    :param noise_correlation: ``rho`` of the flow's source noise: correlation of ``x0`` between the
-        positions of a chunk (0 = the paper's ``N(0, I)``; see :func:`~sb3_ua2c.flow.chunk_noise`)
-    :param select_by_prefix: rank the S candidates of a replanning by the value of their executable
-        prefix, ``min_j Q_j(o-history, a_{t:t+L_t-1})``, instead of the whole chunk (the same for
-        ``L_t = k``)
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
         (1 = the best candidate; see :func:`~sb3_ua2c.chunking.select_chunk`)
     :param net_arch: hidden sizes of the velocity-field MLP
@@ -346,8 +304,6 @@ class UA2CPolicy(BasePolicy):
         n_candidates: int = 32,
         entropy_threshold: float = 0.0,
         discrete_dims: dict[int, int] | None = None,
-        noise_correlation: float = 0.0,
-        select_by_prefix: bool = False,
         n_elite: int = 1,
         net_arch: list[int] | None = None,
         critic_embed_dim: int = 32,
@@ -390,12 +346,6 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(
                 f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
             )
-        if isinstance(noise_correlation, bool) or not isinstance(noise_correlation, int | float) or not (
-            0.0 <= noise_correlation < 1.0
-        ):
-            raise ValueError(f"noise_correlation must be a number in [0, 1), got {noise_correlation!r}")
-        if not isinstance(select_by_prefix, bool | np.bool_):
-            raise ValueError(f"select_by_prefix must be a bool, got {select_by_prefix!r}")
         check_int("n_elite", n_elite)
         if n_elite > n_candidates:
             raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={n_candidates}")
@@ -405,8 +355,6 @@ class UA2CPolicy(BasePolicy):
         self.flow_steps, self.n_candidates = flow_steps, n_candidates
         self.entropy_threshold = float(entropy_threshold)
         self.discrete_dims = dict(discrete_dims or {})
-        self.noise_correlation = float(noise_correlation)
-        self.select_by_prefix = bool(select_by_prefix)
         self.n_elite = int(n_elite)
         self.net_arch = net_arch
         self.critic_kwargs = dict(
@@ -452,8 +400,6 @@ class UA2CPolicy(BasePolicy):
             n_candidates=self.n_candidates,
             entropy_threshold=self.entropy_threshold,
             discrete_dims=self.discrete_dims,
-            noise_correlation=self.noise_correlation,
-            select_by_prefix=self.select_by_prefix,
             n_elite=self.n_elite,
             net_arch=self.net_arch,
             critic_embed_dim=self.critic_kwargs["embed_dim"],
@@ -479,10 +425,6 @@ class UA2CPolicy(BasePolicy):
         b = obs_history.shape[0]
         return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
 
-    def noise(self, shape: tuple[int, ...], generator: th.Generator | None = None) -> th.Tensor:
-        """Source noise ``x0`` of the flow, shape ``(*batch, k, action_dim)`` (:func:`~sb3_ua2c.flow.chunk_noise`)."""
-        return chunk_noise(shape, self.noise_correlation, generator, device=self.device)
-
     def sample_chunks(
         self,
         cond: th.Tensor,
@@ -491,7 +433,7 @@ class UA2CPolicy(BasePolicy):
         generator: th.Generator | None = None,
     ) -> th.Tensor:
         """
-        Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from the source noise.
+        Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
 
         :param cond: history features of the actor, shape ``(B, hidden)``
         :param n_samples: candidates per history
@@ -499,8 +441,9 @@ class UA2CPolicy(BasePolicy):
         :param generator: optional random generator for the noise
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
-        x0 = self.noise((cond.shape[0], n_samples, self.chunk_size, self.action_dim), generator)
-        return self.actor.sample(x0.to(cond.dtype), cond, n_steps)
+        shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
+        x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+        return self.actor.sample(x0, cond, n_steps)
 
     def plan_tensors(
         self, obs_history: th.Tensor, action_history: th.Tensor, generator: th.Generator | None = None
@@ -520,8 +463,7 @@ class UA2CPolicy(BasePolicy):
         entropy = chunk_entropy(samples, self.discrete_dims)  # (m, k)
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
-        horizon = lengths if self.select_by_prefix else None
-        q = self.critic(obs_history.reshape(m, -1), clipped, horizon).min(dim=0).values  # (m, S)
+        q = self.critic(obs_history.reshape(m, -1), clipped).min(dim=0).values  # (m, S)
         return select_chunk(clipped, q, self.n_elite, self.discrete_dims), lengths, entropy
 
     def plan(

@@ -654,15 +654,14 @@ class UA2C(OffPolicyAlgorithm):
             )
             next_value = next_q.min(dim=0).values.max(dim=1).values  # (n, B, Q) -> (B,)
             target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
-        # Q of the executed prefix (Eq. 8): the unexecuted tail of a plan does not enter its value
-        q = self.critic(obs_flat, data.chunks.unsqueeze(1), data.horizons).squeeze(-1)  # (n, B, 1) -> (n, B)
+        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(-1)  # (n, B, 1) -> (n, B)
         critic_loss = chunk_critic_loss(q, target)
         self.critic.optimizer.zero_grad()
         critic_loss.backward()
         self.critic.optimizer.step()
 
         x1 = data.chunks
-        x0 = policy.noise(x1.shape).to(x1.dtype)
+        x0 = th.randn_like(x1)
         tau = th.rand(b, device=x1.device)
         x_tau = interpolate(x0, x1, tau)
         cond = self.actor.condition(policy.flatten_history(data.observation_history, data.action_history))
