@@ -61,7 +61,11 @@ PAPER = {
     "online_reward_gain_pct": 13.17,
 }
 #: Metrics of :class:`sb3_ua2c.pipeline.EpisodeMetrics` aggregated per method.
-METRICS = ("reward", "cumulative_jerk", "collision", "merge_success", "mean_speed", "mean_executed_length")
+METRICS = (
+    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
+)
+#: fine-tuned arms whose Phase-2 training episodes are logged (``<raw>/online/<arm>.json``)
+ONLINE_ARMS = ("fixed", "adaptive", "adaptive_style")
 #: The four arms of Fig. 2 (a)-(c).
 MAIN_METHODS = ("onestep", "chunk", "fixed", "adaptive")
 METHOD_LABELS = {
@@ -602,13 +606,14 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
         return path
 
     def finetuned(start: Path, dataset: Any, name: str, delta: float) -> Path:
-        path = work / f"{name}.zip"
+        path, monitor = work / f"{name}.zip", work / f"{name}.monitor.csv"
         if not path.is_file():
             with log.timed(f"seed{seed}/finetune/{name}"):
                 finetune(
                     start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed,
-                    algo_overrides=finetune_overrides(budget),
+                    algo_overrides=finetune_overrides(budget), monitor_file=monitor,
                 )
+        _online_episodes(raw / "online" / f"{name}.json", monitor)
         return path
 
     # (a), (b) and the k sweep: same data, same gradient budget
@@ -652,6 +657,17 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
             budget.entropy_threshold,
             log,
         )
+
+
+def _online_episodes(path: Path, monitor: Path) -> None:
+    """Copy the Phase-2 training episodes (return, length, collision; not the wall times) of one arm from its
+    Monitor log into the raw results, unless done (or the log is missing: a run of an earlier version)."""
+    from sb3_ua2c.pipeline import read_monitor, write_json
+
+    if path.is_file() or not monitor.is_file():
+        return
+    episodes = [{"reward": e["r"], "length": int(e["l"]), "collision": bool(e["collision"])} for e in read_monitor(monitor)]
+    write_json(path, {"episodes": episodes})
 
 
 def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> Path:
@@ -829,13 +845,49 @@ def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[
         for f in sorted(folder.glob("*.json")):
             payload = json.loads(f.read_text())
             out.setdefault(f.stem, {})[s] = payload if f.stem == "style" else payload["summary"]
+        for f in sorted((folder / "online").glob("*.json")):
+            out.setdefault(f"online/{f.stem}", {})[s] = json.loads(f.read_text())
     return out
+
+
+def online_curve(
+    episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int, n_bins: int = 10
+) -> dict[str, list[float]]:
+    """Learning curve of one arm: the mean return of the episodes that end in each of ``n_bins`` equal
+    windows of the ``total_steps`` online steps, averaged over seeds (NaN where no episode ended)."""
+    edges = np.linspace(0, total_steps, n_bins + 1)
+    per_seed = []
+    for episodes in episodes_per_seed:
+        ends = np.cumsum([e["length"] for e in episodes])
+        rewards = np.array([e["reward"] for e in episodes], dtype=float)
+        which = np.clip(np.searchsorted(edges, ends, side="left") - 1, 0, n_bins - 1)
+        per_seed.append(
+            [float(rewards[which == b].mean()) if np.any(which == b) else math.nan for b in range(n_bins)]
+        )
+    values = np.array(per_seed, dtype=float).reshape(-1, n_bins)  # (seeds, bins)
+    seen = np.isfinite(values).sum(axis=0)
+    curve = np.where(seen > 0, np.nansum(values, axis=0) / np.maximum(seen, 1), np.nan)
+    return {"steps": [float(x) for x in edges[1:]], "reward": [float(x) for x in curve]}
+
+
+def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: float = 0.25) -> dict[str, float]:
+    """Phase-2 training episodes of one arm and seed: mean return and collision rate over all of them and
+    over the last ``last_fraction`` (at least one episode), and their number."""
+    if not episodes:
+        return {"reward": math.nan, "reward_last": math.nan, "collision": math.nan, "episodes": 0}
+    last = episodes[-max(1, int(round(last_fraction * len(episodes)))) :]
+    return {
+        "reward": float(np.mean([e["reward"] for e in episodes])),
+        "reward_last": float(np.mean([e["reward"] for e in last])),
+        "collision": float(np.mean([e["collision"] for e in episodes])),
+        "episodes": len(episodes),
+    }
 
 
 def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
     out: dict[str, Any] = {"seeds": list(seeds)}
-    for key in METRICS:
-        values = [float(per_seed[s][key]) for s in seeds]
+    for key in METRICS:  # a key missing from the raw data of an earlier version counts as NaN
+        values = [float(per_seed[s].get(key, math.nan)) for s in seeds]
         finite = [v for v in values if math.isfinite(v)]
         mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
         out[key] = {"mean": mean, "ci95": half, "per_seed": values}
@@ -855,7 +907,11 @@ def aggregate(
     missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
     if missing:
         raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
-    methods = {m: _stats(raw[m], seeds) for m in raw if m != "style" and all(s in raw[m] for s in seeds)}
+    methods = {
+        m: _stats(raw[m], seeds)
+        for m in raw
+        if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)
+    }
 
     def per_seed(method: str, key: str) -> list[float]:
         return methods[method][key]["per_seed"]
@@ -924,6 +980,38 @@ def aggregate(
         result["comparisons"]["offline_jerk_chunk_adaptive"] = compare(
             per_seed("chunk_adaptive", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk")
         )
+    online = {
+        arm: [online_phase_stats(raw[f"online/{arm}"][s]["episodes"]) for s in seeds]
+        for arm in ONLINE_ARMS
+        if f"online/{arm}" in raw and all(s in raw[f"online/{arm}"] for s in seeds)
+    }
+    if online:
+        result["online_phase"] = {
+            arm: {
+                key: {**dict(zip(("mean", "ci95"), t_confidence_interval([r[key] for r in rows]), strict=True)),
+                      "per_seed": [r[key] for r in rows]}
+                for key in ("reward", "reward_last", "collision", "episodes")
+            }
+            for arm, rows in online.items()
+        }
+        for arm in online:
+            result["online_phase"][arm]["curve"] = online_curve(
+                [raw[f"online/{arm}"][s]["episodes"] for s in seeds], budget.finetune_steps
+            )
+    if {"fixed", "adaptive"} <= set(online):
+        ph = result["online_phase"]
+        result["comparisons"]["online_phase_reward"] = compare(
+            ph["adaptive"]["reward"]["per_seed"], ph["fixed"]["reward"]["per_seed"]
+        )
+        result["comparisons"]["online_phase_reward_last"] = compare(
+            ph["adaptive"]["reward_last"]["per_seed"], ph["fixed"]["reward_last"]["per_seed"]
+        )
+    if {"chunk", "onestep"} <= set(methods) and all(
+        math.isfinite(v) for m in ("chunk", "onestep") for v in per_seed(m, "jerk_per_step")
+    ):
+        result["comparisons"]["offline_jerk_per_step"] = compare(
+            per_seed("chunk", "jerk_per_step"), per_seed("onestep", "jerk_per_step")
+        )
     if "adaptive_style" in methods:
         result["style_context"] = {
             "with": "adaptive_style",
@@ -988,6 +1076,13 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             "offline_jerk_chunk_adaptive",
             None,
         ),
+        ("(b'') jerk per step (Σ\|jerk\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
+        (
+            "(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed",
+            "online_phase_reward",
+            None,
+        ),
+        ("(c'') the same over the last quarter of the training episodes", "online_phase_reward_last", None),
     )
     for label, key, paper_key in (*rows, *extra):
         if key not in c:
@@ -1006,8 +1101,8 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         "",
         "## Methods",
         "",
-        "| method | reward | cum. jerk | collision rate | merge success | mean speed [m/s] | mean L_t |",
-        "|---|---|---|---|---|---|---|",
+        "| method | reward | cum. jerk | jerk per step | collision rate | merge success | mean speed [m/s] | mean L_t |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style"]
     for m in order:
@@ -1015,9 +1110,23 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             continue
         s = summary["methods"][m]
         lines.append(
-            f"| {METHOD_LABELS[m]} | {_fmt(s['reward'])} | {_fmt(s['cumulative_jerk'], 1)} | {_fmt(s['collision'])} "
+            f"| {METHOD_LABELS[m]} | {_fmt(s['reward'])} | {_fmt(s['cumulative_jerk'], 1)} "
+            f"| {_fmt(s['jerk_per_step'])} | {_fmt(s['collision'])} "
             f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
         )
+    if summary.get("online_phase"):
+        lines += [
+            "",
+            "## Phase 2: the training episodes (candidates drawn with fresh noise, as during training)",
+            "",
+            "| arm | mean return | mean return, last quarter | collision rate | episodes |",
+            "|---|---|---|---|---|",
+        ]
+        for arm, st in summary["online_phase"].items():
+            lines.append(
+                f"| {METHOD_LABELS[arm]} | {_fmt(st['reward'])} | {_fmt(st['reward_last'])} "
+                f"| {_fmt(st['collision'])} | {_fmt(st['episodes'], 1)} |"
+            )
     if style:
         lines += [
             "",
@@ -1165,6 +1274,24 @@ def _sweep_panel(path: Path, summary: Mapping[str, Any]) -> None:
     fig.savefig(path)
 
 
+def _curve_panel(path: Path, summary: Mapping[str, Any]) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.2, 3.6), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for arm, st in summary["online_phase"].items():
+        curve = st["curve"]
+        ax.plot(curve["steps"], curve["reward"], "o-", label=METHOD_LABELS[arm], markersize=3)
+    ax.set_xlabel("online environment steps")
+    ax.set_ylabel("training episode return")
+    ax.set_title(f"(c) Phase 2 training episodes, mean over {len(summary['seeds'])} seed(s)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 def strict_json(obj: Any) -> Any:
     """A copy of ``obj`` that strict JSON parsers accept: NaN -> ``None``, ±inf -> ``"inf"``/``"-inf"``."""
     if isinstance(obj, Mapping):
@@ -1242,6 +1369,9 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
             title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}",
         )
         files.append(out / "fig2_d_style_confusion.png")
+    if summary.get("online_phase"):
+        _curve_panel(out / "fig2_c_online_curves.png", summary)
+        files.append(out / "fig2_c_online_curves.png")
     if summary["delta_sweep"] or summary["k_sweep"]:
         _sweep_panel(out / "fig2_sweeps.png", summary)
         files.append(out / "fig2_sweeps.png")

@@ -8,6 +8,7 @@ file and renamed, so an interrupted run never leaves a half-written checkpoint.
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.monitor import Monitor
 
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import (
@@ -136,6 +138,7 @@ def finetune(
     progress_bar: bool = False,
     callback: Any = None,
     algo_overrides: dict[str, Any] | None = None,
+    monitor_file: str | os.PathLike | None = None,
 ) -> Path:
     """Phase 2: online adaptation from a pre-trained checkpoint with adaptive execution (Eq. 7, 8).
 
@@ -154,6 +157,9 @@ def finetune(
     :param callback: SB3 callback(s) passed to ``learn``
     :param algo_overrides: further attributes to override on load (e.g. ``{"gradient_steps": 1}``);
         shape-changing arguments (``chunk_size``, ``history_len``, ``policy_kwargs``) are refused
+    :param monitor_file: write SB3's ``Monitor`` log of the online episodes (return, length, wall
+        time and ``collision``) to this CSV file (``.monitor.csv`` is appended unless present); read
+        it back with :func:`read_monitor`
     :return: the fine-tuned checkpoint path
     """
     ds = None
@@ -169,6 +175,8 @@ def finetune(
     if entropy_threshold is not None:
         overrides["entropy_threshold"] = entropy_threshold
     env = make_env(**settings)
+    if monitor_file is not None:
+        env = Monitor(env, str(monitor_file), info_keywords=("collision",))
     try:
         model = load_checkpoint(checkpoint, env, **overrides)
         model.set_random_seed(seed)
@@ -193,6 +201,11 @@ class EpisodeMetrics:
     merge_success: bool
     mean_speed: float  # [m/s]
     mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
+
+    @property
+    def jerk_per_step(self) -> float:
+        """``cumulative_jerk / length`` [m/s³]: smoothness that does not reward ending an episode early."""
+        return self.cumulative_jerk / self.length if self.length else math.nan
 
 
 def evaluate(
@@ -261,7 +274,28 @@ def _run_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> Episo
     )
 
 
-SUMMARY_KEYS = ("reward", "cumulative_jerk", "collision", "merge_success", "mean_speed", "mean_executed_length")
+def read_monitor(path: str | os.PathLike) -> list[dict[str, float]]:
+    """The episodes of a ``Monitor`` CSV log (see ``finetune(monitor_file=...)``), in order.
+
+    :param path: the log (``.monitor.csv`` is appended unless present)
+    :return: one dict per episode with the float columns ``r`` (return), ``l`` (length), ``t`` (wall
+        time) and any ``info_keywords`` (``collision`` is 1.0 / 0.0)
+    """
+    path = Path(path)
+    if not path.name.endswith(Monitor.EXT):
+        path = path.with_name(f"{path.name}.{Monitor.EXT}")
+    with path.open(newline="") as f:
+        header = f.readline()
+        if not header.startswith("#"):
+            raise ValueError(f"{path} is not a Monitor log (no '#' header line)")
+        rows = list(csv.DictReader(f))
+    return [{key: float(value in ("True", "1", "1.0")) if value in ("True", "False") else float(value)
+             for key, value in row.items()} for row in rows]
+
+
+SUMMARY_KEYS = (
+    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
+)
 
 
 def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
@@ -306,5 +340,5 @@ def _json_default(obj: Any) -> Any:
 
 __all__ = [
     "TRAFFIC_DEFAULTS", "EpisodeMetrics", "OfflineDatasetError", "evaluate", "finetune", "format_table",
-    "load_checkpoint", "pretrain", "save_atomic", "summarize", "write_json",
+    "load_checkpoint", "pretrain", "read_monitor", "save_atomic", "summarize", "write_json",
 ]
