@@ -1076,7 +1076,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             "offline_jerk_chunk_adaptive",
             None,
         ),
-        ("(b'') jerk per step (Σ\|jerk\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
+        ("(b'') jerk per step (Σ\\|jerk\\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
         (
             "(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed",
             "online_phase_reward",

@@ -19,6 +19,8 @@ from sb3_ua2c.experiments import (
     compare,
     delta_name,
     estimate_seconds,
+    online_curve,
+    online_phase_stats,
     relative_change_pct,
     strict_json,
     student_t_quantile,
@@ -187,6 +189,50 @@ def test_aggregate_by_hand() -> None:
         aggregate({k: v for k, v in raw.items() if k != "adaptive"}, [0, 1], QUICK_BUDGET)
 
 
+def test_online_phase_stats_and_curve_by_hand() -> None:
+    episodes = [
+        {"reward": 10.0, "length": 100, "collision": True},
+        {"reward": 20.0, "length": 200, "collision": False},
+        {"reward": 30.0, "length": 200, "collision": False},
+        {"reward": 60.0, "length": 500, "collision": False},
+    ]
+    st = online_phase_stats(episodes)
+    # all: (10 + 20 + 30 + 60) / 4 = 30; last quarter: round(0.25 * 4) = 1 episode -> 60; collisions 1/4
+    assert st == {"reward": 30.0, "reward_last": 60.0, "collision": 0.25, "episodes": 4}
+    assert online_phase_stats(episodes, last_fraction=0.5)["reward_last"] == 45.0
+    assert math.isnan(online_phase_stats([])["reward"])
+    # episodes end at steps 100, 300, 500, 1000 of 1000 -> bins [0, 500) | [500, 1000]: 100 and 300 in bin 0,
+    # 500 is an edge (its episode belongs to the bin it closes), 1000 in bin 1
+    curve = online_curve([episodes], 1000, n_bins=2)
+    assert curve["steps"] == [500.0, 1000.0]
+    assert curve["reward"] == pytest.approx([20.0, 60.0])
+    # a second seed whose only episode ends in bin 1: bin 0 averages over the seed that has one
+    other = [{"reward": 0.0, "length": 800, "collision": False}]
+    assert online_curve([episodes, other], 1000, n_bins=2)["reward"] == pytest.approx([20.0, 30.0])
+
+
+def test_aggregate_online_phase_and_jerk_per_step_by_hand() -> None:
+    raw = {
+        "onestep": {0: {**_summary(-10.0, jerk=100.0), "jerk_per_step": 1.0}},
+        "chunk": {0: {**_summary(-9.0, jerk=80.0), "jerk_per_step": 0.5}},
+        "fixed": {0: _summary(10.0)},
+        "adaptive": {0: _summary(12.0)},
+        "online/fixed": {0: {"episodes": [{"reward": 4.0, "length": 10, "collision": False}] * 4}},
+        "online/adaptive": {0: {"episodes": [{"reward": 5.0, "length": 10, "collision": True}] * 4}},
+    }
+    out = aggregate(raw, [0], QUICK_BUDGET.replace(delta_sweep=[math.inf], k_sweep=[1]))
+    assert out["comparisons"]["offline_jerk_per_step"]["change_pct"] == pytest.approx(-50.0)
+    assert out["comparisons"]["online_phase_reward"]["change_pct"] == pytest.approx(25.0)  # (5 - 4) / 4
+    assert out["online_phase"]["adaptive"]["collision"]["mean"] == 1.0
+    assert "online/fixed" not in out["methods"]
+    # raw data of an earlier version has no jerk_per_step: NaN, and no (b'') comparison
+    old = {m: v for m, v in raw.items() if not m.startswith("online/")}
+    old["chunk"] = {0: _summary(-9.0, jerk=80.0)}
+    out = aggregate(old, [0], QUICK_BUDGET.replace(delta_sweep=[math.inf], k_sweep=[1]))
+    assert math.isnan(out["methods"]["chunk"]["jerk_per_step"]["mean"])
+    assert "offline_jerk_per_step" not in out["comparisons"] and "online_phase" not in out
+
+
 # ---------------------------------------------------------------------------------------------
 # end to end: --quick with 2 seeds, then a resumed call that must not train anything
 # ---------------------------------------------------------------------------------------------
@@ -206,8 +252,13 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
         "fig2_c_online_reward.png",
         "fig2_d_style_confusion.png",
         "fig2_sweeps.png",
+        "fig2_c_online_curves.png",
     ):
         assert (quick_run / name).is_file(), name
+    for arm in ("fixed", "adaptive", "adaptive_style"):  # Phase-2 training episodes, from the Monitor logs
+        online = json.loads((quick_run / "fig2_raw" / "seed1" / "online" / f"{arm}.json").read_text())
+        assert sum(e["length"] for e in online["episodes"]) <= QUICK_BUDGET.finetune_steps
+        assert set(online["episodes"][0]) == {"reward", "length", "collision"}
     assert (quick_run / "fig2_a_offline_reward.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((quick_run / "fig2.json").read_text())  # strict JSON: no NaN / Infinity
     for key in (
@@ -235,8 +286,10 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
             "merge_success",
             "mean_executed_length",
             "cumulative_jerk",
+            "jerk_per_step",
         ):
             assert len(summary["methods"][method][metric]["per_seed"]) == 2, (method, metric)
+    assert len(summary["online_phase"]["adaptive"]["reward"]["per_seed"]) == 2
     measured = summary["seconds"]["measured"]  # wall-clock seconds of every unit, by stage
     assert set(measured) == {"datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation", "total"}
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))

@@ -289,6 +289,7 @@ def test_evaluate_reports_every_metric(traffic_dataset, tmp_path: Path) -> None:
         assert r.mean_executed_length == 3.0
     summary = summarize(results)
     assert summary["episodes"] == 2 and summary["mean_executed_length"] == 3.0
+    assert summary["jerk_per_step"] == pytest.approx(np.mean([r.cumulative_jerk / 20 for r in results]))
     # the same checkpoint executed one action per plan: δ below every possible entropy
     results = evaluate(ckpt, n_episodes=1, seeds=(0,), env_settings_={"env_kwargs": SHORT_ENV}, entropy_threshold=-1e9)
     assert results[0].mean_executed_length == 1.0
@@ -314,3 +315,29 @@ def test_cli_bad_input_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFi
     with pytest.raises(SystemExit):
         main(["finetune", "--checkpoint", "x.zip", "--env-kwargs", "[1, 2]"])
     assert "expected a JSON object" in capsys.readouterr().err
+
+
+def test_finetune_writes_a_monitor_log_of_the_online_episodes(traffic_dataset, tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import finetune, pretrain, read_monitor
+
+    ckpt = pretrain(traffic_dataset, tmp_path / "pre.zip", 2, algo_kwargs={**TINY, "entropy_threshold": float("inf")})
+    finetune(ckpt, tmp_path / "fine.zip", 45, dataset=traffic_dataset, monitor_file=tmp_path / "fine")
+    episodes = read_monitor(tmp_path / "fine")  # ".monitor.csv" is appended, as SB3's Monitor does
+    assert episodes == read_monitor(tmp_path / "fine.monitor.csv")
+    # 45 steps of 20-step episodes: two finished episodes, each with its return, length and collision flag
+    assert [e["l"] for e in episodes] == [20.0, 20.0]
+    assert all(set(e) == {"r", "l", "t", "collision"} and e["collision"] in (0.0, 1.0) for e in episodes)
+
+
+def test_read_monitor_hand_made_and_bad_files(tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import read_monitor
+
+    path = tmp_path / "x.monitor.csv"
+    path.write_text('#{"t_start": 0.0, "env_id": "None"}\nr,l,t,collision\n-1.5,20,0.1,True\n3.0,7,0.2,False\n')
+    assert read_monitor(path) == [
+        {"r": -1.5, "l": 20.0, "t": 0.1, "collision": 1.0},
+        {"r": 3.0, "l": 7.0, "t": 0.2, "collision": 0.0},
+    ]
+    (tmp_path / "bad.monitor.csv").write_text("r,l,t\n1,2,3\n")
+    with pytest.raises(ValueError, match="not a Monitor log"):
+        read_monitor(tmp_path / "bad.monitor.csv")
