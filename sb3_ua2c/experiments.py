@@ -74,6 +74,7 @@ METHOD_LABELS = {
     "chunk_adaptive": "chunk policy (offline, adaptive execution)",
     "fixed": "fixed chunks (δ=inf, online)",
     "adaptive": "adaptive chunks (online)",
+    "fixed_adaptive": "fixed-trained checkpoint, adaptive execution",
     "adaptive_style": "adaptive chunks + style context c_t",
 }
 #: Seed offsets: datasets, evaluation scenarios and style data never share a SUMO seed as long as
@@ -284,7 +285,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
 
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
     n_evals = (
-        len(MAIN_METHODS) + 1 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+        len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
     )
     evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
     style = (
@@ -630,6 +631,8 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
     _evaluation(raw, "adaptive", adaptive, seed, budget, settings, budget.entropy_threshold, log)
     _evaluation(raw, "fixed", fixed, seed, budget, settings, math.inf, log)
+    # the execution rule alone: the fixed arm's checkpoint executed with adaptive chunks
+    _evaluation(raw, "fixed_adaptive", fixed, seed, budget, settings, budget.entropy_threshold, log)
     for delta in budget.delta_sweep:
         _evaluation(raw, f"delta_{delta_name(delta)}", adaptive, seed, budget, settings, delta, log)
     # (d): driving-style inference
@@ -973,6 +976,10 @@ def aggregate(
         for k in budget.k_sweep
         if f"k{k}" in methods
     ]
+    if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
+        result["comparisons"]["online_execution_rule"] = compare(
+            per_seed("fixed_adaptive", "reward"), per_seed("fixed", "reward")
+        )
     if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
         result["comparisons"]["offline_reward_chunk_adaptive"] = compare(
             per_seed("chunk_adaptive", "reward"), per_seed("onestep", "reward")
@@ -1083,6 +1090,11 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             None,
         ),
         ("(c'') the same over the last quarter of the training episodes", "online_phase_reward_last", None),
+        (
+            "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks",
+            "online_execution_rule",
+            None,
+        ),
     )
     for label, key, paper_key in (*rows, *extra):
         if key not in c:
@@ -1104,7 +1116,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         "| method | reward | cum. jerk | jerk per step | collision rate | merge success | mean speed [m/s] | mean L_t |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "adaptive_style"]
+    order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
     for m in order:
         if m not in summary["methods"]:
             continue

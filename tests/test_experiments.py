@@ -146,7 +146,7 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert est["pretrain"] == pytest.approx(2 * 100 * ((4 + 10) + (4 + 20)) * 1e-3)  # k = 1 and k = 2
     # both arms: one update per k = 2 env steps; replanning every L = 1 (adaptive) or 2 (fixed) steps
     assert est["finetune"] == pytest.approx(2 * 50 * ((2 / 1 + 100 / 2) + (2 / 2 + 100 / 2)) * 1e-3)
-    assert est["evaluate"] == pytest.approx(2 * (5 + 1 + 1) * 2 * steps * 1e-3)  # 5 arms, 1 δ, 1 k
+    assert est["evaluate"] == pytest.approx(2 * (6 + 1 + 1) * 2 * steps * 1e-3)  # 6 arms, 1 δ, 1 k
     assert est["total"] == pytest.approx(sum(v for k, v in est.items() if k != "total"))
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
@@ -274,6 +274,7 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
         "chunk_adaptive",
         "fixed",
         "adaptive",
+        "fixed_adaptive",
         "adaptive_style",
         "k2",
         "delta_0",
@@ -294,8 +295,8 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert set(measured) == {"datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation", "total"}
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
     units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
-    # dataset 1, pretrain k=1,2,3 3, offline evals 6, finetune 2, online evals 2, δ sweep 2, style 3, ablation 4
-    assert len(units) == 23 and "seed0/pretrain/pretrain_k2" in units
+    # dataset 1, pretrain k=1,2,3 3, offline evals 6, finetune 2, online evals 3, δ sweep 2, style 3, ablation 4
+    assert len(units) == 24 and "seed0/pretrain/pretrain_k2" in units
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md
