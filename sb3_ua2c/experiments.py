@@ -108,6 +108,8 @@ class Fig2Budget:
     :param k_sweep: chunk lengths pre-trained for the k sweep (``1`` and ``chunk_size`` reuse
         the arms of panel (a))
     :param style_ablation: run the "adaptive + style context" arm
+    :param elite_sweep: ``n_elite`` values (elite-mean execution, ``UA2C.set_n_elite``) at which the
+        offline one-step and chunk checkpoints are also evaluated (full chunks)
     :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
     :param algo_kwargs: extra UA2C constructor arguments of every arm (e.g. ``batch_size``)
     """
@@ -123,6 +125,7 @@ class Fig2Budget:
     delta_sweep: tuple[float, ...] = (-0.5, 0.0, 0.25, 0.5, 1.0, math.inf)
     k_sweep: tuple[int, ...] = (1, 3, 5, 10)
     style_ablation: bool = True
+    elite_sweep: tuple[int, ...] = (8,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
@@ -157,6 +160,11 @@ class Fig2Budget:
         ks = tuple(self.k_sweep)
         for k in ks:
             check_int("Fig2Budget.k_sweep", k)
+        n_candidates = self.algo_kwargs.get("n_candidates", 32) if isinstance(self.algo_kwargs, Mapping) else 32
+        for m in self.elite_sweep:
+            check_int("Fig2Budget.elite_sweep", m)
+            if m > n_candidates:
+                raise ValueError(f"Fig2Budget.elite_sweep holds {m}, more than the {n_candidates} candidates")
         if not isinstance(self.style_ablation, bool):
             raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
         for name in ("env_kwargs", "algo_kwargs"):
@@ -169,6 +177,7 @@ class Fig2Budget:
             )
         object.__setattr__(self, "delta_sweep", tuple(sorted(set(deltas))))
         object.__setattr__(self, "k_sweep", tuple(sorted(set(int(k) for k in ks))))
+        object.__setattr__(self, "elite_sweep", tuple(sorted(set(int(m) for m in self.elite_sweep))))
         object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
@@ -182,7 +191,7 @@ class Fig2Budget:
                 f"unknown Fig2Budget key(s) {sorted(unknown)}; valid: {sorted(f.name for f in dataclasses.fields(cls))}"
             )
         values = dict(values)
-        for name in ("delta_sweep", "k_sweep"):
+        for name in ("delta_sweep", "k_sweep", "elite_sweep"):
             if name in values:
                 values[name] = tuple(float(v) if name == "delta_sweep" else v for v in values[name])
         return cls(**values)
@@ -196,6 +205,7 @@ class Fig2Budget:
         out = dataclasses.asdict(self)
         out["delta_sweep"] = list(self.delta_sweep)
         out["k_sweep"] = list(self.k_sweep)
+        out["elite_sweep"] = list(self.elite_sweep)
         return out
 
     @property
@@ -216,6 +226,7 @@ QUICK_BUDGET = Fig2Budget(
     style_max_epochs=2,
     delta_sweep=(0.0, math.inf),
     k_sweep=(1, 2, 3),
+    elite_sweep=(2,),
     chunk_size=3,
     env_kwargs={"time_limit": 4.0},
     algo_kwargs={"batch_size": 32},
@@ -286,6 +297,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+        + 2 * len(budget.elite_sweep)
     )
     evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
     style = (
@@ -509,6 +521,7 @@ def _evaluation(
     settings: dict[str, Any],
     entropy_threshold: float | None,
     log: UnitLog,
+    n_elite: int | None = None,
 ) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists."""
     from sb3_ua2c.pipeline import evaluate, summarize, write_json
@@ -523,6 +536,7 @@ def _evaluation(
             seeds=(EVAL_SEED_BASE + seed,),
             env_settings_=settings,
             entropy_threshold=entropy_threshold,
+            n_elite=n_elite,
         )
         write_json(
             path,
@@ -534,6 +548,7 @@ def _evaluation(
                 if entropy_threshold is None
                 else delta_name(float(entropy_threshold)),
                 "eval_seed": EVAL_SEED_BASE + seed,
+                "n_elite": n_elite,
                 "summary": summarize(episodes),
                 "episodes": episodes,
             },
@@ -626,6 +641,9 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     )
     for k in budget.k_sweep:
         _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
+    for m in budget.elite_sweep:  # elite-mean execution of the same two checkpoints
+        _evaluation(raw, f"onestep_elite{m}", ckpt[1], seed, budget, settings, None, log, n_elite=m)
+        _evaluation(raw, f"chunk_elite{m}", ckpt[budget.chunk_size], seed, budget, settings, math.inf, log, n_elite=m)
     # (c): both from the same chunk checkpoint, same online budget
     adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
     fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
@@ -976,6 +994,18 @@ def aggregate(
         for k in budget.k_sweep
         if f"k{k}" in methods
     ]
+    result["elite_sweep"] = [
+        {
+            "n_elite": m,
+            **{arm: {key: methods[f"{arm}_elite{m}"][key] for key in ("reward", "cumulative_jerk", "jerk_per_step",
+                                                                     "collision")} for arm in ("onestep", "chunk")},
+            "jerk_change": compare(per_seed(f"chunk_elite{m}", "cumulative_jerk"),
+                                   per_seed(f"onestep_elite{m}", "cumulative_jerk")),
+            "reward_change": compare(per_seed(f"chunk_elite{m}", "reward"), per_seed(f"onestep_elite{m}", "reward")),
+        }
+        for m in budget.elite_sweep
+        if f"chunk_elite{m}" in methods and f"onestep_elite{m}" in methods
+    ]
     if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
         result["comparisons"]["online_execution_rule"] = compare(
             per_seed("fixed_adaptive", "reward"), per_seed("fixed", "reward")
@@ -1183,6 +1213,22 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             lines.append(
                 f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} "
                 f"| {_fmt(row['collision'])} |"
+            )
+    if summary.get("elite_sweep"):
+        lines += [
+            "",
+            "## Elite-mean execution (offline checkpoints, `n_elite` = m best candidates averaged; m = 1 is (a)/(b))",
+            "",
+            "| m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
+            "chunk jerk per step | chunk collision rate |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for row in summary["elite_sweep"]:
+            one, ch = row["onestep"], row["chunk"]
+            lines.append(
+                f"| {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} | {_fmt(one['cumulative_jerk'], 1)} "
+                f"| {_fmt(ch['cumulative_jerk'], 1)} | {_pct(row['jerk_change']['change_pct'])} "
+                f"| {_fmt(ch['jerk_per_step'])} | {_fmt(ch['collision'])} |"
             )
     if "style_context" in summary:
         cmp = summary["style_context"]["reward_gain_pct"]

@@ -215,6 +215,7 @@ def evaluate(
     env_settings_: dict[str, Any] | None = None,
     entropy_threshold: float | None = None,
     deterministic: bool = True,
+    n_elite: int | None = None,
 ) -> list[EpisodeMetrics]:
     """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
 
@@ -227,6 +228,7 @@ def evaluate(
     :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
     :param entropy_threshold: override δ for execution
     :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
+    :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
     """
     check_int("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
@@ -239,6 +241,8 @@ def evaluate(
             model = load_checkpoint(checkpoint, env)
         if entropy_threshold is not None:
             model.set_entropy_threshold(entropy_threshold)
+        if n_elite is not None:
+            model.set_n_elite(n_elite)
         results = []
         for s in seeds:
             for i in range(n_episodes):

@@ -604,6 +604,19 @@ class UA2C(OffPolicyAlgorithm):
         self.config = replace(self.config, entropy_threshold=float(entropy_threshold))
         self.entropy_threshold = self.policy.entropy_threshold = float(self.config.entropy_threshold)
 
+    def set_n_elite(self, n_elite: int) -> None:
+        """
+        Change how many best candidates a replanning averages (``policy_kwargs["n_elite"]``, see
+        :func:`~sb3_ua2c.chunking.select_chunk`; execution only, kept by :meth:`save`).
+
+        :param n_elite: in ``[1, n_candidates]``
+        """
+        check_int("n_elite", n_elite)
+        if n_elite > self.n_candidates:
+            raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
+        self.policy.n_elite = int(n_elite)
+        self.policy_kwargs["n_elite"] = int(n_elite)
+
     @property
     def last_executed_length(self) -> float:
         """Mean ``L_t`` of the recent training plans (``nan`` before the first policy plan)."""

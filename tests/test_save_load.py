@@ -218,3 +218,19 @@ def test_evaluate_policy_after_load(tmp_path):
     loaded = UA2C.load(tmp_path / "m")
     mean, _ = evaluate_policy(loaded, gym.make("Pendulum-v1"), n_eval_episodes=1, warn=False)
     assert -2000.0 < mean < 0.0
+
+
+def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **{k: v for k, v in FAST.items() if k != "n_candidates"})
+    obs = np.zeros(3, dtype=np.float32)
+    best, _ = model.predict(obs, deterministic=True)
+    model.set_n_elite(4)  # the mean of all 4 candidates
+    mean, _ = model.predict(obs, deterministic=True)
+    assert model.policy.n_elite == 4 and not np.allclose(best, mean)
+    model.save(tmp_path / "m.zip")
+    loaded = UA2C.load(tmp_path / "m.zip")
+    assert loaded.policy.n_elite == 4
+    assert np.array_equal(loaded.predict(obs, deterministic=True)[0], mean)
+    for bad in (0, 5, 1.5):
+        with pytest.raises(ValueError, match="n_elite"):
+            model.set_n_elite(bad)
