@@ -87,8 +87,9 @@ def cmd_finetune(args: argparse.Namespace) -> int:
         args.checkpoint, out, args.timesteps, dataset=args.dataset,
         env_settings_=_settings_from_args(args), offline_ratio=args.offline_ratio,
         entropy_threshold=args.entropy_threshold, seed=args.seed, progress_bar=not args.no_progress,
+        monitor_file=out.with_suffix(""),
     )
-    print(f"checkpoint: {path}")
+    print(f"checkpoint: {path}; online episodes: {out.with_suffix('')}.monitor.csv")
     return 0
 
 
@@ -152,7 +153,10 @@ def cmd_main(args: argparse.Namespace) -> int:
     print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
     pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress)
     print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
-    fine = finetune(pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress)
+    fine = finetune(
+        pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress,
+        monitor_file=run / "finetuned",  # SB3's Monitor log of the online episodes: finetuned.monitor.csv
+    )
     print(f"[4/4] evaluate on {budget['eval_episodes']} held-out episodes")
     settings = env_settings(ds)
     rows, raw = {}, {}

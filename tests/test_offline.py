@@ -303,7 +303,7 @@ def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
     assert main(["main", "--quick", "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert set(summary["summary"]) == {"pretrained", "finetuned", "dataset"}
-    for name in ("pretrained.zip", "finetuned.zip", "dataset/data"):
+    for name in ("pretrained.zip", "finetuned.zip", "finetuned.monitor.csv", "dataset/data"):
         assert (tmp_path / "run" / name).exists()
 
 
