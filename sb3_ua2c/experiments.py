@@ -994,18 +994,17 @@ def aggregate(
         for k in budget.k_sweep
         if f"k{k}" in methods
     ]
-    result["elite_sweep"] = [
-        {
-            "n_elite": m,
-            **{arm: {key: methods[f"{arm}_elite{m}"][key] for key in ("reward", "cumulative_jerk", "jerk_per_step",
-                                                                     "collision")} for arm in ("onestep", "chunk")},
-            "jerk_change": compare(per_seed(f"chunk_elite{m}", "cumulative_jerk"),
-                                   per_seed(f"onestep_elite{m}", "cumulative_jerk")),
-            "reward_change": compare(per_seed(f"chunk_elite{m}", "reward"), per_seed(f"onestep_elite{m}", "reward")),
-        }
-        for m in budget.elite_sweep
-        if f"chunk_elite{m}" in methods and f"onestep_elite{m}" in methods
-    ]
+    result["elite_sweep"] = []
+    for m in budget.elite_sweep:  # elite-mean execution of the offline checkpoints
+        arms = {arm: f"{arm}_elite{m}" for arm in ("onestep", "chunk")}
+        if not all(name in methods for name in arms.values()):
+            continue
+        row: dict[str, Any] = {"n_elite": m}
+        for arm, name in arms.items():
+            row[arm] = {key: methods[name][key] for key in ("reward", "cumulative_jerk", "jerk_per_step", "collision")}
+        row["jerk_change"] = compare(per_seed(arms["chunk"], "cumulative_jerk"), per_seed(arms["onestep"], "cumulative_jerk"))
+        row["reward_change"] = compare(per_seed(arms["chunk"], "reward"), per_seed(arms["onestep"], "reward"))
+        result["elite_sweep"].append(row)
     if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
         result["comparisons"]["online_execution_rule"] = compare(
             per_seed("fixed_adaptive", "reward"), per_seed("fixed", "reward")
@@ -1023,18 +1022,15 @@ def aggregate(
         if f"online/{arm}" in raw and all(s in raw[f"online/{arm}"] for s in seeds)
     }
     if online:
-        result["online_phase"] = {
-            arm: {
-                key: {**dict(zip(("mean", "ci95"), t_confidence_interval([r[key] for r in rows]), strict=True)),
-                      "per_seed": [r[key] for r in rows]}
-                for key in ("reward", "reward_last", "collision", "episodes")
-            }
-            for arm, rows in online.items()
-        }
-        for arm in online:
-            result["online_phase"][arm]["curve"] = online_curve(
-                [raw[f"online/{arm}"][s]["episodes"] for s in seeds], budget.finetune_steps
-            )
+        result["online_phase"] = {}
+        for arm, rows in online.items():
+            stats: dict[str, Any] = {}
+            for key in ("reward", "reward_last", "collision", "episodes"):
+                values = [r[key] for r in rows]
+                mean, half = t_confidence_interval(values)
+                stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
+            stats["curve"] = online_curve([raw[f"online/{arm}"][s]["episodes"] for s in seeds], budget.finetune_steps)
+            result["online_phase"][arm] = stats
     if {"fixed", "adaptive"} <= set(online):
         ph = result["online_phase"]
         result["comparisons"]["online_phase_reward"] = compare(
