@@ -187,6 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--run-dir", default=None, help="output directory (default: runs/<command>-<date>-<time>)")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--no-progress", action="store_true", help="no progress bars")
+        p.add_argument("--threads", type=int, default=1,
+                       help="torch CPU threads (default 1: the networks are small, and on a busy machine more "
+                            "threads spin-wait; 0 keeps torch's default)")
 
     def env_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("--env-kwargs", type=json_object_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
@@ -263,6 +266,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _set_threads(threads: int) -> None:
+    from sb3_ua2c.checks import check_int
+
+    check_int("--threads", threads, low=0)
+    if threads > 0:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "style":
@@ -273,6 +286,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(fig2_main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
+        _set_threads(args.threads)
         return args.func(args)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)

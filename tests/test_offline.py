@@ -315,6 +315,8 @@ def test_cli_bad_input_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFi
     with pytest.raises(SystemExit):
         main(["finetune", "--checkpoint", "x.zip", "--env-kwargs", "[1, 2]"])
     assert "expected a JSON object" in capsys.readouterr().err
+    assert main(["pretrain", "--dataset", "x", "--threads", "-1"]) == 2
+    assert "--threads must be an integer >= 0, got -1" in capsys.readouterr().err
 
 
 def test_finetune_writes_a_monitor_log_of_the_online_episodes(traffic_dataset, tmp_path: Path) -> None:
