@@ -187,9 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--run-dir", default=None, help="output directory (default: runs/<command>-<date>-<time>)")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--no-progress", action="store_true", help="no progress bars")
-        p.add_argument("--threads", type=int, default=1,
-                       help="torch CPU threads (default 1: the networks are small, and on a busy machine more "
-                            "threads spin-wait; 0 keeps torch's default)")
+        p.add_argument("--threads", type=int, default=0,
+                       help="torch CPU threads (default 0: torch's default; 1 is faster on a busy machine, where "
+                            "more threads spin-wait)")
 
     def env_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("--env-kwargs", type=json_object_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
