@@ -346,16 +346,13 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(
                 f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
             )
-        check_int("n_elite", n_elite)
-        if n_elite > n_candidates:
-            raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={n_candidates}")
         if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
             raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
         self.chunk_size, self.history_len = chunk_size, history_len
         self.flow_steps, self.n_candidates = flow_steps, n_candidates
         self.entropy_threshold = float(entropy_threshold)
         self.discrete_dims = dict(discrete_dims or {})
-        self.n_elite = int(n_elite)
+        self.set_n_elite(n_elite)
         self.net_arch = net_arch
         self.critic_kwargs = dict(
             n_critics=n_critics,
@@ -412,6 +409,13 @@ class UA2CPolicy(BasePolicy):
             optimizer_kwargs=self.optimizer_kwargs,
         )
         return data
+
+    def set_n_elite(self, n_elite: int) -> None:
+        """Validate and set how many best candidates a replanning averages (1 = best-of-S)."""
+        check_int("n_elite", n_elite)
+        if n_elite > self.n_candidates:
+            raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
+        self.n_elite = int(n_elite)
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)

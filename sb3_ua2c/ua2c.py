@@ -611,11 +611,8 @@ class UA2C(OffPolicyAlgorithm):
 
         :param n_elite: in ``[1, n_candidates]``
         """
-        check_int("n_elite", n_elite)
-        if n_elite > self.n_candidates:
-            raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
-        self.policy.n_elite = int(n_elite)
-        self.policy_kwargs["n_elite"] = int(n_elite)
+        self.policy.set_n_elite(n_elite)
+        self.policy_kwargs["n_elite"] = self.policy.n_elite
 
     @property
     def last_executed_length(self) -> float:
