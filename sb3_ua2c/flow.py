@@ -110,28 +110,58 @@ def euler_sample(
     return x
 
 
+def chunk_roughness(chunks: th.Tensor, dims: list[int]) -> th.Tensor:
+    """
+    Roughness of chunks: the mean squared step change inside each chunk,
+    ``mean_{b, i, c} (x[b, i+1, c] - x[b, i, c])^2`` over ``i < k - 1`` and the action dims ``c``
+    in ``dims`` (not a term of the paper; see :func:`actor_loss`).
+
+    :param chunks: shape ``(batch, k, action_dim)``
+    :param dims: action dims whose changes count (the continuous ones)
+    :return: scalar; ``0`` for ``k = 1`` (a one-step chunk has no step inside it) or no ``dims``
+    """
+    x = chunks[..., dims]  # (B, k, C)
+    if x.shape[1] < 2 or x.shape[2] == 0:
+        return x.new_zeros(())
+    return (x[:, 1:] - x[:, :-1]).pow(2).mean()
+
+
 def actor_loss(
     velocity: th.Tensor,
     x0: th.Tensor,
     x1: th.Tensor,
     q_values: th.Tensor,
     q_weight: float,
+    roughness: th.Tensor | None = None,
+    smooth_weight: float = 0.0,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
-    Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``.
+    Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``,
+    plus ``mu * roughness(x̂1)`` when ``smooth_weight = mu > 0``.
 
     The value term is divided by the (detached) mean ``|Q|`` of the batch, as in TD3+BC and FQL, so
     that ``lambda`` is dimensionless and does not depend on the reward scale of the environment.
+    The smoothness term is not in the paper (``mu = 0`` is Eq. 2): it penalises step changes inside
+    the terminal estimate ``x̂1`` (:func:`chunk_roughness`), so a ``k = 1`` policy is not affected.
 
     :param velocity: ``v_theta(x_tau, tau | h_t)``, shape ``(batch, k, action_dim)``
     :param x0: noise chunks, same shape
     :param x1: data chunks, same shape
     :param q_values: ``min_j Q_j(o-history, x̂1)`` (critics frozen), shape ``(batch,)``
     :param q_weight: ``lambda`` (>= 0)
-    :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``)
+    :param roughness: :func:`chunk_roughness` of ``x̂1`` (scalar), needed when ``smooth_weight > 0``
+    :param smooth_weight: ``mu`` (>= 0)
+    :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``, and
+        ``roughness`` when ``mu > 0``)
     """
     flow = flow_matching_loss(velocity, x0, x1)
     q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
     q_term = -q_values.mean() / q_scale
     loss = flow + q_weight * q_term
-    return loss, {"flow_loss": flow.item(), "q_term": q_term.item(), "q_scale": q_scale.item()}
+    info = {"flow_loss": flow.item(), "q_term": q_term.item(), "q_scale": q_scale.item()}
+    if smooth_weight > 0.0:
+        if roughness is None:
+            raise ValueError("actor_loss: smooth_weight > 0 needs the roughness of x̂1")
+        loss = loss + smooth_weight * roughness
+        info["roughness"] = roughness.item()
+    return loss, info

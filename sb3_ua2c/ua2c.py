@@ -45,7 +45,7 @@ from sb3_ua2c.chunking import (
     chunk_target,
     normalize_discrete_dims,
 )
-from sb3_ua2c.flow import actor_loss, estimate_terminal, interpolate
+from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 
 SelfUA2C = TypeVar("SelfUA2C", bound="UA2C")
@@ -64,6 +64,7 @@ class UA2CConfig:
     :param n_target_candidates: candidates ``Q`` for the target max (Eq. 4 / 8)
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
     :param q_weight: ``lambda`` of Eq. 2
+    :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
     """
 
@@ -75,6 +76,7 @@ class UA2CConfig:
     n_target_candidates: int = 2
     entropy_threshold: float = 0.0
     q_weight: float = 1.0
+    smooth_weight: float = 0.0
     offline_ratio: float = 0.5
 
     def __post_init__(self) -> None:
@@ -87,7 +89,7 @@ class UA2CConfig:
             "n_target_candidates",
         ):
             check_int(name, getattr(self, name))
-        for name in ("entropy_threshold", "q_weight", "offline_ratio"):
+        for name in ("entropy_threshold", "q_weight", "smooth_weight", "offline_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
                 raise ValueError(f"{name} must be a number, got {value!r}")
@@ -95,8 +97,9 @@ class UA2CConfig:
             raise ValueError(
                 "entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)"
             )
-        if not 0.0 <= self.q_weight < math.inf:
-            raise ValueError(f"q_weight must be finite and >= 0, got {self.q_weight!r}")
+        for name in ("q_weight", "smooth_weight"):
+            if not 0.0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
 
@@ -155,6 +158,9 @@ class UA2C(OffPolicyAlgorithm):
     :param n_target_candidates: candidate chunks ``Q`` in the target max (Eq. 4 / 8)
     :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = fixed chunk execution)
     :param q_weight: ``lambda``, weight of the value term in Eq. 2
+    :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
+        paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
+        inside the actor's terminal estimate x̂1. It does not act on ``chunk_size=1``.
     :param discrete_action_dims: ``{action index: category values}`` of categorical action dims,
         encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
         with thresholds ±1/3)
@@ -197,6 +203,7 @@ class UA2C(OffPolicyAlgorithm):
         n_target_candidates: int = 2,
         entropy_threshold: float = 0.0,
         q_weight: float = 1.0,
+        smooth_weight: float = 0.0,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         stats_window_size: int = 100,
@@ -218,6 +225,7 @@ class UA2C(OffPolicyAlgorithm):
             if isinstance(entropy_threshold, int | np.integer)
             else entropy_threshold,
             q_weight=q_weight,
+            smooth_weight=smooth_weight,
             offline_ratio=offline_ratio,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
@@ -270,6 +278,7 @@ class UA2C(OffPolicyAlgorithm):
         self.n_target_candidates = self.config.n_target_candidates
         self.entropy_threshold = float(self.config.entropy_threshold)
         self.q_weight = float(self.config.q_weight)
+        self.smooth_weight = float(self.config.smooth_weight)
         self.offline_ratio = float(self.config.offline_ratio)
         self.discrete_action_dims = (
             None
@@ -630,24 +639,16 @@ class UA2C(OffPolicyAlgorithm):
             return
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
-        critic_losses, actor_losses, flow_losses, q_terms, q_values = [], [], [], [], []
+        logged: dict[str, list[float]] = {}  # {stat of _gradient_step: one value per update}
         for _ in range(gradient_steps):
             self._n_updates += 1
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            stats = self._gradient_step(data)
-            critic_losses.append(stats["critic_loss"])
-            actor_losses.append(stats["actor_loss"])
-            flow_losses.append(stats["flow_loss"])
-            q_terms.append(stats["q_term"])
-            q_values.append(stats["q_mean"])
+            for key, value in self._gradient_step(data).items():
+                logged.setdefault(key, []).append(value)
         self.policy.set_training_mode(False)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        if critic_losses:
-            self.logger.record("train/critic_loss", float(np.mean(critic_losses)))
-            self.logger.record("train/actor_loss", float(np.mean(actor_losses)))
-            self.logger.record("train/flow_loss", float(np.mean(flow_losses)))
-            self.logger.record("train/q_term", float(np.mean(q_terms)))
-            self.logger.record("train/q_mean", float(np.mean(q_values)))
+        for key, values in logged.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
 
     def _gradient_step(self, data: ChunkReplaySamples) -> dict[str, float]:
         """One update of the critics (Eq. 3 with the target of Eq. 4 / 8), the actor (Eq. 2) and the targets."""
@@ -683,7 +684,11 @@ class UA2C(OffPolicyAlgorithm):
             q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)
         finally:
             self.critic.requires_grad_(True)
-        loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight)
+        roughness = None
+        if self.smooth_weight > 0.0:
+            continuous = [d for d in range(x_hat.shape[-1]) if d not in policy.discrete_dims]
+            roughness = chunk_roughness(x_hat, continuous)
+        loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight, roughness, self.smooth_weight)
         self.actor.optimizer.zero_grad()
         loss.backward()
         self.actor.optimizer.step()

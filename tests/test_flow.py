@@ -7,6 +7,7 @@ import torch as th
 
 from sb3_ua2c.flow import (
     actor_loss,
+    chunk_roughness,
     estimate_terminal,
     euler_sample,
     euler_times,
@@ -110,6 +111,37 @@ def test_actor_loss_hand_computed():
     assert info["q_scale"] == pytest.approx(3.0)
     assert info["q_term"] == pytest.approx(1.0)
     assert loss.item() == pytest.approx(1.0)
+
+
+def test_chunk_roughness_hand_computed():
+    # steps inside the chunk 0 -> 1 -> 3: changes 1 and 2, mean of squares (1 + 4) / 2 = 2.5
+    assert chunk_roughness(chunk(0.0, 1.0, 3.0), [0]).item() == pytest.approx(2.5)
+    # two dims, only dim 0 counts (dim 1 is categorical): changes 0.5 and -0.5 -> 0.25
+    two = th.tensor([[[0.0, -1.0], [0.5, 1.0], [0.0, -1.0]]])  # (B=1, k=3, A=2)
+    assert chunk_roughness(two, [0]).item() == pytest.approx(0.25)
+    # both dims: (0.25 + 4 + 0.25 + 4) / 4
+    assert chunk_roughness(two, [0, 1]).item() == pytest.approx(2.125)
+    # a one-step chunk has no step inside it, and no dims means nothing counts
+    assert chunk_roughness(chunk(5.0), [0]).item() == 0.0
+    assert chunk_roughness(two, []).item() == 0.0
+
+
+def test_actor_loss_adds_the_smoothness_term():
+    v, x0, x1 = chunk(1.0, 2.0), chunk(0.0, 0.0), chunk(1.0, 1.0)
+    q = th.tensor([-2.0, -4.0])
+    x_hat = chunk(0.0, 0.5).requires_grad_(True)
+    loss, info = actor_loss(v, x0, x1, q, 0.5, chunk_roughness(x_hat, [0]), smooth_weight=4.0)
+    # 1.0 of the hand-computed Eq. 2 above + 4 * 0.5^2
+    assert info["roughness"] == pytest.approx(0.25)
+    assert loss.item() == pytest.approx(2.0)
+    loss.backward()
+    # d/dx of 4 * (x1 - x0)^2 = 8 * (x1 - x0) * (+-1) = -+4
+    assert th.allclose(x_hat.grad, chunk(-4.0, 4.0))
+    # mu = 0 is Eq. 2 exactly, with or without a roughness
+    plain, plain_info = actor_loss(v, x0, x1, q, 0.5)
+    assert plain.item() == pytest.approx(1.0) and "roughness" not in plain_info
+    with pytest.raises(ValueError, match="smooth_weight"):
+        actor_loss(v, x0, x1, q, 0.5, None, smooth_weight=1.0)
 
 
 def test_actor_loss_value_gradient_only_through_q():

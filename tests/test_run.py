@@ -51,6 +51,26 @@ def test_pendulum_learn_predict_and_logger_keys():
     assert state is not None and state.plan.shape == (1, 5, 1)
 
 
+def _trained_actor(chunk_size: int, smooth_weight: float) -> tuple[UA2C, list[np.ndarray]]:
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=chunk_size, smooth_weight=smooth_weight, **FAST)
+    model.set_logger(configure(None, ["csv"]))
+    model.learn(120, log_interval=1)
+    return model, [p.detach().numpy().copy() for p in model.actor.parameters()]
+
+
+def test_smooth_weight_acts_on_chunks_only():
+    # k = 1: a one-step chunk has no step inside it, so mu changes nothing, bit for bit
+    _, plain = _trained_actor(1, 0.0)
+    _, smooth = _trained_actor(1, 50.0)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, smooth, strict=True))
+    # k = 5: the term trains the actor and is logged
+    model, smooth = _trained_actor(5, 50.0)
+    _, plain = _trained_actor(5, 0.0)
+    assert not all(np.array_equal(a, b) for a, b in zip(plain, smooth, strict=True))
+    assert model.logger.name_to_value["train/roughness"] >= 0.0
+    assert model.smooth_weight == 50.0
+
+
 def test_rollout_logs_executed_length_and_entropy():
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
     model.set_logger(configure(None, []))

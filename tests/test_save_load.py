@@ -33,13 +33,15 @@ def rollout_actions(model: UA2C, n: int = 12) -> np.ndarray:
 
 def test_save_load_same_actions_and_hyperparameters(tmp_path):
     model = UA2C(
-        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=-0.5, **FAST
+        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=-0.5,
+        smooth_weight=2.5, **FAST
     )
     model.learn(120)
     before = rollout_actions(model)
     model.save(tmp_path / "ua2c.zip")
     loaded = UA2C.load(tmp_path / "ua2c.zip")
     assert (loaded.chunk_size, loaded.history_len, loaded.entropy_threshold) == (4, 3, -0.5)
+    assert loaded.smooth_weight == 2.5
     assert loaded.policy.critic_kwargs["embed_dim"] == 16
     for k, v in params(model).items():
         assert th.equal(v, loaded.policy.state_dict()[k]), k
@@ -173,6 +175,9 @@ def test_offline_episodes_and_pretrain_without_env_interaction():
         (dict(entropy_threshold=-math.inf), "entropy_threshold"),
         (dict(entropy_threshold="high"), "entropy_threshold"),
         (dict(q_weight=-1.0), "q_weight"),
+        (dict(smooth_weight=-1.0), "smooth_weight"),
+        (dict(smooth_weight=math.inf), "smooth_weight"),
+        (dict(smooth_weight="1"), "smooth_weight"),
         (dict(offline_ratio=2.0), "offline_ratio"),
         (dict(discrete_action_dims={3: [-1, 0, 1]}), "discrete_action_dims"),
         (dict(batch_size=0), "batch_size"),
