@@ -283,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "fig2":
         from sb3_ua2c.experiments import main as fig2_main
 
-        return int(fig2_main(argv[1:]) or 0)
+        return int(fig2_main(argv[1:], prog="python -m sb3_ua2c fig2") or 0)
     args = build_parser().parse_args(argv)
     try:
         _set_threads(args.threads)

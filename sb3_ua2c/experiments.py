@@ -1445,9 +1445,9 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
 # ---------------------------------------------------------------------------------------------
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "python benchmarks/fig2.py") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python benchmarks/fig2.py",
+        prog=prog,
         description="Reproduce the UA2C paper's Figure 2 (a)-(d) on MixedTraffic-v0 over several seeds, with the "
         "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
     )
@@ -1474,9 +1474,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (2 on a bad argument or missing results)."""
-    parser = build_parser()
+def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.py") -> int:
+    """Entry point; returns the exit code (2 on a bad argument or missing results).
+
+    :param argv: arguments (default ``sys.argv[1:]``)
+    :param prog: how the command was invoked, for the help text and the report's command line
+    """
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
         base = QUICK_BUDGET if args.quick else FULL_BUDGET
@@ -1492,7 +1496,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)
-    command = " ".join(["python benchmarks/fig2.py", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join([prog, *(sys.argv[1:] if argv is None else argv)])
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     t0 = time.perf_counter()
     try:

@@ -118,6 +118,7 @@ class UA2CSearchSpace:
     :param entropy_threshold: uniform interval of delta (Eq. 7), in nats; may be negative
         (differential entropy)
     :param q_weight: log-uniform interval of lambda (Eq. 2)
+    :param smooth_weight: choices of mu, the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param net_arch: choices among ``NET_ARCHS`` (velocity-field MLP), stored in ``policy_kwargs``
     :param critic_embed_dim: choices of the critics' token width, stored in ``policy_kwargs``
         (must be divisible by the policy's ``critic_n_heads``, 4 by default)
@@ -135,6 +136,7 @@ class UA2CSearchSpace:
     n_target_candidates: tuple[int, ...] = (1, 2, 4)
     entropy_threshold: tuple[float, float] = (-3.0, 1.5)
     q_weight: tuple[float, float] = (0.01, 3.0)
+    smooth_weight: tuple[float, ...] = (0.0, 10.0, 100.0, 300.0)
     net_arch: tuple[str, ...] = ("small", "medium", "large")
     critic_embed_dim: tuple[int, ...] = (32, 64)
 
@@ -158,6 +160,17 @@ class UA2CSearchSpace:
         for name in ("flow_steps", "target_flow_steps"):
             if not all(isinstance(v, int) and not isinstance(v, bool) for v in getattr(self, name)):
                 raise ValueError(f"{name} must hold integers, got {getattr(self, name)!r}")
+        if not (
+            isinstance(self.smooth_weight, tuple)
+            and self.smooth_weight
+            and all(
+                isinstance(c, int | float) and not isinstance(c, bool) and 0.0 <= c < math.inf
+                for c in self.smooth_weight
+            )
+        ):
+            raise ValueError(
+                f"smooth_weight must be a non-empty tuple of finite numbers >= 0, got {self.smooth_weight!r}"
+            )
         if not (isinstance(self.net_arch, tuple) and self.net_arch and set(self.net_arch) <= set(NET_ARCHS)):
             raise ValueError(
                 f"net_arch must be a non-empty tuple of names among {sorted(NET_ARCHS)}, got {self.net_arch!r}"
@@ -230,6 +243,7 @@ def sample_ua2c_params(
         "n_target_candidates": trial.suggest_categorical("n_target_candidates", space.n_target_candidates),
         "entropy_threshold": trial.suggest_float("entropy_threshold", *space.entropy_threshold),
         "q_weight": trial.suggest_float("q_weight", *space.q_weight, log=True),
+        "smooth_weight": trial.suggest_categorical("smooth_weight", space.smooth_weight),
         "net_arch": trial.suggest_categorical("net_arch", space.net_arch),
         "critic_embed_dim": trial.suggest_categorical("critic_embed_dim", space.critic_embed_dim),
     }

@@ -402,6 +402,18 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     assert rebuilt["command"].startswith("python benchmarks/fig2.py --quick")
 
 
+def test_the_cli_subcommand_names_itself(capsys) -> None:
+    from sb3_ua2c.__main__ import main as cli_main
+
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["fig2", "--help"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: python -m sb3_ua2c fig2 ")
+    with pytest.raises(SystemExit):
+        experiments.main(["--help"])
+    assert capsys.readouterr().out.startswith("usage: python benchmarks/fig2.py ")
+
+
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         experiments.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])

@@ -413,7 +413,9 @@ def test_sampler_draws_inside_the_search_space():
         ):
             low, high = getattr(space, name)
             assert low <= params[name] <= high, name
-        for name in ("batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates"):
+        for name in (
+            "batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "smooth_weight"
+        ):
             assert params[name] in getattr(space, name), name
         assert tuple(params["policy_kwargs"]["net_arch"]) in zoo.NET_ARCHS.values()
         assert params["policy_kwargs"]["critic_embed_dim"] in space.critic_embed_dim
@@ -454,6 +456,8 @@ def test_custom_search_space_restricts_the_sampler():
         ({"n_candidates": (0, 8)}, "n_candidates must be a non-empty tuple of integers >= 1"),
         ({"flow_steps": (2.0, 5.0)}, "flow_steps must hold integers"),
         ({"tau": (0.01,)}, r"tau must be a \(low, high\) tuple"),
+        ({"smooth_weight": (-1.0, 10.0)}, "smooth_weight must be a non-empty tuple of finite numbers >= 0"),
+        ({"smooth_weight": ()}, "smooth_weight must be a non-empty tuple"),
     ],
 )
 def test_search_space_rejects_bad_values(config, message):
