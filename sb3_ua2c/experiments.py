@@ -1513,15 +1513,21 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
             )
             executed = run_all(seeds, budget, paths, workers)
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
-        else:
-            budget = read_manifest(paths) or budget  # the budget the run was made with
+        recorded: dict[str, Any] = {}
+        if args.report_only:
             previous = paths.out / "fig2.json"
             if previous.is_file():  # a rebuilt report keeps the command and date of the run
                 recorded = json.loads(previous.read_text())
                 command, date = recorded.get("command", command), recorded.get("date", date)
+            # the budget the run was made with: its manifest, else the one recorded in fig2.json
+            manifest = read_manifest(paths)
+            if manifest is None and "budget" in recorded:
+                manifest = Fig2Budget.from_dict(recorded["budget"])
+            budget = manifest or budget
         summary = aggregate(load_raw(paths, seeds), seeds, budget)
         summary["seconds"] = {
-            "measured": measured_seconds(paths, seeds),
+            # without the work directory (e.g. a fresh clone), the timings recorded with the run
+            "measured": measured_seconds(paths, seeds) or recorded.get("seconds", {}).get("measured", {}),
             "estimated": estimate_seconds(budget, len(seeds)),
         }
     except (ValueError, FileNotFoundError) as exc:

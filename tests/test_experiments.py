@@ -400,6 +400,15 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     # the rebuilt report keeps the command and date of the run that produced the results
     assert (rebuilt["command"], rebuilt["date"]) == (run_record["command"], run_record["date"])
     assert rebuilt["command"].startswith("python benchmarks/fig2.py --quick")
+    # without the work directory (a fresh clone holds only results/), the run's budget and unit
+    # timings come from fig2.json, so the compute table survives
+    empty = quick_run / "no_work"
+    args = ["--report-only", "--seed-list", "0", "1", "--out", str(quick_run), "--work", str(empty)]
+    assert experiments.main(args) == 0
+    again = json.loads((quick_run / "fig2.json").read_text())
+    assert again["seconds"]["measured"] == run_record["seconds"]["measured"] != {}
+    assert again["budget"] == run_record["budget"]
+    assert "| pretrain |" in (quick_run / "fig2.md").read_text()
 
 
 def test_the_cli_subcommand_names_itself(capsys) -> None:
