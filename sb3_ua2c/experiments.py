@@ -87,11 +87,6 @@ MAX_SEED = 100
 
 # ---------------------------------------------------------------------------------------------
 # Configuration
-#: ``mu`` of the in-chunk smoothness term in the default budget (screened on seeds 0 and 1 among
-#: 10, 100, 300 and 1000; README, "What was tried")
-DEFAULT_SMOOTH_WEIGHT = 100.0
-
-
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Fig2Budget:
@@ -117,9 +112,7 @@ class Fig2Budget:
         offline one-step and chunk checkpoints are also evaluated (full chunks)
     :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
     :param algo_kwargs: extra UA2C constructor arguments of every pre-trained arm (the fine-tuned
-        arms inherit them from their checkpoint); the default ``{"smooth_weight": 100.0}`` adds the
-        in-chunk smoothness term to Eq. 2 (``{}`` = the paper's Eq. 2; ``chunk_size=1`` is not
-        affected either way). A ``--budget`` that sets ``algo_kwargs`` replaces the whole mapping.
+        arms inherit them from their checkpoint), e.g. ``{"smooth_weight": 100.0}``
     """
 
     dataset_episodes: int = 200
@@ -135,7 +128,7 @@ class Fig2Budget:
     style_ablation: bool = True
     elite_sweep: tuple[int, ...] = (8,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    algo_kwargs: Mapping[str, Any] = field(default_factory=lambda: {"smooth_weight": DEFAULT_SMOOTH_WEIGHT})
+    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in (
@@ -237,7 +230,7 @@ QUICK_BUDGET = Fig2Budget(
     elite_sweep=(2,),
     chunk_size=3,
     env_kwargs={"time_limit": 4.0},
-    algo_kwargs={"batch_size": 32, "smooth_weight": DEFAULT_SMOOTH_WEIGHT},
+    algo_kwargs={"batch_size": 32},
 )
 
 
