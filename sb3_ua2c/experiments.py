@@ -113,6 +113,9 @@ class Fig2Budget:
     :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
     :param algo_kwargs: extra UA2C constructor arguments of every pre-trained arm (the fine-tuned
         arms inherit them from their checkpoint), e.g. ``{"smooth_weight": 100.0}``
+    :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
+        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}``; ``train_freq`` and ``gradient_steps``
+        are set by the runner, see :func:`finetune_overrides`)
     """
 
     dataset_episodes: int = 200
@@ -129,6 +132,7 @@ class Fig2Budget:
     elite_sweep: tuple[int, ...] = (8,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in (
@@ -168,7 +172,7 @@ class Fig2Budget:
                 raise ValueError(f"Fig2Budget.elite_sweep holds {m}, more than the {n_candidates} candidates")
         if not isinstance(self.style_ablation, bool):
             raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
-        for name in ("env_kwargs", "algo_kwargs"):
+        for name in ("env_kwargs", "algo_kwargs", "finetune_kwargs"):
             if not isinstance(getattr(self, name), Mapping):
                 raise ValueError(f"Fig2Budget.{name} must be a mapping, got {getattr(self, name)!r}")
         reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
@@ -176,12 +180,18 @@ class Fig2Budget:
             raise ValueError(
                 f"Fig2Budget.algo_kwargs must not set {sorted(reserved)}: they are Fig2Budget fields"
             )
+        reserved = {"chunk_size", "entropy_threshold", "train_freq", "gradient_steps"} & set(self.finetune_kwargs)
+        if reserved:
+            raise ValueError(
+                f"Fig2Budget.finetune_kwargs must not set {sorted(reserved)}: the runner sets them"
+            )
         object.__setattr__(self, "delta_sweep", tuple(sorted(set(deltas))))
         object.__setattr__(self, "k_sweep", tuple(sorted(set(int(k) for k in ks))))
         object.__setattr__(self, "elite_sweep", tuple(sorted(set(int(m) for m in self.elite_sweep))))
         object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
+        object.__setattr__(self, "finetune_kwargs", dict(self.finetune_kwargs))
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> Fig2Budget:
@@ -560,9 +570,10 @@ def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
     """Phase-2 update cadence of every fine-tuned arm: one gradient step per ``chunk_size`` env steps.
 
     UA2C's default (one update per plan) would give the adaptive arm, whose plans are shorter,
-    up to ``k`` times the updates of the fixed arm for the same environment steps.
+    up to ``k`` times the updates of the fixed arm for the same environment steps. The budget's
+    ``finetune_kwargs`` come on top.
     """
-    return {"train_freq": budget.chunk_size, "gradient_steps": 1}
+    return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}
 
 
 def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
@@ -743,6 +754,7 @@ UNIT_FIELDS = (
     "style_max_epochs",
     "env_kwargs",
     "algo_kwargs",
+    "finetune_kwargs",
 )
 MANIFEST = "fig2_budget.json"
 
@@ -1244,7 +1256,9 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
         f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
         f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
-        f"UA2C {b['algo_kwargs'] or 'defaults'}.",
+        f"UA2C {b['algo_kwargs'] or 'defaults'}"
+        + (f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else "")
+        + ".",
     ]
     seconds = summary.get("seconds", {})
     if seconds.get("measured"):
