@@ -121,6 +121,19 @@ def test_budget_validation_names_the_key() -> None:
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
 
 
+def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> None:
+    budget = FULL_BUDGET.replace(finetune_kwargs={"smooth_weight": 100.0})
+    assert experiments.finetune_overrides(budget) == {"smooth_weight": 100.0, "train_freq": 5, "gradient_steps": 1}
+    assert experiments.finetune_overrides(FULL_BUDGET) == {"train_freq": 5, "gradient_steps": 1}
+    assert Fig2Budget.from_dict(budget.to_dict()) == budget
+    assert Fig2Budget.from_dict({k: v for k, v in FULL_BUDGET.to_dict().items() if k != "finetune_kwargs"}) == FULL_BUDGET
+    with pytest.raises(ValueError, match=r"finetune_kwargs must not set \['gradient_steps'\]"):
+        Fig2Budget(finetune_kwargs={"gradient_steps": 4})
+    with pytest.raises(ValueError, match="finetune_kwargs must be a mapping"):
+        Fig2Budget(finetune_kwargs=[("smooth_weight", 1.0)])
+    assert "finetune_kwargs" in experiments.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
+
+
 def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     costs = CostModel(
         collect_ms_per_step=1.0,
