@@ -18,6 +18,11 @@ import torch as th
 ENTROPY_EPS = 1e-6
 
 
+def continuous_dims(action_dim: int, discrete_dims: Mapping[int, int] | None) -> list[int]:
+    """The action dims that are not categorical, in order (``discrete_dims`` as ``normalize_discrete_dims`` returns)."""
+    return [d for d in range(action_dim) if d not in (discrete_dims or {})]
+
+
 def normalize_discrete_dims(
     discrete_action_dims: Mapping[int, Sequence[float]] | None, action_dim: int
 ) -> dict[int, int]:
@@ -110,7 +115,7 @@ def chunk_entropy(
     """
     discrete_dims = dict(discrete_dims or {})
     action_dim = samples.shape[-1]
-    continuous = [d for d in range(action_dim) if d not in discrete_dims]
+    continuous = continuous_dims(action_dim, discrete_dims)
     total = th.zeros(samples.shape[:-3] + samples.shape[-2:-1], dtype=samples.dtype, device=samples.device)
     if continuous:
         cont = samples if len(continuous) == action_dim else samples[..., continuous]

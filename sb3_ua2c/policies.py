@@ -23,6 +23,7 @@ from sb3_ua2c.chunking import (
     ChunkExecutorState,
     PlanResult,
     chunk_entropy,
+    continuous_dims,
     executable_prefix_length,
     select_chunk,
 )
@@ -365,6 +366,7 @@ class UA2CPolicy(BasePolicy):
         self.activation_fn = activation_fn
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
+        self.continuous_dims = continuous_dims(self.action_dim, self.discrete_dims)  # non-categorical dims
         #: ``L_t`` and ``H_u`` of the last replanning done by ``predict`` (one row per env)
         self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
         self.last_plan_entropy: np.ndarray = np.zeros((0, chunk_size), dtype=np.float32)

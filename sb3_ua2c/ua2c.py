@@ -684,10 +684,7 @@ class UA2C(OffPolicyAlgorithm):
             q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)
         finally:
             self.critic.requires_grad_(True)
-        roughness = None
-        if self.smooth_weight > 0.0:
-            continuous = [d for d in range(x_hat.shape[-1]) if d not in policy.discrete_dims]
-            roughness = chunk_roughness(x_hat, continuous)
+        roughness = chunk_roughness(x_hat, policy.continuous_dims) if self.smooth_weight > 0.0 else None
         loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight, roughness, self.smooth_weight)
         self.actor.optimizer.zero_grad()
         loss.backward()
