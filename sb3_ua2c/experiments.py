@@ -110,6 +110,8 @@ class Fig2Budget:
     :param style_ablation: run the "adaptive + style context" arm
     :param elite_sweep: ``n_elite`` values (elite-mean execution, ``UA2C.set_n_elite``) at which the
         offline one-step and chunk checkpoints are also evaluated (full chunks)
+    :param flow_sweep: Euler steps ``N`` of the sampler (``UA2C.set_flow_steps``) at which the same
+        two checkpoints are also evaluated, with ``n_elite = 1`` and each value of ``elite_sweep``
     :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
     :param algo_kwargs: extra UA2C constructor arguments of every pre-trained arm (the fine-tuned
         arms inherit them from their checkpoint), e.g. ``{"smooth_weight": 100.0}``
@@ -130,6 +132,7 @@ class Fig2Budget:
     k_sweep: tuple[int, ...] = (1, 3, 5, 10)
     style_ablation: bool = True
     elite_sweep: tuple[int, ...] = (8,)
+    flow_sweep: tuple[int, ...] = (2,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
     finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -170,6 +173,8 @@ class Fig2Budget:
             check_int("Fig2Budget.elite_sweep", m)
             if m > n_candidates:
                 raise ValueError(f"Fig2Budget.elite_sweep holds {m}, more than the {n_candidates} candidates")
+        for n in self.flow_sweep:
+            check_int("Fig2Budget.flow_sweep", n)
         if not isinstance(self.style_ablation, bool):
             raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
         for name in ("env_kwargs", "algo_kwargs", "finetune_kwargs"):
@@ -188,6 +193,7 @@ class Fig2Budget:
         object.__setattr__(self, "delta_sweep", tuple(sorted(set(deltas))))
         object.__setattr__(self, "k_sweep", tuple(sorted(set(int(k) for k in ks))))
         object.__setattr__(self, "elite_sweep", tuple(sorted(set(int(m) for m in self.elite_sweep))))
+        object.__setattr__(self, "flow_sweep", tuple(sorted(set(int(n) for n in self.flow_sweep))))
         object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
@@ -202,7 +208,7 @@ class Fig2Budget:
                 f"unknown Fig2Budget key(s) {sorted(unknown)}; valid: {sorted(f.name for f in dataclasses.fields(cls))}"
             )
         values = dict(values)
-        for name in ("delta_sweep", "k_sweep", "elite_sweep"):
+        for name in ("delta_sweep", "k_sweep", "elite_sweep", "flow_sweep"):
             if name in values:
                 values[name] = tuple(float(v) if name == "delta_sweep" else v for v in values[name])
         return cls(**values)
@@ -217,7 +223,15 @@ class Fig2Budget:
         out["delta_sweep"] = list(self.delta_sweep)
         out["k_sweep"] = list(self.k_sweep)
         out["elite_sweep"] = list(self.elite_sweep)
+        out["flow_sweep"] = list(self.flow_sweep)
         return out
+
+    @property
+    def acting_variants(self) -> tuple[tuple[int | None, int], ...]:
+        """``(flow_steps, n_elite)`` pairs of the acting sweep (``None`` = the checkpoint's ``N``),
+        without ``(None, 1)``, which is how (a) and (b) act."""
+        pairs = [(n, m) for n in (None, *self.flow_sweep) for m in (1, *self.elite_sweep)]
+        return tuple(p for p in pairs if p != (None, 1))
 
     @property
     def pretrain_ks(self) -> tuple[int, ...]:
@@ -238,6 +252,7 @@ QUICK_BUDGET = Fig2Budget(
     delta_sweep=(0.0, math.inf),
     k_sweep=(1, 2, 3),
     elite_sweep=(2,),
+    flow_sweep=(2,),
     chunk_size=3,
     env_kwargs={"time_limit": 4.0},
     algo_kwargs={"batch_size": 32},
@@ -308,7 +323,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
-        + 2 * len(budget.elite_sweep)
+        + 2 * len(budget.acting_variants)
     )
     evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
     style = (
@@ -479,6 +494,12 @@ def delta_name(delta: float) -> str:
     return "inf" if math.isinf(delta) else f"{delta:g}".replace("-", "m")
 
 
+def acting_name(arm: str, flow_steps: int | None, n_elite: int) -> str:
+    """Method name of an arm evaluated with another acting rule: ``("chunk", 2, 8) -> "chunk_flow2_elite8"``,
+    ``("onestep", None, 8) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps)."""
+    return arm + ("" if flow_steps is None else f"_flow{flow_steps}") + ("" if n_elite == 1 else f"_elite{n_elite}")
+
+
 class UnitLog(list):
     """Names of the units run, in order, and their wall-clock seconds (``seconds[name]``)."""
 
@@ -533,6 +554,7 @@ def _evaluation(
     entropy_threshold: float | None,
     log: UnitLog,
     n_elite: int | None = None,
+    flow_steps: int | None = None,
 ) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists."""
     from sb3_ua2c.pipeline import evaluate, summarize, write_json
@@ -548,6 +570,7 @@ def _evaluation(
             env_settings_=settings,
             entropy_threshold=entropy_threshold,
             n_elite=n_elite,
+            flow_steps=flow_steps,
         )
         write_json(
             path,
@@ -560,6 +583,7 @@ def _evaluation(
                 else delta_name(float(entropy_threshold)),
                 "eval_seed": EVAL_SEED_BASE + seed,
                 "n_elite": n_elite,
+                "flow_steps": flow_steps,
                 "summary": summarize(episodes),
                 "episodes": episodes,
             },
@@ -653,9 +677,10 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     )
     for k in budget.k_sweep:
         _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
-    for m in budget.elite_sweep:  # elite-mean execution of the same two checkpoints
-        _evaluation(raw, f"onestep_elite{m}", ckpt[1], seed, budget, settings, None, log, n_elite=m)
-        _evaluation(raw, f"chunk_elite{m}", ckpt[budget.chunk_size], seed, budget, settings, math.inf, log, n_elite=m)
+    for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
+        for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
+            delta = None if k == 1 else math.inf
+            _evaluation(raw, acting_name(arm, n, m), ckpt[k], seed, budget, settings, delta, log, m, n)
     # (c): both from the same chunk checkpoint, same online budget
     adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
     fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
@@ -1007,17 +1032,20 @@ def aggregate(
         for k in budget.k_sweep
         if f"k{k}" in methods
     ]
-    result["elite_sweep"] = []
-    for m in budget.elite_sweep:  # elite-mean execution of the offline checkpoints
-        arms = {arm: f"{arm}_elite{m}" for arm in ("onestep", "chunk")}
+    result["acting_sweep"] = []
+    from sb3_ua2c.ua2c import UA2CConfig
+
+    default_n = int(budget.algo_kwargs.get("flow_steps", UA2CConfig.flow_steps))
+    for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints
+        arms = {arm: acting_name(arm, n, m) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
-        row: dict[str, Any] = {"n_elite": m}
+        row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
         for arm, name in arms.items():
             row[arm] = {key: methods[name][key] for key in ("reward", "cumulative_jerk", "jerk_per_step", "collision")}
         row["jerk_change"] = compare(per_seed(arms["chunk"], "cumulative_jerk"), per_seed(arms["onestep"], "cumulative_jerk"))
         row["reward_change"] = compare(per_seed(arms["chunk"], "reward"), per_seed(arms["onestep"], "reward"))
-        result["elite_sweep"].append(row)
+        result["acting_sweep"].append(row)
     if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
         result["comparisons"]["online_execution_rule"] = compare(
             per_seed("fixed_adaptive", "reward"), per_seed("fixed", "reward")
@@ -1223,19 +1251,21 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
                 f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} "
                 f"| {_fmt(row['collision'])} |"
             )
-    if summary.get("elite_sweep"):
+    if summary.get("acting_sweep"):
         lines += [
             "",
-            "## Elite-mean execution (offline checkpoints, `n_elite` = m best candidates averaged; m = 1 is (a)/(b))",
+            "## Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
+            "the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and m = 1",
             "",
-            "| m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
+            "| N | m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
             "chunk jerk per step | chunk collision rate |",
-            "|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
-        for row in summary["elite_sweep"]:
+        for row in summary["acting_sweep"]:
             one, ch = row["onestep"], row["chunk"]
             lines.append(
-                f"| {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} | {_fmt(one['cumulative_jerk'], 1)} "
+                f"| {row['flow_steps']} | {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} "
+                f"| {_fmt(one['cumulative_jerk'], 1)} "
                 f"| {_fmt(ch['cumulative_jerk'], 1)} | {_pct(row['jerk_change']['change_pct'])} "
                 f"| {_fmt(ch['jerk_per_step'])} | {_fmt(ch['collision'])} |"
             )

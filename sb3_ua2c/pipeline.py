@@ -216,6 +216,7 @@ def evaluate(
     entropy_threshold: float | None = None,
     deterministic: bool = True,
     n_elite: int | None = None,
+    flow_steps: int | None = None,
 ) -> list[EpisodeMetrics]:
     """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
 
@@ -229,6 +230,7 @@ def evaluate(
     :param entropy_threshold: override δ for execution
     :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
     :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
+    :param flow_steps: override the Euler steps of the sampler when acting (``UA2C.set_flow_steps``)
     """
     check_int("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
@@ -243,6 +245,8 @@ def evaluate(
             model.set_entropy_threshold(entropy_threshold)
         if n_elite is not None:
             model.set_n_elite(n_elite)
+        if flow_steps is not None:
+            model.set_flow_steps(flow_steps)
         results = []
         for s in seeds:
             for i in range(n_episodes):

@@ -13,7 +13,7 @@ import math
 import pathlib
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -290,6 +290,8 @@ class UA2C(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
+        # the attributes win over the config: ``UA2C.load(path, flow_steps=2)`` sets attributes only
+        self.config = replace(self.config, **{f.name: getattr(self, f.name) for f in fields(UA2CConfig)})
         _check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -621,7 +623,18 @@ class UA2C(OffPolicyAlgorithm):
         :param n_elite: in ``[1, n_candidates]``
         """
         self.policy.set_n_elite(n_elite)
-        self.policy_kwargs["n_elite"] = self.policy.n_elite
+        # a new dict: ``policy_kwargs`` may be the caller's own (SB3 keeps the reference)
+        self.policy_kwargs = {**self.policy_kwargs, "n_elite": self.policy.n_elite}
+
+    def set_flow_steps(self, flow_steps: int) -> None:
+        """
+        Change the Euler steps ``N`` of the flow sampler when acting (execution only: the losses use
+        the one-step estimate of Eq. 2 and ``target_flow_steps``; kept by :meth:`save`).
+
+        :param flow_steps: >= 1
+        """
+        self.config = replace(self.config, flow_steps=flow_steps)
+        self.flow_steps = self.policy.flow_steps = self.config.flow_steps
 
     @property
     def last_executed_length(self) -> float:

@@ -115,6 +115,12 @@ def test_budget_validation_names_the_key() -> None:
     with pytest.raises(ValueError, match="elite_sweep holds 9, more than the 8 candidates"):
         Fig2Budget(elite_sweep=(9,), algo_kwargs={"n_candidates": 8})
     assert FULL_BUDGET.replace(elite_sweep=[16, 8, 8]).elite_sweep == (8, 16)
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="Fig2Budget.flow_sweep"):
+            Fig2Budget(flow_sweep=(bad,))
+    budget = FULL_BUDGET.replace(flow_sweep=[3, 2, 2], elite_sweep=[8])
+    assert budget.flow_sweep == (2, 3) and budget.to_dict()["flow_sweep"] == [2, 3]
+    assert budget.acting_variants == ((None, 8), (2, 1), (2, 8), (3, 1), (3, 8))
     budget = FULL_BUDGET.replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
     assert budget.k_sweep == (3, 10) and budget.delta_sweep == (0.0, math.inf)
     assert budget.pretrain_ks == (1, 3, 5, 10)  # 1 and chunk_size always
@@ -158,6 +164,7 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
         k_sweep=(1,),
         style_ablation=False,
         elite_sweep=(),
+        flow_sweep=(),
     )
     est = estimate_seconds(budget, n_seeds=2, costs=costs)
     steps = 200  # 40 s / 0.2 s
@@ -167,6 +174,9 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert est["finetune"] == pytest.approx(2 * 50 * ((2 / 1 + 100 / 2) + (2 / 2 + 100 / 2)) * 1e-3)
     assert est["evaluate"] == pytest.approx(2 * (6 + 1 + 1) * 2 * steps * 1e-3)  # 6 arms, 1 δ, 1 k, no elite
     assert est["total"] == pytest.approx(sum(v for k, v in est.items() if k != "total"))
+    # acting sweep: (N, m) in {10, 2} x {1, 8} without (10, 1), for both offline checkpoints
+    acting = estimate_seconds(budget.replace(elite_sweep=[8], flow_sweep=[2]), n_seeds=2, costs=costs)
+    assert acting["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 3) * 2 * steps * 1e-3)
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
@@ -297,6 +307,8 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
         "adaptive_style",
         "chunk_elite2",
         "onestep_elite2",
+        "chunk_flow2",
+        "onestep_flow2_elite2",
         "k2",
         "delta_0",
         "delta_inf",
@@ -316,11 +328,13 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert set(measured) == {"datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation", "total"}
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
     units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
-    # dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 elite, finetune 2, online evals 3, δ sweep 2, style 3,
-    # ablation 4
-    assert len(units) == 26 and "seed0/pretrain/pretrain_k2" in units
-    assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_elite2" in units
-    assert summary["elite_sweep"][0]["n_elite"] == 2 and "Elite-mean execution" in (quick_run / "fig2.md").read_text()
+    # dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online evals 3,
+    # δ sweep 2, style 3, ablation 4
+    assert len(units) == 30 and "seed0/pretrain/pretrain_k2" in units
+    assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
+    # (N, m): the checkpoints' N = 10 with m = 2, then N = 2 with m = 1 and 2
+    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 2), (2, 1), (2, 2)]
+    assert "Acting rule" in (quick_run / "fig2.md").read_text()
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md

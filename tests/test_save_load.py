@@ -232,6 +232,7 @@ def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
     model.set_n_elite(4)  # the mean of all 4 candidates
     mean, _ = model.predict(obs, deterministic=True)
     assert model.policy.n_elite == 4 and not np.allclose(best, mean)
+    assert "n_elite" not in FAST["policy_kwargs"]  # the caller's policy_kwargs are not changed
     model.save(tmp_path / "m.zip")
     loaded = UA2C.load(tmp_path / "m.zip")
     assert loaded.policy.n_elite == 4
@@ -239,3 +240,34 @@ def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
     for bad in (0, 5, 1.5):
         with pytest.raises(ValueError, match="n_elite"):
             model.set_n_elite(bad)
+
+
+def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
+    from sb3_ua2c.policies import DETERMINISTIC_NOISE_SEED
+
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **{k: v for k, v in FAST.items() if k != "n_candidates"})
+    policy = model.policy
+    obs = th.tensor([[0.3, -0.2, 0.5]])
+    model.set_flow_steps(1)
+    assert model.flow_steps == policy.flow_steps == model.config.flow_steps == 1
+    with th.no_grad():
+        got = policy._predict(obs, deterministic=True)  # (1, action_dim), first action of the plan
+        # by hand: one Euler step x1 = x0 + v(x0, 0 | h), then best-of-S by min_j Q_j
+        history = obs.reshape(1, 1, -1).expand(-1, policy.history_len, -1)
+        cond = policy.actor.condition(policy.flatten_history(history, th.zeros(1, policy.history_len, 1)))
+        g = th.Generator().manual_seed(DETERMINISTIC_NOISE_SEED)
+        x0 = th.randn((1, 4, policy.chunk_size, 1), generator=g)
+        x1 = (x0 + policy.actor(x0, th.zeros(()), cond)).clamp(-1.0, 1.0)
+        q = policy.critic(history.reshape(1, -1), x1).min(dim=0).values  # (1, S)
+        expected = x1[0, q[0].argmax(), 0]
+    assert th.allclose(got[0], expected, atol=1e-6)
+    model.save(tmp_path / "m.zip")
+    loaded = UA2C.load(tmp_path / "m.zip")
+    assert loaded.policy.flow_steps == loaded.config.flow_steps == 1
+    # a load override reaches the policy and the config, and is validated like the constructor argument
+    assert UA2C.load(tmp_path / "m.zip", flow_steps=3).config.flow_steps == 3
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="flow_steps"):
+            model.set_flow_steps(bad)
+        with pytest.raises(ValueError, match="flow_steps"):
+            UA2C.load(tmp_path / "m.zip", flow_steps=bad)
