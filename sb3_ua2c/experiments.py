@@ -131,7 +131,7 @@ class Fig2Budget:
     delta_sweep: tuple[float, ...] = (-0.5, 0.0, 0.25, 0.5, 1.0, math.inf)
     k_sweep: tuple[int, ...] = (1, 3, 5, 10)
     style_ablation: bool = True
-    elite_sweep: tuple[int, ...] = (8,)
+    elite_sweep: tuple[int, ...] = (4, 8, 16)
     flow_sweep: tuple[int, ...] = (2,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
