@@ -41,6 +41,7 @@ import dataclasses
 import json
 import math
 import os
+import shlex
 import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -498,6 +499,11 @@ def acting_name(arm: str, flow_steps: int | None, n_elite: int) -> str:
     """Method name of an arm evaluated with another acting rule: ``("chunk", 2, 8) -> "chunk_flow2_elite8"``,
     ``("onestep", None, 8) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps)."""
     return arm + ("" if flow_steps is None else f"_flow{flow_steps}") + ("" if n_elite == 1 else f"_elite{n_elite}")
+
+
+def command_line(prog: str, argv: Sequence[str]) -> str:
+    """The invoking command as a shell line: ``prog`` then the arguments, quoted where needed."""
+    return " ".join([prog, *map(shlex.quote, argv)])
 
 
 class UnitLog(list):
@@ -1533,7 +1539,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)
-    command = " ".join([prog, *(sys.argv[1:] if argv is None else argv)])
+    command = command_line(prog, sys.argv[1:] if argv is None else argv)
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     t0 = time.perf_counter()
     try:

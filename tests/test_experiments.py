@@ -438,6 +438,12 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     assert "| pretrain |" in (quick_run / "fig2.md").read_text()
 
 
+def test_command_line_is_quoted_for_the_shell() -> None:
+    assert experiments.command_line("python -m sb3_ua2c fig2", []) == "python -m sb3_ua2c fig2"
+    line = experiments.command_line("python -m sb3_ua2c fig2", ["--budget", '{"a": 1}', "--out", "r"])
+    assert line == """python -m sb3_ua2c fig2 --budget '{"a": 1}' --out r"""
+
+
 def test_the_cli_subcommand_names_itself(capsys) -> None:
     from sb3_ua2c.__main__ import main as cli_main
 
