@@ -99,18 +99,23 @@ def categorical_entropy(categories: th.Tensor, n_categories: int) -> th.Tensor:
 
 
 def chunk_entropy(
-    samples: th.Tensor, discrete_dims: Mapping[int, int] | None = None, eps: float = ENTROPY_EPS
+    samples: th.Tensor,
+    discrete_dims: Mapping[int, int] | None = None,
+    eps: float = ENTROPY_EPS,
+    discrete: bool = True,
 ) -> th.Tensor:
     """
     Per-position entropy ``H_u`` of the sampled actions (Eq. 7), over the S candidates.
 
     Continuous dims use the Gaussian entropy of the unclipped samples, categorical dims the entropy
     of the empirical category frequencies. The action is treated as a factorised distribution, so
-    ``H_u`` is the sum over action dims of the per-dim entropies.
+    ``H_u`` is the sum over action dims of the per-dim entropies; ``discrete=False`` leaves the
+    categorical dims out (``H_u`` of the continuous dims alone).
 
     :param samples: candidate chunks, shape ``(*batch, S, k, action_dim)``
     :param discrete_dims: ``{dim: n_categories}`` for categorical dims (see ``normalize_discrete_dims``)
     :param eps: variance floor of the Gaussian entropy
+    :param discrete: add the entropies of the categorical dims
     :return: ``H_u`` for ``u = 1..k``, shape ``(*batch, k)``
     """
     discrete_dims = dict(discrete_dims or {})
@@ -120,7 +125,7 @@ def chunk_entropy(
     if continuous:
         cont = samples if len(continuous) == action_dim else samples[..., continuous]
         total = total + gaussian_entropy(cont, eps).sum(dim=-1)
-    for dim, n in discrete_dims.items():
+    for dim, n in discrete_dims.items() if discrete else ():
         total = total + categorical_entropy(categorize(samples[..., dim], n), n).to(samples.dtype)
     return total
 

@@ -281,6 +281,8 @@ class UA2CPolicy(BasePolicy):
     :param n_candidates: chunks ``S`` sampled per replanning
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
     :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
+    :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
+        continuous dims alone; see :func:`~sb3_ua2c.chunking.chunk_entropy`)
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
         (1 = the best candidate; see :func:`~sb3_ua2c.chunking.select_chunk`)
     :param net_arch: hidden sizes of the velocity-field MLP
@@ -305,6 +307,7 @@ class UA2CPolicy(BasePolicy):
         n_candidates: int = 32,
         entropy_threshold: float = 0.0,
         discrete_dims: dict[int, int] | None = None,
+        discrete_entropy: bool = True,
         n_elite: int = 1,
         net_arch: list[int] | None = None,
         critic_embed_dim: int = 32,
@@ -353,6 +356,9 @@ class UA2CPolicy(BasePolicy):
         self.flow_steps, self.n_candidates = flow_steps, n_candidates
         self.entropy_threshold = float(entropy_threshold)
         self.discrete_dims = dict(discrete_dims or {})
+        if not isinstance(discrete_entropy, bool | np.bool_):
+            raise ValueError(f"discrete_entropy must be a bool, got {discrete_entropy!r}")
+        self.discrete_entropy = bool(discrete_entropy)
         self.set_n_elite(n_elite)
         self.net_arch = net_arch
         self.critic_kwargs = dict(
@@ -399,6 +405,7 @@ class UA2CPolicy(BasePolicy):
             n_candidates=self.n_candidates,
             entropy_threshold=self.entropy_threshold,
             discrete_dims=self.discrete_dims,
+            discrete_entropy=self.discrete_entropy,
             n_elite=self.n_elite,
             net_arch=self.net_arch,
             critic_embed_dim=self.critic_kwargs["embed_dim"],
@@ -466,7 +473,7 @@ class UA2CPolicy(BasePolicy):
         m = obs_history.shape[0]
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
         samples = self.sample_chunks(cond, self.n_candidates, self.flow_steps, generator)  # (m, S, k, A)
-        entropy = chunk_entropy(samples, self.discrete_dims)  # (m, k)
+        entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
         q = self.critic(obs_history.reshape(m, -1), clipped).min(dim=0).values  # (m, S)

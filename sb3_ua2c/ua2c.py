@@ -65,6 +65,7 @@ class UA2CConfig:
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
     :param q_weight: ``lambda`` of Eq. 2
     :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
+    :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical action dims
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
     """
 
@@ -77,6 +78,7 @@ class UA2CConfig:
     entropy_threshold: float = 0.0
     q_weight: float = 1.0
     smooth_weight: float = 0.0
+    discrete_entropy: bool = True
     offline_ratio: float = 0.5
 
     def __post_init__(self) -> None:
@@ -100,6 +102,8 @@ class UA2CConfig:
         for name in ("q_weight", "smooth_weight"):
             if not 0.0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
+        if not isinstance(self.discrete_entropy, bool | np.bool_):
+            raise ValueError(f"discrete_entropy must be a bool, got {self.discrete_entropy!r}")
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
 
@@ -111,6 +115,7 @@ _POLICY_KWARGS_SET_BY_UA2C = {
     "n_candidates",
     "entropy_threshold",
     "discrete_dims",
+    "discrete_entropy",
 }
 
 
@@ -161,6 +166,9 @@ class UA2C(OffPolicyAlgorithm):
     :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
         paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
         inside the actor's terminal estimate x̂1. It does not act on ``chunk_size=1``.
+    :param discrete_entropy: ``H_u`` of Eq. 7 sums the entropies of the continuous and the
+        categorical action dims (``True``, default); ``False`` leaves the categorical dims out, so
+        a disagreement of the candidates on a lane change alone does not end the executed prefix
     :param discrete_action_dims: ``{action index: category values}`` of categorical action dims,
         encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
         with thresholds ±1/3)
@@ -204,6 +212,7 @@ class UA2C(OffPolicyAlgorithm):
         entropy_threshold: float = 0.0,
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
+        discrete_entropy: bool = True,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         stats_window_size: int = 100,
@@ -226,6 +235,7 @@ class UA2C(OffPolicyAlgorithm):
             else entropy_threshold,
             q_weight=q_weight,
             smooth_weight=smooth_weight,
+            discrete_entropy=discrete_entropy,
             offline_ratio=offline_ratio,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
@@ -279,6 +289,7 @@ class UA2C(OffPolicyAlgorithm):
         self.entropy_threshold = float(self.config.entropy_threshold)
         self.q_weight = float(self.config.q_weight)
         self.smooth_weight = float(self.config.smooth_weight)
+        self.discrete_entropy = bool(self.config.discrete_entropy)
         self.offline_ratio = float(self.config.offline_ratio)
         self.discrete_action_dims = (
             None
@@ -319,6 +330,7 @@ class UA2C(OffPolicyAlgorithm):
             n_candidates=self.n_candidates,
             entropy_threshold=self.entropy_threshold,
             discrete_dims=discrete_dims,
+            discrete_entropy=self.discrete_entropy,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)

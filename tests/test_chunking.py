@@ -67,6 +67,9 @@ def test_chunk_entropy_mixed_discrete_and_continuous():
     expected1 = 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))
     assert h.shape == (2,)
     assert h.tolist() == pytest.approx([expected0, expected1], rel=1e-5)
+    # discrete=False: the continuous dim alone (the lane-change disagreement no longer counts)
+    h_cont = chunk_entropy(samples, {1: 3}, discrete=False)
+    assert h_cont.tolist() == pytest.approx([0.5 * (LOG_2PIE + math.log(4 / 3 + ENTROPY_EPS)), expected1], rel=1e-5)
 
 
 def test_chunk_entropy_sums_continuous_dims_and_batches():

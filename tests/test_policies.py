@@ -56,3 +56,28 @@ def test_plan_with_elite_mean():
     for i in range(2):  # acceleration: mean of the 3 best; lane change: the best candidate's
         assert th.allclose(chunks[i, :, 0], samples[i, top[i], :, 0].mean(dim=0))
         assert th.equal(chunks[i, :, 1], samples[i, top[i, 0], :, 1])
+
+
+def test_discrete_entropy_flag_changes_only_the_prefix_length():
+    """H_u with and without the categorical dim: same chunks, entropies differ by the categorical part."""
+    th.manual_seed(0)
+    with_cat = make_policy(discrete_dims={1: 3})
+    without = make_policy(discrete_dims={1: 3}, discrete_entropy=False)
+    without.load_state_dict(with_cat.state_dict())
+    obs_h, act_h = th.randn(4, 2, 3), th.zeros(4, 2, 2)
+    g = lambda: th.Generator().manual_seed(3)  # noqa: E731
+    chunks_a, _, h_a = with_cat.plan_tensors(obs_h, act_h, g())
+    chunks_b, _, h_b = without.plan_tensors(obs_h, act_h, g())
+    assert th.equal(chunks_a, chunks_b)
+    cond = with_cat.actor.condition(with_cat.flatten_history(obs_h, act_h))
+    samples = with_cat.sample_chunks(cond, 6, 2, g())  # (m, S, k, A)
+    from sb3_ua2c.chunking import categorical_entropy, categorize
+
+    assert th.allclose(h_a - h_b, categorical_entropy(categorize(samples[..., 1], 3), 3).float(), atol=1e-6)
+    assert without._get_constructor_parameters()["discrete_entropy"] is False
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_policy_rejects_non_bool_discrete_entropy(bad):
+    with pytest.raises(ValueError, match="discrete_entropy"):
+        make_policy(discrete_entropy=bad)

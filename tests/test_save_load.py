@@ -271,3 +271,15 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
             model.set_flow_steps(bad)
         with pytest.raises(ValueError, match="flow_steps"):
             UA2C.load(tmp_path / "m.zip", flow_steps=bad)
+
+
+def test_discrete_entropy_is_validated_saved_and_overridable(tmp_path):
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(ValueError, match="discrete_entropy"):
+        UA2C("MlpPolicy", env, discrete_entropy="no", **FAST)
+    model = UA2C("MlpPolicy", env, seed=0, discrete_entropy=False, **FAST)
+    assert model.policy.discrete_entropy is False and model.config.discrete_entropy is False
+    model.save(tmp_path / "m.zip")
+    assert UA2C.load(tmp_path / "m.zip").policy.discrete_entropy is False
+    loaded = UA2C.load(tmp_path / "m.zip", discrete_entropy=True)  # a Phase-2 override reaches the policy
+    assert loaded.policy.discrete_entropy is True and loaded.config.discrete_entropy is True
