@@ -17,7 +17,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_ua2c.checks import check_int
+from sb3_ua2c.checks import check_bool, check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ChunkExecutorState,
@@ -356,8 +356,7 @@ class UA2CPolicy(BasePolicy):
         self.flow_steps, self.n_candidates = flow_steps, n_candidates
         self.entropy_threshold = float(entropy_threshold)
         self.discrete_dims = dict(discrete_dims or {})
-        if not isinstance(discrete_entropy, bool | np.bool_):
-            raise ValueError(f"discrete_entropy must be a bool, got {discrete_entropy!r}")
+        check_bool("discrete_entropy", discrete_entropy)
         self.discrete_entropy = bool(discrete_entropy)
         self.set_n_elite(n_elite)
         self.net_arch = net_arch

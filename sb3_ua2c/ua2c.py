@@ -36,7 +36,7 @@ from stable_baselines3.common.utils import (
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
-from sb3_ua2c.checks import check_int
+from sb3_ua2c.checks import check_bool, check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ExecutorStep,
@@ -102,8 +102,7 @@ class UA2CConfig:
         for name in ("q_weight", "smooth_weight"):
             if not 0.0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        if not isinstance(self.discrete_entropy, bool | np.bool_):
-            raise ValueError(f"discrete_entropy must be a bool, got {self.discrete_entropy!r}")
+        check_bool("discrete_entropy", self.discrete_entropy)
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
 
