@@ -6,6 +6,10 @@ One sampling path serves both parts: every sample is a window starting at step `
 plans), a chunk of ``k`` actions (the executed actions for ``u < L``; the unexecuted tail of the plan
 online, zeros offline), the ``k`` rewards (masked at ``u >= L``), a bootstrap mask (0 iff the episode
 terminated at the window's last step) and the histories at ``t`` and ``t + L``.
+
+``online_targets="window"`` (not in the paper) samples the online steps like the offline ones: every
+executed step starts a k-step window of the actions executed next, across plan boundaries (Eq. 4),
+instead of one sample per plan with its executed prefix (Eq. 8).
 """
 
 from __future__ import annotations
@@ -19,6 +23,15 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
+
+#: values of ``online_targets`` (:class:`ChunkReplayBuffer`, ``UA2C``)
+ONLINE_TARGETS = ("prefix", "window")
+
+
+def check_online_targets(value: Any) -> None:
+    """Raise ``ValueError`` naming ``online_targets`` unless ``value`` is one of :data:`ONLINE_TARGETS`."""
+    if not isinstance(value, str) or value not in ONLINE_TARGETS:
+        raise ValueError(f"online_targets must be one of {list(ONLINE_TARGETS)}, got {value!r}")
 
 
 class ChunkReplaySamples(NamedTuple):
@@ -145,6 +158,10 @@ class ChunkReplayBuffer(BaseBuffer):
     :param chunk_size: ``k``
     :param history_len: ``ℓ``
     :param offline_ratio: fraction of each batch drawn from the offline part when both parts hold data
+    :param online_targets: ``"prefix"`` (the paper, Eq. 8): one online sample per plan, its chunk the
+        selected plan and its horizon the executed length ``L_t``; ``"window"``: every online step
+        starts a sample whose chunk is the next ``k`` executed actions (``min(k, steps to the episode
+        end)``), i.e. the target of Eq. 4 as for the offline windows
     """
 
     def __init__(
@@ -157,15 +174,19 @@ class ChunkReplayBuffer(BaseBuffer):
         chunk_size: int = 5,
         history_len: int = 4,
         offline_ratio: float = 0.5,
+        online_targets: str = "prefix",
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
+        check_online_targets(online_targets)
         if buffer_size < chunk_size + history_len:
             raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
         if not 0.0 <= offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {offline_ratio!r}")
         self.chunk_size, self.history_len, self.offline_ratio = chunk_size, history_len, offline_ratio
+        self.online_targets = online_targets
         self.obs_dim = int(np.prod(self.obs_shape))
-        self.online = _Steps(buffer_size, n_envs, self.obs_dim, self.action_dim, chunk_size, plans=True)
+        prefix = online_targets == "prefix"
+        self.online = _Steps(buffer_size, n_envs, self.obs_dim, self.action_dim, chunk_size, plans=prefix)
         self.offline = _Steps(0, 1, self.obs_dim, self.action_dim, chunk_size, plans=False)
         self.offline_size = 0
         self._next_episode_step = np.zeros(n_envs, dtype=np.int64)
@@ -207,8 +228,9 @@ class ChunkReplayBuffer(BaseBuffer):
         new_plan = np.asarray(new_plan, dtype=bool).reshape(n)
         terminated = np.asarray(terminated, dtype=bool).reshape(n)
         done = terminated | np.asarray(truncated, dtype=bool).reshape(n)
-        # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
-        self._close_plans(new_plan & (self._plan_start >= 0), np.zeros(n, dtype=bool))
+        if s.plans is not None:
+            # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
+            self._close_plans(new_plan & (self._plan_start >= 0), np.zeros(n, dtype=bool))
         s.obs[p] = np.asarray(obs, dtype=np.float32).reshape(n, -1)
         s.next_obs[p] = np.asarray(next_obs, dtype=np.float32).reshape(n, -1)
         s.actions[p] = np.asarray(action, dtype=np.float32).reshape(n, -1)
@@ -219,14 +241,16 @@ class ChunkReplayBuffer(BaseBuffer):
         self._next_episode_step += 1
         s.horizon[p] = 0
         s.bootstrap[p] = False
-        assert s.plans is not None
-        s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
-        self._plan_start[new_plan] = p
-        self._plan_target[new_plan] = np.asarray(plan_lengths).reshape(n)[new_plan]
-        self._plan_count[new_plan] = 0
-        has_plan = self._plan_start >= 0
-        self._plan_count[has_plan] += 1
-        self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
+        if s.plans is None:
+            self._close_windows(p, done, terminated)
+        else:
+            s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
+            self._plan_start[new_plan] = p
+            self._plan_target[new_plan] = np.asarray(plan_lengths).reshape(n)[new_plan]
+            self._plan_count[new_plan] = 0
+            has_plan = self._plan_start >= 0
+            self._plan_count[has_plan] += 1
+            self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
         self.pos += 1
         if self.pos == self.buffer_size:
             self.full = True
@@ -240,6 +264,21 @@ class ChunkReplayBuffer(BaseBuffer):
         self.online.horizon[starts, envs] = self._plan_count[envs]
         self.online.bootstrap[starts, envs] = ~terminated[envs]
         self._plan_start[envs] = -1
+
+    def _close_windows(self, p: int, done: np.ndarray, terminated: np.ndarray) -> None:
+        """
+        ``online_targets="window"``: step ``p`` completes the window starting ``k - 1`` steps earlier in
+        its episode; at an episode end the shorter windows of its last ``k - 1`` starts close as well
+        (horizon = steps to the end, bootstrap unless terminated), as :meth:`_add_offline_episode` does.
+        """
+        s, k = self.online, self.chunk_size
+        steps = s.episode_step[p]  # (n_envs,) index of step p inside its episode
+        for length in range(1, k + 1):  # the window a_{p-length+1..p}, inside the episode
+            closes = done if length < k else np.ones_like(done)
+            envs = np.flatnonzero((steps >= length - 1) & closes)
+            start = (p - length + 1) % self.buffer_size
+            s.horizon[start, envs] = length
+            s.bootstrap[start, envs] = ~terminated[envs]
 
     def reset(self) -> None:
         super().reset()

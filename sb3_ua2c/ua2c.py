@@ -35,7 +35,7 @@ from stable_baselines3.common.utils import (
 )
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, check_online_targets
 from sb3_ua2c.checks import check_bool, check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
@@ -67,6 +67,8 @@ class UA2CConfig:
     :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical action dims
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
+    :param online_targets: ``"prefix"`` (Eq. 8) or ``"window"`` (Eq. 4 on executed actions), see
+        :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
     """
 
     chunk_size: int = 5
@@ -80,6 +82,7 @@ class UA2CConfig:
     smooth_weight: float = 0.0
     discrete_entropy: bool = True
     offline_ratio: float = 0.5
+    online_targets: str = "prefix"
 
     def __post_init__(self) -> None:
         for name in (
@@ -105,6 +108,7 @@ class UA2CConfig:
         check_bool("discrete_entropy", self.discrete_entropy)
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
+        check_online_targets(self.online_targets)
 
 
 _POLICY_KWARGS_SET_BY_UA2C = {
@@ -172,6 +176,10 @@ class UA2C(OffPolicyAlgorithm):
         encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
         with thresholds ±1/3)
     :param offline_ratio: fraction of each batch drawn from offline episodes (when any are stored)
+    :param online_targets: ``"prefix"`` (default, Eq. 8): one online sample per plan, the target
+        of its executed prefix ``L_t``; ``"window"`` (not in the paper): every executed step starts a
+        k-step window of the actions executed next, across plan boundaries, with the target of
+        Eq. 4, so that online samples mean what the offline windows mean
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -214,6 +222,7 @@ class UA2C(OffPolicyAlgorithm):
         discrete_entropy: bool = True,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
+        online_targets: str = "prefix",
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -236,6 +245,7 @@ class UA2C(OffPolicyAlgorithm):
             smooth_weight=smooth_weight,
             discrete_entropy=discrete_entropy,
             offline_ratio=offline_ratio,
+            online_targets=online_targets,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
@@ -290,6 +300,7 @@ class UA2C(OffPolicyAlgorithm):
         self.smooth_weight = float(self.config.smooth_weight)
         self.discrete_entropy = bool(self.config.discrete_entropy)
         self.offline_ratio = float(self.config.offline_ratio)
+        self.online_targets = self.config.online_targets
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -317,6 +328,7 @@ class UA2C(OffPolicyAlgorithm):
                 chunk_size=self.chunk_size,
                 history_len=self.history_len,
                 offline_ratio=self.offline_ratio,
+                online_targets=self.online_targets,
                 **self.replay_buffer_kwargs,
             )
         self.policy = self.policy_class(  # type: ignore[assignment]

@@ -16,9 +16,10 @@ def _seed_numpy():
     np.random.seed(0)  # noqa: NPY002 - the buffer samples with NumPy's global RNG (seeded by SB3)
 
 
-def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5):
+def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5, targets="prefix"):
     return ChunkReplayBuffer(
-        size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio
+        size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio,
+        online_targets=targets,
     )
 
 
@@ -107,6 +108,83 @@ def test_ring_overwrite_invalidates_old_plans():
     assert sorted(buf.online.obs[starts, 0, 0].tolist()) == [3.0, 4.0, 5.0, 6.0]
     s = rows(buf.sample(64))
     assert s[0.3]["observation_history"] == [2.0, 3.0]
+
+
+def by_start(samples):
+    """Unique samples keyed by their start observation o_t, as plain lists."""
+    return {
+        samples.observation_history[i, -1, 0].item(): {
+            name: getattr(samples, name)[i].flatten().tolist() for name in samples._fields
+        }
+        for i in range(samples.chunks.shape[0])
+    }
+
+
+@pytest.mark.parametrize("terminated", [True, False])
+def test_online_windows_cross_plan_boundaries(terminated):
+    """online_targets="window": every step starts a window of the next k executed actions (Eq. 4)."""
+    buf = make_buffer(targets="window")
+    assert buf.online.plans is None
+    add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=1, start=True)  # the plans and L_t play no part
+    add_step(buf, 1, plan=[0.8, 0.9, 1.0], length=2)
+    add_step(buf, 2)
+    add_step(buf, 3, plan=[-0.5, -0.5, -0.5], length=3)
+    assert buf.n_samples() == (2, 0)  # the windows at t = 0, 1 are complete; t = 2, 3 are open
+    add_step(buf, 4, terminated=terminated, truncated=not terminated)
+    assert buf.n_samples() == (5, 0)  # the episode end closes the windows at t = 2, 3, 4
+    got = by_start(buf.sample(256))
+    assert set(got) == {0.0, 1.0, 2.0, 3.0, 4.0}
+    a = got[1.0]  # a_1 of the first plan, a_2 a_3 of the second: r = 2, 3, 4, bootstrap from h_4
+    assert a["chunks"] == pytest.approx([0.2, 0.3, 0.4])
+    assert a["rewards"] == pytest.approx([2.0, 3.0, 4.0])
+    assert a["horizons"] == [3.0] and a["bootstrap"] == [1.0]
+    assert a["observation_history"] == [0.0, 1.0] and a["action_history"] == pytest.approx([0.0, 0.1])
+    assert a["next_observation_history"] == [3.0, 4.0]
+    assert a["next_action_history"] == pytest.approx([0.3, 0.4])
+    end = 0.0 if terminated else 1.0  # a time limit bootstraps from the last observation
+    assert got[2.0]["horizons"] == [3.0] and got[2.0]["bootstrap"] == [end]
+    b = got[3.0]  # two steps to the episode end: the tail is zeros, as offline
+    assert b["chunks"] == pytest.approx([0.4, 0.5, 0.0])
+    assert b["rewards"] == pytest.approx([4.0, 5.0, 0.0])
+    assert b["horizons"] == [2.0] and b["bootstrap"] == [end]
+    assert b["next_observation_history"] == [4.0, 5.0]
+    assert got[4.0]["horizons"] == [1.0] and got[4.0]["chunks"] == pytest.approx([0.5, 0.0, 0.0])
+    # the next episode's windows do not reach back into this one
+    add_step(buf, 10, start=True)
+    add_step(buf, 11)
+    assert buf.n_samples() == (5, 0)
+
+
+def test_online_windows_in_the_ring_and_several_envs():
+    buf = make_buffer(size=5, targets="window")
+    for t in range(7):
+        add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, start=(t == 0))
+    # slots hold t = 2..6; windows complete for t <= 4; t = 2 lost o_1 to overwriting
+    assert sorted(buf.online.obs[buf._online_starts(), 0, 0].tolist()) == [3.0, 4.0]
+    two = make_buffer(n_envs=2, targets="window")
+    for t in range(3):
+        two.add(
+            np.array([[t], [10 + t]], np.float32),
+            np.array([[t + 1], [11 + t]], np.float32),
+            np.array([[0.1], [-0.1]], np.float32),
+            np.array([1.0, 2.0]),
+            np.array([False, t == 1]),  # env 1 terminates after its second step
+            np.array([False, False]),
+            np.array([t == 0, t in (0, 2)]),
+            np.array([t == 0, t in (0, 2)]),
+            np.zeros((2, 3, 1), np.float32),
+            np.array([3, 3]),
+        )
+    got = by_start(two.sample(256))
+    assert set(got) == {0.0, 10.0, 11.0}  # env 0: t = 0 complete; env 1: both starts of its episode
+    assert got[10.0]["horizons"] == [2.0] and got[10.0]["bootstrap"] == [0.0]
+    assert got[10.0]["rewards"] == [2.0, 2.0, 0.0]
+
+
+def test_online_targets_is_validated():
+    for bad in ("plan", "", None, 1):
+        with pytest.raises(ValueError, match="online_targets"):
+            make_buffer(targets=bad)
 
 
 def offline_episode(offset=0.0, terminated=True):

@@ -283,3 +283,20 @@ def test_discrete_entropy_is_validated_saved_and_overridable(tmp_path):
     assert UA2C.load(tmp_path / "m.zip").policy.discrete_entropy is False
     loaded = UA2C.load(tmp_path / "m.zip", discrete_entropy=True)  # a Phase-2 override reaches the policy
     assert loaded.policy.discrete_entropy is True and loaded.config.discrete_entropy is True
+
+
+def test_online_targets_is_validated_saved_and_overridable(tmp_path):
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(ValueError, match="online_targets"):
+        UA2C("MlpPolicy", env, online_targets="windows", **FAST)
+    model = UA2C("MlpPolicy", env, seed=0, online_targets="window", **FAST)
+    assert model.replay_buffer.online_targets == model.config.online_targets == "window"
+    model.learn(80)
+    # every executed step of the 80 starts a sample once its k = 5 next steps are stored
+    assert model.replay_buffer.n_samples() == (80 - 4, 0)
+    model.save(tmp_path / "m.zip")
+    assert UA2C.load(tmp_path / "m.zip").replay_buffer.online_targets == "window"
+    loaded = UA2C.load(tmp_path / "m.zip", online_targets="prefix")  # e.g. a Phase-2 override
+    assert loaded.replay_buffer.online_targets == loaded.config.online_targets == "prefix"
+    with pytest.raises(ValueError, match="online_targets"):
+        UA2C.load(tmp_path / "m.zip", online_targets="eq4")
