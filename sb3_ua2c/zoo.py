@@ -49,6 +49,8 @@ from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_ua2c.buffers import ONLINE_TARGETS
+
 if TYPE_CHECKING:
     import optuna
 
@@ -119,6 +121,12 @@ class UA2CSearchSpace:
         (differential entropy)
     :param q_weight: log-uniform interval of lambda (Eq. 2)
     :param smooth_weight: choices of mu, the in-chunk smoothness term added to Eq. 2 (0 = the paper)
+    :param discrete_entropy: choices of ``discrete_entropy`` (``H_u`` with or without the
+        categorical dims)
+    :param online_targets: choices among ``"prefix"`` (Eq. 8) and ``"window"`` (Eq. 4 on executed
+        actions)
+    :param n_elite: choices of m, candidates averaged per replanning, stored in ``policy_kwargs``
+        (each at most ``min(n_candidates)``)
     :param net_arch: choices among ``NET_ARCHS`` (velocity-field MLP), stored in ``policy_kwargs``
     :param critic_embed_dim: choices of the critics' token width, stored in ``policy_kwargs``
         (must be divisible by the policy's ``critic_n_heads``, 4 by default)
@@ -137,6 +145,9 @@ class UA2CSearchSpace:
     entropy_threshold: tuple[float, float] = (-3.0, 1.5)
     q_weight: tuple[float, float] = (0.01, 3.0)
     smooth_weight: tuple[float, ...] = (0.0, 10.0, 100.0, 300.0)
+    discrete_entropy: tuple[bool, ...] = (True, False)
+    online_targets: tuple[str, ...] = ("prefix", "window")
+    n_elite: tuple[int, ...] = (1, 4, 8)
     net_arch: tuple[str, ...] = ("small", "medium", "large")
     critic_embed_dim: tuple[int, ...] = (32, 64)
 
@@ -182,6 +193,7 @@ class UA2CSearchSpace:
             "n_candidates",
             "n_target_candidates",
             "critic_embed_dim",
+            "n_elite",
         ):
             choices = getattr(self, name)
             if not (
@@ -190,6 +202,25 @@ class UA2CSearchSpace:
                 and all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in choices)
             ):
                 raise ValueError(f"{name} must be a non-empty tuple of integers >= 1, got {choices!r}")
+        if max(self.n_elite) > min(self.n_candidates):
+            raise ValueError(
+                f"n_elite must not exceed min(n_candidates)={min(self.n_candidates)}, got {self.n_elite!r}"
+            )
+        if not (
+            isinstance(self.discrete_entropy, tuple)
+            and self.discrete_entropy
+            and all(isinstance(c, bool) for c in self.discrete_entropy)
+        ):
+            raise ValueError(f"discrete_entropy must be a non-empty tuple of bools, got {self.discrete_entropy!r}")
+        if not (
+            isinstance(self.online_targets, tuple)
+            and self.online_targets
+            and set(self.online_targets) <= set(ONLINE_TARGETS)
+        ):
+            raise ValueError(
+                f"online_targets must be a non-empty tuple of values among {list(ONLINE_TARGETS)}, "
+                f"got {self.online_targets!r}"
+            )
 
     @classmethod
     def from_dict(cls, config: dict[str, Any]) -> UA2CSearchSpace:
@@ -246,6 +277,9 @@ def sample_ua2c_params(
         "smooth_weight": trial.suggest_categorical("smooth_weight", space.smooth_weight),
         "net_arch": trial.suggest_categorical("net_arch", space.net_arch),
         "critic_embed_dim": trial.suggest_categorical("critic_embed_dim", space.critic_embed_dim),
+        "discrete_entropy": trial.suggest_categorical("discrete_entropy", space.discrete_entropy),
+        "online_targets": trial.suggest_categorical("online_targets", space.online_targets),
+        "n_elite": trial.suggest_categorical("n_elite", space.n_elite),
     }
     trial.set_user_attr("gamma", 1.0 - sampled["one_minus_gamma"])
     return convert_ua2c_params(sampled)
@@ -257,7 +291,8 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
 
     :param sampled: ``trial.params`` of a UA2C trial
     :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the policy's
-        ``net_arch`` (a ``NET_ARCHS`` name) and ``critic_embed_dim`` moved into ``policy_kwargs``.
+        ``net_arch`` (a ``NET_ARCHS`` name), ``critic_embed_dim`` and ``n_elite`` moved into
+        ``policy_kwargs``.
         As for every rl-zoo3 algorithm, a sampled ``policy_kwargs`` replaces the YAML one.
     """
     params = dict(sampled)
@@ -269,8 +304,9 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
         if name not in NET_ARCHS:
             raise ValueError(f"net_arch must be one of {sorted(NET_ARCHS)}, got {name!r}")
         policy_kwargs["net_arch"] = list(NET_ARCHS[name])
-    if "critic_embed_dim" in params:
-        policy_kwargs["critic_embed_dim"] = params.pop("critic_embed_dim")
+    for name in ("critic_embed_dim", "n_elite"):
+        if name in params:
+            policy_kwargs[name] = params.pop(name)
     if policy_kwargs:
         params["policy_kwargs"] = policy_kwargs
     return params

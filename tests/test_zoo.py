@@ -396,7 +396,7 @@ def _sample(n_trials: int, seed: int = 0) -> tuple[optuna.Study, list[dict]]:
 def test_sampler_draws_inside_the_search_space():
     space = zoo.UA2CSearchSpace()
     study, samples = _sample(30)
-    policy_fields = {"net_arch", "critic_embed_dim"}
+    policy_fields = {"net_arch", "critic_embed_dim", "n_elite"}
     for trial, params in zip(study.trials, samples, strict=True):
         assert set(params) == {f.name for f in dataclasses.fields(zoo.UA2CSearchSpace)} - policy_fields | {
             "policy_kwargs"
@@ -414,15 +414,18 @@ def test_sampler_draws_inside_the_search_space():
             low, high = getattr(space, name)
             assert low <= params[name] <= high, name
         for name in (
-            "batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "smooth_weight"
+            "batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "smooth_weight",
+            "discrete_entropy", "online_targets",
         ):
             assert params[name] in getattr(space, name), name
         assert tuple(params["policy_kwargs"]["net_arch"]) in zoo.NET_ARCHS.values()
         assert params["policy_kwargs"]["critic_embed_dim"] in space.critic_embed_dim
+        assert params["policy_kwargs"]["n_elite"] in space.n_elite
         # --trial-id reloads the same constructor arguments from the stored raw parameters.
         assert zoo.convert_ua2c_params(trial.params) == params
     # 30 random draws cover more than one chunk size: the sampler really samples.
-    assert len({t.params["chunk_size"] for t in study.trials}) > 1
+    for name in ("chunk_size", "discrete_entropy", "online_targets", "n_elite"):
+        assert len({t.params[name] for t in study.trials}) > 1, name
 
 
 def test_sampled_hyperparameters_build_a_ua2c_model():
@@ -434,6 +437,9 @@ def test_sampled_hyperparameters_build_a_ua2c_model():
         assert model.chunk_size == params["chunk_size"]
         assert math.isclose(model.gamma, params["gamma"])
         assert model.policy.net_arch == params["policy_kwargs"]["net_arch"]
+        assert model.policy.n_elite == params["policy_kwargs"]["n_elite"]
+        assert model.replay_buffer.online_targets == params["online_targets"]
+        assert model.policy.discrete_entropy is params["discrete_entropy"]
 
 
 def test_custom_search_space_restricts_the_sampler():
@@ -458,6 +464,10 @@ def test_custom_search_space_restricts_the_sampler():
         ({"tau": (0.01,)}, r"tau must be a \(low, high\) tuple"),
         ({"smooth_weight": (-1.0, 10.0)}, "smooth_weight must be a non-empty tuple of finite numbers >= 0"),
         ({"smooth_weight": ()}, "smooth_weight must be a non-empty tuple"),
+        ({"n_elite": (1, 16), "n_candidates": (8, 32)}, r"n_elite must not exceed min\(n_candidates\)=8"),
+        ({"n_elite": (0,)}, "n_elite must be a non-empty tuple of integers >= 1"),
+        ({"discrete_entropy": (True, "no")}, "discrete_entropy must be a non-empty tuple of bools"),
+        ({"online_targets": ("prefix", "plan")}, "online_targets must be a non-empty tuple of values"),
     ],
 )
 def test_search_space_rejects_bad_values(config, message):
