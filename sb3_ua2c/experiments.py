@@ -606,11 +606,49 @@ def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
     return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}
 
 
+class SeedBusyError(RuntimeError):
+    """Another process is running the same seed in the same work directory."""
+
+
+@contextmanager
+def seed_lock(work: Path) -> Iterator[None]:
+    """Hold an exclusive lock on a seed's work directory (``<work>/.lock``, ``flock``) while inside.
+
+    Two ``fig2`` processes on one work directory (e.g. a second one started with ``--seed-list``)
+    would otherwise train the same unit at once and write the same files. The lock dies with its
+    process, so an interrupted run leaves nothing to clean up.
+
+    :param work: the seed's work directory (must exist)
+    :raises SeedBusyError: if another open lock holds it, naming the directory and the holder's pid
+    """
+    import fcntl
+
+    with open(work / ".lock", "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            raise SeedBusyError(
+                f"{work} is in use by another fig2 process (pid {holder}); wait for it or use "
+                "another --work directory"
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     """Run (or resume) every unit of one seed; return the names of the units actually executed.
 
     The wall-clock seconds of every unit run are merged into ``<work>/seed<s>/unit_seconds.json``
-    (measured cost of the run, next to :func:`estimate_seconds`).
+    (measured cost of the run, next to :func:`estimate_seconds`). The seed's work directory is
+    locked meanwhile (:func:`seed_lock`).
 
     :param seed: the seed (datasets, networks, online env, evaluation scenarios derive from it)
     :param budget: the run's budget
@@ -623,10 +661,11 @@ def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
     work.mkdir(parents=True, exist_ok=True)
     raw.mkdir(parents=True, exist_ok=True)
     log = UnitLog()
-    try:
-        _run_seed_units(seed, budget, work, raw, log)
-    finally:  # also on an interruption: the finished units' times are kept
-        _merge_seconds(work / "unit_seconds.json", log.seconds)
+    with seed_lock(work):
+        try:
+            _run_seed_units(seed, budget, work, raw, log)
+        finally:  # also on an interruption: the finished units' times are kept
+            _merge_seconds(work / "unit_seconds.json", log.seconds)
     return list(log)
 
 
@@ -1573,7 +1612,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
             "measured": measured_seconds(paths, seeds) or recorded.get("seconds", {}).get("measured", {}),
             "estimated": estimate_seconds(budget, len(seeds)),
         }
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, SeedBusyError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     files = write_report(summary, paths, command, date)
@@ -1595,6 +1634,7 @@ __all__ = [
     "CostModel",
     "Fig2Budget",
     "RunPaths",
+    "SeedBusyError",
     "aggregate",
     "check_manifest",
     "compare",
@@ -1607,6 +1647,7 @@ __all__ = [
     "relative_change_pct",
     "run_all",
     "run_seed",
+    "seed_lock",
     "strict_json",
     "student_t_quantile",
     "student_t_two_sided_cdf",

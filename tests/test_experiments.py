@@ -438,6 +438,26 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     assert "| pretrain |" in (quick_run / "fig2.md").read_text()
 
 
+def test_a_seed_in_use_is_refused(quick_run: Path, tmp_path: Path, capsys) -> None:
+    import os
+
+    work = tmp_path / "seed3"
+    work.mkdir()
+    with experiments.seed_lock(work):
+        assert (work / ".lock").read_text() == str(os.getpid())
+        with pytest.raises(experiments.SeedBusyError, match=f"{work} is in use .*pid {os.getpid()}"):
+            with experiments.seed_lock(work):
+                pass
+        # a second fig2 process on the same work directory stops at the locked seed, with exit code 2
+        held = quick_run / "fig2_work" / "seed1"
+        with experiments.seed_lock(held):
+            args = ["--quick", "--seed-list", "1", "--workers", "1", "--out", str(quick_run)]
+            assert experiments.main(args) == 2
+            assert f"{held} is in use by another fig2 process" in capsys.readouterr().err
+    with experiments.seed_lock(work):  # released on exit
+        pass
+
+
 def test_command_line_is_quoted_for_the_shell() -> None:
     assert experiments.command_line("python -m sb3_ua2c fig2", []) == "python -m sb3_ua2c fig2"
     line = experiments.command_line("python -m sb3_ua2c fig2", ["--budget", '{"a": 1}', "--out", "r"])
