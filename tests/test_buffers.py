@@ -45,6 +45,22 @@ def add_step(buf, t, plan=None, length=0, terminated=False, truncated=False, sta
     )
 
 
+def add_two_envs(buf, t, terminated, start, length=3):
+    """Step t of two envs: o = t and 10 + t, a = 0.1 and -0.1, r = 1 and 2; a plan starts with each episode."""
+    buf.add(
+        np.array([[t], [10 + t]], np.float32),
+        np.array([[t + 1], [11 + t]], np.float32),
+        np.array([[0.1], [-0.1]], np.float32),
+        np.array([1.0, 2.0]),
+        np.array(terminated),
+        np.array([False, False]),
+        np.array(start),
+        np.array(start),
+        np.zeros((2, buf.chunk_size, 1), np.float32),
+        np.array([length, length]),
+    )
+
+
 def rows(samples):
     """Unique samples keyed by the last chunk entry, as plain lists."""
     out = {}
@@ -162,19 +178,8 @@ def test_online_windows_in_the_ring_and_several_envs():
     # slots hold t = 2..6; windows complete for t <= 4; t = 2 lost o_1 to overwriting
     assert sorted(buf.online.obs[buf._online_starts(), 0, 0].tolist()) == [3.0, 4.0]
     two = make_buffer(n_envs=2, targets="window")
-    for t in range(3):
-        two.add(
-            np.array([[t], [10 + t]], np.float32),
-            np.array([[t + 1], [11 + t]], np.float32),
-            np.array([[0.1], [-0.1]], np.float32),
-            np.array([1.0, 2.0]),
-            np.array([False, t == 1]),  # env 1 terminates after its second step
-            np.array([False, False]),
-            np.array([t == 0, t in (0, 2)]),
-            np.array([t == 0, t in (0, 2)]),
-            np.zeros((2, 3, 1), np.float32),
-            np.array([3, 3]),
-        )
+    for t in range(3):  # env 1 terminates after its second step and starts again
+        add_two_envs(two, t, terminated=[False, t == 1], start=[t == 0, t in (0, 2)])
     got = by_start(two.sample(256))
     assert set(got) == {0.0, 10.0, 11.0}  # env 0: t = 0 complete; env 1: both starts of its episode
     assert got[10.0]["horizons"] == [2.0] and got[10.0]["bootstrap"] == [0.0]
@@ -258,18 +263,7 @@ def test_offline_episode_validation():
 def test_several_envs_keep_their_own_episodes():
     buf = make_buffer(n_envs=2)
     for t in range(2):
-        buf.add(
-            np.array([[t], [10 + t]], np.float32),
-            np.array([[t + 1], [11 + t]], np.float32),
-            np.array([[0.1], [-0.1]], np.float32),
-            np.array([1.0, 2.0]),
-            np.array([False, False]),
-            np.array([False, False]),
-            np.array([t == 0, t == 0]),
-            np.array([t == 0, t == 0]),
-            np.zeros((2, 3, 1), np.float32),
-            np.array([2, 2]),
-        )
+        add_two_envs(buf, t, terminated=[False, False], start=[t == 0, t == 0], length=2)
     s = buf.sample(32)
     for i in range(32):
         first = s.observation_history[i, -1, 0].item()
