@@ -178,6 +178,35 @@ def executable_prefix_length(entropy: th.Tensor, threshold: float) -> th.Tensor:
     return th.cumprod(ok, dim=-1).sum(dim=-1).clamp_(min=1)
 
 
+def commit_through_switch(
+    lengths: th.Tensor, chunks: th.Tensor, discrete_dims: Mapping[int, int] | None
+) -> th.Tensor:
+    """
+    Extend ``L_t`` (Eq. 7) through the first switch of a categorical action inside the selected chunk
+    (not in the paper; ``UA2C(commit_discrete=True)``).
+
+    A chunk ``[keep, keep, keep, change, keep]`` of a lane change switches at ``u = 3``; the prefix
+    then ends at ``L_t >= 4``, so the change is executed before the next replanning. Without it,
+    replanning more often than the chunk schedules its lane change can postpone the change forever
+    (every new plan puts it a few steps ahead again). ``L_t`` never shrinks; a chunk with no switch
+    keeps its ``L_t``; ``k = 1`` and ``L_t = k`` are unchanged.
+
+    :param lengths: ``L_t`` of Eq. 7, long tensor of shape ``(m,)``
+    :param chunks: selected chunks, shape ``(m, k, action_dim)``
+    :param discrete_dims: ``{dim: n_categories}`` of categorical dims
+    :return: the committed lengths, shape ``(m,)``
+    """
+    k = chunks.shape[-2]
+    out = lengths
+    u = th.arange(1, k, device=chunks.device)  # switch positions 1..k-1 (none for k = 1)
+    for dim, n in (discrete_dims or {}).items() if k > 1 else ():
+        cats = categorize(chunks[..., dim], n)  # (m, k)
+        switch = cats[:, 1:] != cats[:, :-1]  # (m, k-1): the category changes at u
+        first = th.where(switch, u, k).amin(dim=-1)  # (m,), k = no switch
+        out = th.maximum(out, th.where(first < k, first + 1, out))
+    return out
+
+
 def discounted_chunk_return(rewards: th.Tensor, horizon: th.Tensor, gamma: float) -> th.Tensor:
     """
     ``sum_{u < L} gamma^u r_{t+u}`` of Eq. 4 (``L = k``) and Eq. 8 (``L = L_t``).

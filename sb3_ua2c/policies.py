@@ -23,6 +23,7 @@ from sb3_ua2c.chunking import (
     ChunkExecutorState,
     PlanResult,
     chunk_entropy,
+    commit_through_switch,
     continuous_dims,
     executable_prefix_length,
     select_chunk,
@@ -285,6 +286,8 @@ class UA2CPolicy(BasePolicy):
         continuous dims alone; see :func:`~sb3_ua2c.chunking.chunk_entropy`)
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
         (1 = the best candidate; see :func:`~sb3_ua2c.chunking.select_chunk`)
+    :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
+        selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
     :param net_arch: hidden sizes of the velocity-field MLP
     :param critic_embed_dim: token width of the critics
     :param critic_n_layers: Transformer blocks per critic
@@ -309,6 +312,7 @@ class UA2CPolicy(BasePolicy):
         discrete_dims: dict[int, int] | None = None,
         discrete_entropy: bool = True,
         n_elite: int = 1,
+        commit_discrete: bool = False,
         net_arch: list[int] | None = None,
         critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
@@ -358,6 +362,8 @@ class UA2CPolicy(BasePolicy):
         self.discrete_dims = dict(discrete_dims or {})
         check_bool("discrete_entropy", discrete_entropy)
         self.discrete_entropy = bool(discrete_entropy)
+        check_bool("commit_discrete", commit_discrete)
+        self.commit_discrete = bool(commit_discrete)
         self.set_n_elite(n_elite)
         self.net_arch = net_arch
         self.critic_kwargs = dict(
@@ -406,6 +412,7 @@ class UA2CPolicy(BasePolicy):
             discrete_dims=self.discrete_dims,
             discrete_entropy=self.discrete_entropy,
             n_elite=self.n_elite,
+            commit_discrete=self.commit_discrete,
             net_arch=self.net_arch,
             critic_embed_dim=self.critic_kwargs["embed_dim"],
             critic_n_layers=self.critic_kwargs["n_layers"],
@@ -462,7 +469,8 @@ class UA2CPolicy(BasePolicy):
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
         One replanning (Eq. 7): sample S chunks, keep the one with the highest ``min_j Q_j``, measure
-        the per-position entropy of the S samples and the executable prefix length.
+        the per-position entropy of the S samples and the executable prefix length (extended through
+        the first categorical switch with ``commit_discrete``).
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
@@ -476,7 +484,10 @@ class UA2CPolicy(BasePolicy):
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
         q = self.critic(obs_history.reshape(m, -1), clipped).min(dim=0).values  # (m, S)
-        return select_chunk(clipped, q, self.n_elite, self.discrete_dims), lengths, entropy
+        chunks = select_chunk(clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
+        if self.commit_discrete:
+            lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
+        return chunks, lengths, entropy
 
     def plan(
         self, obs_history: np.ndarray, action_history: np.ndarray, deterministic: bool = False

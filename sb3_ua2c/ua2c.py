@@ -66,6 +66,8 @@ class UA2CConfig:
     :param q_weight: ``lambda`` of Eq. 2
     :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical action dims
+    :param commit_discrete: ``L_t`` extends through the first switch of a categorical action in the
+        selected chunk (not in the paper)
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
     :param online_targets: ``"prefix"`` (Eq. 8) or ``"window"`` (Eq. 4 on executed actions), see
         :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
@@ -81,6 +83,7 @@ class UA2CConfig:
     q_weight: float = 1.0
     smooth_weight: float = 0.0
     discrete_entropy: bool = True
+    commit_discrete: bool = False
     offline_ratio: float = 0.5
     online_targets: str = "prefix"
 
@@ -106,6 +109,7 @@ class UA2CConfig:
             if not 0.0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         check_bool("discrete_entropy", self.discrete_entropy)
+        check_bool("commit_discrete", self.commit_discrete)
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
         check_online_targets(self.online_targets)
@@ -119,6 +123,7 @@ _POLICY_KWARGS_SET_BY_UA2C = {
     "entropy_threshold",
     "discrete_dims",
     "discrete_entropy",
+    "commit_discrete",
 }
 
 
@@ -172,6 +177,10 @@ class UA2C(OffPolicyAlgorithm):
     :param discrete_entropy: ``H_u`` of Eq. 7 sums the entropies of the continuous and the
         categorical action dims (``True``, default); ``False`` leaves the categorical dims out, so
         a disagreement of the candidates on a lane change alone does not end the executed prefix
+    :param commit_discrete: ``True`` extends ``L_t`` through the first switch of a categorical
+        action inside the selected chunk (not in the paper; default ``False`` = Eq. 7): a planned
+        lane change is then executed before the next replanning instead of being postponed by it
+        (:func:`~sb3_ua2c.chunking.commit_through_switch`)
     :param discrete_action_dims: ``{action index: category values}`` of categorical action dims,
         encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
         with thresholds ±1/3)
@@ -220,6 +229,7 @@ class UA2C(OffPolicyAlgorithm):
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
         discrete_entropy: bool = True,
+        commit_discrete: bool = False,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         online_targets: str = "prefix",
@@ -244,6 +254,7 @@ class UA2C(OffPolicyAlgorithm):
             q_weight=q_weight,
             smooth_weight=smooth_weight,
             discrete_entropy=discrete_entropy,
+            commit_discrete=commit_discrete,
             offline_ratio=offline_ratio,
             online_targets=online_targets,
         )
@@ -299,6 +310,7 @@ class UA2C(OffPolicyAlgorithm):
         self.q_weight = float(self.config.q_weight)
         self.smooth_weight = float(self.config.smooth_weight)
         self.discrete_entropy = bool(self.config.discrete_entropy)
+        self.commit_discrete = bool(self.config.commit_discrete)
         self.offline_ratio = float(self.config.offline_ratio)
         self.online_targets = self.config.online_targets
         self.discrete_action_dims = (
@@ -342,6 +354,7 @@ class UA2C(OffPolicyAlgorithm):
             entropy_threshold=self.entropy_threshold,
             discrete_dims=discrete_dims,
             discrete_entropy=self.discrete_entropy,
+            commit_discrete=self.commit_discrete,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
