@@ -123,6 +123,8 @@ class UA2CSearchSpace:
     :param smooth_weight: choices of mu, the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param discrete_entropy: choices of ``discrete_entropy`` (``H_u`` with or without the
         categorical dims)
+    :param commit_discrete: choices of ``commit_discrete`` (``L_t`` through the first categorical
+        switch of the selected chunk, or Eq. 7 alone)
     :param online_targets: choices among ``"prefix"`` (Eq. 8) and ``"window"`` (Eq. 4 on executed
         actions)
     :param n_elite: choices of m, candidates averaged per replanning, stored in ``policy_kwargs``
@@ -146,6 +148,7 @@ class UA2CSearchSpace:
     q_weight: tuple[float, float] = (0.01, 3.0)
     smooth_weight: tuple[float, ...] = (0.0, 10.0, 100.0, 300.0)
     discrete_entropy: tuple[bool, ...] = (True, False)
+    commit_discrete: tuple[bool, ...] = (False, True)
     online_targets: tuple[str, ...] = ("prefix", "window")
     n_elite: tuple[int, ...] = (1, 4, 8)
     net_arch: tuple[str, ...] = ("small", "medium", "large")
@@ -206,12 +209,10 @@ class UA2CSearchSpace:
             raise ValueError(
                 f"n_elite must not exceed min(n_candidates)={min(self.n_candidates)}, got {self.n_elite!r}"
             )
-        if not (
-            isinstance(self.discrete_entropy, tuple)
-            and self.discrete_entropy
-            and all(isinstance(c, bool) for c in self.discrete_entropy)
-        ):
-            raise ValueError(f"discrete_entropy must be a non-empty tuple of bools, got {self.discrete_entropy!r}")
+        for name in ("discrete_entropy", "commit_discrete"):
+            choices = getattr(self, name)
+            if not (isinstance(choices, tuple) and choices and all(isinstance(c, bool) for c in choices)):
+                raise ValueError(f"{name} must be a non-empty tuple of bools, got {choices!r}")
         if not (
             isinstance(self.online_targets, tuple)
             and self.online_targets
@@ -278,6 +279,7 @@ def sample_ua2c_params(
         "net_arch": trial.suggest_categorical("net_arch", space.net_arch),
         "critic_embed_dim": trial.suggest_categorical("critic_embed_dim", space.critic_embed_dim),
         "discrete_entropy": trial.suggest_categorical("discrete_entropy", space.discrete_entropy),
+        "commit_discrete": trial.suggest_categorical("commit_discrete", space.commit_discrete),
         "online_targets": trial.suggest_categorical("online_targets", space.online_targets),
         "n_elite": trial.suggest_categorical("n_elite", space.n_elite),
     }

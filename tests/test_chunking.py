@@ -15,6 +15,7 @@ from sb3_ua2c.chunking import (
     chunk_critic_loss,
     chunk_entropy,
     chunk_target,
+    commit_through_switch,
     discounted_chunk_return,
     executable_prefix_length,
     gaussian_entropy,
@@ -92,6 +93,37 @@ def test_chunk_entropy_sums_continuous_dims_and_batches():
 )
 def test_executable_prefix_length(entropy, threshold, expected):
     assert executable_prefix_length(th.tensor(entropy), threshold).item() == expected
+
+
+@pytest.mark.parametrize(
+    ("lane", "length", "expected"),
+    [
+        ([0.0, 0.0, 0.0, 0.9, 0.0], 1, 4),  # keep, keep, keep, change, keep: commit through u = 3
+        ([0.0, 0.0, 0.0, 0.9, 0.0], 5, 5),  # the prefix never shrinks
+        ([0.0, 0.2, -0.3, 0.0, 0.0], 1, 1),  # |a| < 1/3 stays "keep": no switch, L_t unchanged
+        ([0.0, 0.0, 0.0, 0.0, -0.34], 2, 5),  # a change at the last position: the whole chunk
+        ([0.9, 0.0, 0.0, 0.0, 0.0], 1, 2),  # a change now: the switch back at u = 1 is executed too
+        ([0.9, 0.9, 0.9, 0.9, 0.9], 1, 1),  # one category throughout: no switch
+        ([0.0, 0.9, -0.9, 0.0, 0.0], 3, 3),  # the first switch (u = 1) is already inside the prefix
+    ],
+)
+def test_commit_through_switch_hand_computed(lane, length, expected):
+    chunk = th.zeros(1, 5, 2)
+    chunk[0, :, 0] = 0.7  # the continuous dim plays no part
+    chunk[0, :, 1] = th.tensor(lane)
+    assert commit_through_switch(th.tensor([length]), chunk, {1: 3}).tolist() == [expected]
+
+
+def test_commit_through_switch_batched_several_dims_and_k1():
+    chunks = th.zeros(3, 4, 3)
+    chunks[0, 2, 1] = 1.0  # dim 1 switches at u = 2
+    chunks[0, 1, 2] = -1.0  # dim 2 at u = 1: the later switch (dim 1) decides
+    chunks[1, 3, 2] = -1.0  # dim 2 (two bins: 0 and 1 are one category) at u = 3
+    got = commit_through_switch(th.tensor([1, 2, 2]), chunks, {1: 3, 2: 2})
+    assert got.tolist() == [3, 4, 2]
+    # no categorical dim, or k = 1: nothing to commit to
+    assert commit_through_switch(th.tensor([1, 2, 2]), chunks, None).tolist() == [1, 2, 2]
+    assert commit_through_switch(th.tensor([1]), th.ones(1, 1, 3), {1: 3}).tolist() == [1]
 
 
 def test_executable_prefix_length_batched():

@@ -81,3 +81,28 @@ def test_discrete_entropy_flag_changes_only_the_prefix_length():
 def test_policy_rejects_non_bool_discrete_entropy(bad):
     with pytest.raises(ValueError, match="discrete_entropy"):
         make_policy(discrete_entropy=bad)
+
+
+def test_commit_discrete_extends_only_the_prefix_length():
+    """Same chunks and entropies; L_t becomes commit_through_switch(L_t of Eq. 7, the selected chunk)."""
+    from sb3_ua2c.chunking import commit_through_switch
+
+    th.manual_seed(0)
+    plain = make_policy(discrete_dims={1: 3}, entropy_threshold=-10.0)  # Eq. 7 alone gives L_t = 1
+    commit = make_policy(discrete_dims={1: 3}, entropy_threshold=-10.0, commit_discrete=True)
+    commit.load_state_dict(plain.state_dict())
+    obs_h, act_h = th.randn(16, 2, 3), th.zeros(16, 2, 2)
+    g = lambda: th.Generator().manual_seed(3)  # noqa: E731
+    chunks_a, len_a, h_a = plain.plan_tensors(obs_h, act_h, g())
+    chunks_b, len_b, h_b = commit.plan_tensors(obs_h, act_h, g())
+    assert th.equal(chunks_a, chunks_b) and th.equal(h_a, h_b)
+    assert len_a.tolist() == [1] * 16
+    assert th.equal(len_b, commit_through_switch(len_a, chunks_a, {1: 3}))
+    assert (len_b > 1).any()  # some of the 16 selected chunks switch lanes: the test can fail
+    assert commit._get_constructor_parameters()["commit_discrete"] is True
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_policy_rejects_non_bool_commit_discrete(bad):
+    with pytest.raises(ValueError, match="commit_discrete"):
+        make_policy(commit_discrete=bad)

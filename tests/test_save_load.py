@@ -300,3 +300,17 @@ def test_online_targets_is_validated_saved_and_overridable(tmp_path):
     assert loaded.replay_buffer.online_targets == loaded.config.online_targets == "prefix"
     with pytest.raises(ValueError, match="online_targets"):
         UA2C.load(tmp_path / "m.zip", online_targets="eq4")
+
+
+def test_commit_discrete_is_validated_saved_and_overridable(tmp_path):
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(ValueError, match="commit_discrete"):
+        UA2C("MlpPolicy", env, commit_discrete="yes", **FAST)
+    model = UA2C("MlpPolicy", env, seed=0, commit_discrete=True, discrete_action_dims={0: [-1, 1]}, **FAST)
+    assert model.policy.commit_discrete is True and model.config.commit_discrete is True
+    model.save(tmp_path / "m.zip")
+    assert UA2C.load(tmp_path / "m.zip").policy.commit_discrete is True
+    loaded = UA2C.load(tmp_path / "m.zip", commit_discrete=False)  # e.g. a Phase-2 override
+    assert loaded.policy.commit_discrete is False and loaded.config.commit_discrete is False
+    with pytest.raises(ValueError, match="commit_discrete"):
+        UA2C.load(tmp_path / "m.zip", commit_discrete=0)

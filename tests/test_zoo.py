@@ -415,7 +415,7 @@ def test_sampler_draws_inside_the_search_space():
             assert low <= params[name] <= high, name
         for name in (
             "batch_size", "chunk_size", "history_len", "n_candidates", "n_target_candidates", "smooth_weight",
-            "discrete_entropy", "online_targets",
+            "discrete_entropy", "commit_discrete", "online_targets",
         ):
             assert params[name] in getattr(space, name), name
         assert tuple(params["policy_kwargs"]["net_arch"]) in zoo.NET_ARCHS.values()
@@ -424,7 +424,7 @@ def test_sampler_draws_inside_the_search_space():
         # --trial-id reloads the same constructor arguments from the stored raw parameters.
         assert zoo.convert_ua2c_params(trial.params) == params
     # 30 random draws cover more than one chunk size: the sampler really samples.
-    for name in ("chunk_size", "discrete_entropy", "online_targets", "n_elite"):
+    for name in ("chunk_size", "discrete_entropy", "commit_discrete", "online_targets", "n_elite"):
         assert len({t.params[name] for t in study.trials}) > 1, name
 
 
@@ -440,6 +440,7 @@ def test_sampled_hyperparameters_build_a_ua2c_model():
         assert model.policy.n_elite == params["policy_kwargs"]["n_elite"]
         assert model.replay_buffer.online_targets == params["online_targets"]
         assert model.policy.discrete_entropy is params["discrete_entropy"]
+        assert model.policy.commit_discrete is params["commit_discrete"]
 
 
 def test_custom_search_space_restricts_the_sampler():
@@ -467,6 +468,7 @@ def test_custom_search_space_restricts_the_sampler():
         ({"n_elite": (1, 16), "n_candidates": (8, 32)}, r"n_elite must not exceed min\(n_candidates\)=8"),
         ({"n_elite": (0,)}, "n_elite must be a non-empty tuple of integers >= 1"),
         ({"discrete_entropy": (True, "no")}, "discrete_entropy must be a non-empty tuple of bools"),
+        ({"commit_discrete": ()}, "commit_discrete must be a non-empty tuple of bools"),
         ({"online_targets": ("prefix", "plan")}, "online_targets must be a non-empty tuple of values"),
     ],
 )
