@@ -119,6 +119,10 @@ class Fig2Budget:
     :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
         fine-tuned arm (e.g. ``{"smooth_weight": 100.0}``; ``train_freq`` and ``gradient_steps``
         are set by the runner, see :func:`finetune_overrides`)
+    :param online_seed_offset: Phase 2 of seed ``s`` runs with seed ``s + MAX_SEED · offset``
+        (online scenarios, sampling noise, minibatches; the networks start from the same
+        checkpoint): a replicate of the online phase on the same pre-trained checkpoints. 0 = the
+        seed itself
     """
 
     dataset_episodes: int = 200
@@ -137,6 +141,7 @@ class Fig2Budget:
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
     finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    online_seed_offset: int = 0
 
     def __post_init__(self) -> None:
         for name in (
@@ -149,6 +154,7 @@ class Fig2Budget:
         ):
             check_int(f"Fig2Budget.{name}", getattr(self, name))
         check_int("Fig2Budget.style_episodes", self.style_episodes, low=3)
+        check_int("Fig2Budget.online_seed_offset", self.online_seed_offset, low=0)
         for name, limit in (("dataset_episodes", 9_999), ("style_episodes", 9_999), ("eval_episodes", 1_000)):
             if getattr(self, name) > limit:
                 raise ValueError(
@@ -707,7 +713,8 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
         if not path.is_file():
             with log.timed(f"seed{seed}/finetune/{name}"):
                 finetune(
-                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta, seed=seed,
+                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
+                    seed=seed + MAX_SEED * budget.online_seed_offset,
                     algo_overrides=finetune_overrides(budget), monitor_file=monitor,
                 )
         _online_episodes(raw / "online" / f"{name}.json", monitor)
@@ -825,6 +832,7 @@ UNIT_FIELDS = (
     "env_kwargs",
     "algo_kwargs",
     "finetune_kwargs",
+    "online_seed_offset",
 )
 MANIFEST = "fig2_budget.json"
 
@@ -1333,6 +1341,11 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
         f"UA2C {b['algo_kwargs'] or 'defaults'}"
         + (f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else "")
+        + (
+            f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}"
+            if b.get("online_seed_offset")
+            else ""
+        )
         + ".",
     ]
     seconds = summary.get("seconds", {})

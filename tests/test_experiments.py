@@ -458,6 +458,33 @@ def test_a_seed_in_use_is_refused(quick_run: Path, tmp_path: Path, capsys) -> No
         pass
 
 
+def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
+    import shutil
+
+    from sb3_ua2c import pipeline
+
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="Fig2Budget.online_seed_offset"):
+            QUICK_BUDGET.replace(online_seed_offset=bad)
+    assert "online_seed_offset" in experiments.UNIT_FIELDS  # a resumed run refuses another offset
+    # the pre-trained units of seed 1 are reused; the fine-tuned arms are trained again
+    paths = experiments.RunPaths.under(tmp_path)
+    shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
+    shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))  # the offline evaluations
+    for arm in ("adaptive", "fixed", "adaptive_style"):
+        (paths.seed_work(1) / f"{arm}.zip").unlink()
+    calls = []
+
+    def fake_finetune(start, out, steps, **kwargs):
+        calls.append((Path(start).name, kwargs["seed"]))
+        raise KeyboardInterrupt  # stop at the first fine-tuned arm
+
+    monkeypatch.setattr(pipeline, "finetune", fake_finetune)
+    with pytest.raises(KeyboardInterrupt):
+        experiments.run_seed(1, QUICK_BUDGET.replace(online_seed_offset=2), paths)
+    assert calls == [("pretrain_k3.zip", 1 + 2 * experiments.MAX_SEED)]
+
+
 def test_command_line_is_quoted_for_the_shell() -> None:
     assert experiments.command_line("python -m sb3_ua2c fig2", []) == "python -m sb3_ua2c fig2"
     line = experiments.command_line("python -m sb3_ua2c fig2", ["--budget", '{"a": 1}', "--out", "r"])
