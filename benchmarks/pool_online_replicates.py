@@ -1,0 +1,65 @@
+"""Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``).
+
+Usage::
+
+    python benchmarks/pool_online_replicates.py results results/fig2_online_seeds [more report dirs]
+
+Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
+evaluations of the two fine-tuned arms. The replicates must share their pre-trained checkpoints
+(same seeds, same Phase-1 budget) and differ in the online seeds only. Prints per directory and
+pooled: the mean reward of both arms, (c) as the change of the means, and the mean ± 95 %
+Student-t interval of the paired per-run changes (one run = one seed of one replicate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from sb3_ua2c.experiments import PAPER, relative_change_pct, t_confidence_interval
+
+
+def arm_rewards(report: Path) -> dict[int, tuple[float, float]]:
+    """``{seed: (adaptive reward, fixed reward)}`` of one report directory."""
+    out = {}
+    for seed_dir in sorted((report / "fig2_raw").glob("seed*")):
+        arms = [json.loads((seed_dir / f"{arm}.json").read_text())["summary"]["reward"] for arm in ("adaptive", "fixed")]
+        out[int(seed_dir.name.removeprefix("seed"))] = (arms[0], arms[1])
+    if not out:
+        raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
+    return out
+
+
+def describe(name: str, pairs: list[tuple[float, float]]) -> str:
+    adaptive, fixed = np.array(pairs).T
+    per_run = [relative_change_pct(a, f) for a, f in pairs]
+    mean, half = t_confidence_interval(per_run)
+    return (
+        f"| {name} | {len(pairs)} | {adaptive.mean():.1f} | {fixed.mean():.1f} | "
+        f"{relative_change_pct(adaptive.mean(), fixed.mean()):+.2f} % | {mean:+.1f} ± {half:.1f} % |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("reports", nargs="+", type=Path)
+    args = parser.parse_args()
+    runs = {report: arm_rewards(report) for report in args.reports}
+    seeds = {tuple(sorted(r)) for r in runs.values()}
+    if len(seeds) != 1:
+        raise SystemExit(f"error: the reports hold different seeds: {sorted(seeds)}")
+    print("| report | runs | adaptive | fixed | (c) change of the means | per-run changes |")
+    print("|---|---|---|---|---|---|")
+    pooled = []
+    for report, by_seed in runs.items():
+        print(describe(str(report), list(by_seed.values())))
+        pooled += list(by_seed.values())
+    print(describe("pooled", pooled))
+    print(f"paper: {PAPER['online_reward_gain_pct']:+.2f} %")
+
+
+if __name__ == "__main__":
+    main()
