@@ -273,7 +273,8 @@ class ChunkReplayBuffer(BaseBuffer):
         """
         s, k = self.online, self.chunk_size
         steps = s.episode_step[p]  # (n_envs,) index of step p inside its episode
-        for length in range(1, k + 1):  # the window a_{p-length+1..p}, inside the episode
+        # the window a_{p-length+1..p}, inside the episode; shorter ones only at an episode end
+        for length in range(1, k + 1) if done.any() else (k,):
             closes = done if length < k else np.ones_like(done)
             envs = np.flatnonzero((steps >= length - 1) & closes)
             start = (p - length + 1) % self.buffer_size
