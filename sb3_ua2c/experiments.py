@@ -69,6 +69,8 @@ METRICS = (
 ONLINE_ARMS = ("fixed", "adaptive", "adaptive_style")
 #: The four arms of Fig. 2 (a)-(c).
 MAIN_METHODS = ("onestep", "chunk", "fixed", "adaptive")
+#: Methods also evaluated with fresh candidate noise per replanning (``Fig2Budget.sampled_eval``).
+SAMPLED_METHODS = ("onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive")
 METHOD_LABELS = {
     "onestep": "one-step baseline (k=1)",
     "chunk": "chunk policy (offline, full chunks)",
@@ -78,6 +80,7 @@ METHOD_LABELS = {
     "fixed_adaptive": "fixed-trained checkpoint, adaptive execution",
     "adaptive_style": "adaptive chunks + style context c_t",
 }
+METHOD_LABELS.update({f"{m}_sampled": f"{METHOD_LABELS[m]}, sampled" for m in SAMPLED_METHODS})
 #: Seed offsets: datasets, evaluation scenarios and style data never share a SUMO seed as long as
 #: run seeds are < MAX_SEED, episodes per dataset < 10,000 and evaluation episodes <= 1,000.
 DATASET_SEED_BASE = 1_000_000  # episode i of run seed s: 1_000_000 + 10_000 s + i
@@ -123,6 +126,10 @@ class Fig2Budget:
         (online scenarios, sampling noise, minibatches; the networks start from the same
         checkpoint): a replicate of the online phase on the same pre-trained checkpoints. 0 = the
         seed itself
+    :param sampled_eval: also evaluate :data:`SAMPLED_METHODS` with fresh candidate noise at every
+        replanning (``predict(deterministic=False)``, seeded per episode), the acting rule of the
+        Phase-2 rollouts, into ``<method>_sampled``; the headline rows use the fixed noise of
+        ``deterministic=True``
     """
 
     dataset_episodes: int = 200
@@ -142,6 +149,7 @@ class Fig2Budget:
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
     finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
     online_seed_offset: int = 0
+    sampled_eval: bool = True
 
     def __post_init__(self) -> None:
         for name in (
@@ -182,8 +190,9 @@ class Fig2Budget:
                 raise ValueError(f"Fig2Budget.elite_sweep holds {m}, more than the {n_candidates} candidates")
         for n in self.flow_sweep:
             check_int("Fig2Budget.flow_sweep", n)
-        if not isinstance(self.style_ablation, bool):
-            raise ValueError(f"Fig2Budget.style_ablation must be a bool, got {self.style_ablation!r}")
+        for name in ("style_ablation", "sampled_eval"):  # JSON bools only (the budget is written to JSON)
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"Fig2Budget.{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("env_kwargs", "algo_kwargs", "finetune_kwargs"):
             if not isinstance(getattr(self, name), Mapping):
                 raise ValueError(f"Fig2Budget.{name} must be a mapping, got {getattr(self, name)!r}")
@@ -330,7 +339,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
-        + 2 * len(budget.acting_variants)
+        + 2 * len(budget.acting_variants) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
     )
     evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
     style = (
@@ -501,6 +510,11 @@ def delta_name(delta: float) -> str:
     return "inf" if math.isinf(delta) else f"{delta:g}".replace("-", "m")
 
 
+def sampled_name(method: str) -> str:
+    """Raw-result name of ``method`` evaluated with fresh candidate noise: ``"chunk"`` -> ``"chunk_sampled"``."""
+    return f"{method}_sampled"
+
+
 def acting_name(arm: str, flow_steps: int | None, n_elite: int) -> str:
     """Method name of an arm evaluated with another acting rule: ``("chunk", 2, 8) -> "chunk_flow2_elite8"``,
     ``("onestep", None, 8) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps)."""
@@ -567,8 +581,10 @@ def _evaluation(
     log: UnitLog,
     n_elite: int | None = None,
     flow_steps: int | None = None,
+    deterministic: bool = True,
 ) -> None:
-    """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists."""
+    """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists
+    (``deterministic``: fixed candidate noise, see :func:`sb3_ua2c.pipeline.evaluate`)."""
     from sb3_ua2c.pipeline import evaluate, summarize, write_json
 
     path = raw / f"{method}.json"
@@ -583,6 +599,7 @@ def _evaluation(
             entropy_threshold=entropy_threshold,
             n_elite=n_elite,
             flow_steps=flow_steps,
+            deterministic=deterministic,
         )
         write_json(
             path,
@@ -596,6 +613,7 @@ def _evaluation(
                 "eval_seed": EVAL_SEED_BASE + seed,
                 "n_elite": n_elite,
                 "flow_steps": flow_steps,
+                "deterministic": deterministic,
                 "summary": summarize(episodes),
                 "episodes": episodes,
             },
@@ -748,6 +766,17 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     _evaluation(raw, "fixed_adaptive", fixed, seed, budget, settings, budget.entropy_threshold, log)
     for delta in budget.delta_sweep:
         _evaluation(raw, f"delta_{delta_name(delta)}", adaptive, seed, budget, settings, delta, log)
+    if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
+        k, delta = budget.chunk_size, budget.entropy_threshold
+        sampled = {
+            "onestep": (ckpt[1], None), "chunk": (ckpt[k], math.inf), "chunk_adaptive": (ckpt[k], delta),
+            "fixed": (fixed, math.inf), "adaptive": (adaptive, delta), "fixed_adaptive": (fixed, delta),
+        }
+        for method in SAMPLED_METHODS:
+            checkpoint, threshold = sampled[method]
+            _evaluation(
+                raw, sampled_name(method), checkpoint, seed, budget, settings, threshold, log, deterministic=False
+            )
     # (d): driving-style inference
     classifier = _style_unit(seed, budget, work, raw, log)
     # beyond the paper: the style context c_t appended to the observation (Eq. 6)
@@ -1145,6 +1174,22 @@ def aggregate(
         result["comparisons"]["offline_jerk_per_step"] = compare(
             per_seed("chunk", "jerk_per_step"), per_seed("onestep", "jerk_per_step")
         )
+    if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
+        sampled = {
+            "offline_reward": ("chunk", "onestep", "reward"),
+            "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
+            "online_reward": ("adaptive", "fixed", "reward"),
+            "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
+            "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
+        }
+        for key, (new, base, metric) in sampled.items():
+            names = (sampled_name(new), sampled_name(base))
+            if all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
+                result["comparisons"][f"{key}_sampled"] = compare(per_seed(names[0], metric), per_seed(names[1], metric))
+        result["sampled"] = {
+            paper_key: result["comparisons"][f"{key}_sampled"]["change_pct"]
+            for paper_key, key in zip(PAPER, ("offline_reward", "offline_jerk", "online_reward"), strict=True)
+        }
     if "adaptive_style" in methods:
         result["style_context"] = {
             "with": "adaptive_style",
@@ -1188,7 +1233,11 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         "",
         "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
         "the per-seed column is the mean ± 95% interval of the per-seed changes. Where a claim is short "
-        "of the paper, the README (section \"Reproducing the paper's Figure 2\") says what was tried.",
+        "of the paper, the README (section \"Reproducing the paper's Figure 2\") says what was tried. "
+        "Rows without a suffix act with fixed candidate noise (`predict(deterministic=True)`: the same "
+        "history always gives the same plan); rows marked \"sampled\" evaluate the same checkpoints "
+        "drawing fresh candidate noise at every replanning, as the rollouts of Phase 2 do (seeded per "
+        "episode).",
         "",
         "| claim | ours | per-seed changes | paper | vs paper |",
         "|---|---|---|---|---|",
@@ -1222,7 +1271,11 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             None,
         ),
     )
-    for label, key, paper_key in (*rows, *extra):
+    sampled_rows = tuple(
+        (f"{label} — sampled", f"{key}_sampled", paper_key)
+        for label, key, paper_key in (*rows, extra[2], extra[5])
+    )
+    for label, key, paper_key in (*rows, *extra, *sampled_rows):
         if key not in c:
             continue
         cmp = c[key]
@@ -1243,6 +1296,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
+    order += [sampled_name(m) for m in SAMPLED_METHODS]
     for m in order:
         if m not in summary["methods"]:
             continue
@@ -1511,13 +1565,19 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
             PAPER["online_reward_gain_pct"],
         ),
     )
+    if "sampled" in summary:  # the same panels for the evaluations with fresh candidate noise
+        panels += tuple(
+            (name.replace(".png", "_sampled.png"), f"{title}, sampled", ylabel, arms, key, summary["sampled"][pk], paper)
+            for (name, title, ylabel, arms, key, _, paper), pk in zip(panels, PAPER, strict=True)
+        )
     short = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
     for name, title, ylabel, arms, key, ours, paper in panels:
+        suffix = "_sampled" if name.endswith("_sampled.png") else ""
         _bar_panel(
             out / name,
             title,
             ylabel,
-            [(short[a], m[a][key]) for a in arms],
+            [(short[a], m[a + suffix][key]) for a in arms],
             f"ours {_pct(ours)}, paper {paper:+.2f}%",
         )
         files.append(out / name)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.monitor import Monitor
 
 from sb3_ua2c.checks import check_int
@@ -221,14 +222,18 @@ def evaluate(
     """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
 
     Episode ``i`` of seed ``s`` is reset with seed ``1000 * s + i`` (the same scenarios for every
-    checkpoint evaluated with the same seeds).
+    checkpoint evaluated with the same seeds). With ``deterministic=False`` every replanning draws
+    fresh candidate noise, as the rollouts of Phase 2 do; the noise of an episode comes from torch's
+    generator seeded with the episode's seed (the global generator is restored afterwards), so
+    sampled evaluations are reproducible too.
 
     :param checkpoint: a ``.zip`` path or a model
     :param n_episodes: episodes per seed
     :param seeds: evaluation seeds
     :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
     :param entropy_threshold: override δ for execution
-    :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``)
+    :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``); ``False``: fresh,
+        seeded noise per replanning
     :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
     :param flow_steps: override the Euler steps of the sampler when acting (``UA2C.set_flow_steps``)
     """
@@ -257,6 +262,14 @@ def evaluate(
 
 
 def _run_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+    if deterministic:
+        return _drive_episode(model, env, seed, deterministic)
+    with th.random.fork_rng(devices=[]):  # seeded candidate noise, the caller's generator untouched
+        th.manual_seed(seed)
+        return _drive_episode(model, env, seed, deterministic)
+
+
+def _drive_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
     obs, info = env.reset(seed=seed)
     state, start = None, np.ones(1, dtype=bool)
     total, jerk, speeds, lengths = 0.0, 0.0, [], []

@@ -115,6 +115,10 @@ def test_budget_validation_names_the_key() -> None:
     with pytest.raises(ValueError, match="elite_sweep holds 9, more than the 8 candidates"):
         Fig2Budget(elite_sweep=(9,), algo_kwargs={"n_candidates": 8})
     assert FULL_BUDGET.replace(elite_sweep=[16, 8, 8]).elite_sweep == (8, 16)
+    for bad in (1, "yes", np.bool_(True)):  # written to JSON: Python bools only
+        with pytest.raises(ValueError, match="Fig2Budget.sampled_eval must be a bool"):
+            Fig2Budget(sampled_eval=bad)
+    assert "sampled_eval" not in experiments.UNIT_FIELDS  # it only adds evaluation units
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.flow_sweep"):
             Fig2Budget(flow_sweep=(bad,))
@@ -165,6 +169,7 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
         style_ablation=False,
         elite_sweep=(),
         flow_sweep=(),
+        sampled_eval=False,
     )
     est = estimate_seconds(budget, n_seeds=2, costs=costs)
     steps = 200  # 40 s / 0.2 s
@@ -177,6 +182,9 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     # acting sweep: (N, m) in {10, 2} x {1, 8} without (10, 1), for both offline checkpoints
     acting = estimate_seconds(budget.replace(elite_sweep=[8], flow_sweep=[2]), n_seeds=2, costs=costs)
     assert acting["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 3) * 2 * steps * 1e-3)
+    # sampled evaluations: the 6 methods of SAMPLED_METHODS once more
+    sampled = estimate_seconds(budget.replace(sampled_eval=True), n_seeds=2, costs=costs)
+    assert sampled["evaluate"] - est["evaluate"] == pytest.approx(2 * 6 * 2 * steps * 1e-3)
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
@@ -216,6 +224,39 @@ def test_aggregate_by_hand() -> None:
     assert out["k_sweep"] == []  # k1 was not evaluated in this hand-made raw set
     with pytest.raises(ValueError, match="adaptive"):
         aggregate({k: v for k, v in raw.items() if k != "adaptive"}, [0, 1], QUICK_BUDGET)
+
+
+def test_aggregate_sampled_rows_by_hand() -> None:
+    raw = {
+        "onestep": {0: _summary(10.0, jerk=100.0)},
+        "chunk": {0: _summary(12.0, jerk=300.0)},
+        "fixed": {0: _summary(20.0)},
+        "adaptive": {0: _summary(18.0)},
+        "onestep_sampled": {0: {**_summary(8.0, jerk=400.0), "jerk_per_step": 4.0}},
+        "chunk_sampled": {0: {**_summary(10.0, jerk=300.0), "jerk_per_step": 2.0}},
+        "fixed_sampled": {0: _summary(16.0)},
+        "adaptive_sampled": {0: _summary(20.0)},
+    }
+    budget = QUICK_BUDGET.replace(delta_sweep=[math.inf], k_sweep=[1])
+    out = aggregate(raw, [0], budget)
+    assert out["offline_jerk_change_pct"] == pytest.approx(200.0)  # fixed noise: (300 - 100) / 100
+    c = out["comparisons"]
+    assert c["offline_reward_sampled"]["change_pct"] == pytest.approx(25.0)  # (10 - 8) / 8
+    assert c["offline_jerk_sampled"]["change_pct"] == pytest.approx(-25.0)  # (300 - 400) / 400
+    assert c["online_reward_sampled"]["change_pct"] == pytest.approx(25.0)  # (20 - 16) / 16
+    assert c["offline_jerk_per_step_sampled"]["change_pct"] == pytest.approx(-50.0)  # (2 - 4) / 4
+    assert "online_execution_rule_sampled" not in c  # fixed_adaptive_sampled was not evaluated
+    assert out["sampled"] == pytest.approx(
+        {"offline_reward_gain_pct": 25.0, "offline_jerk_change_pct": -25.0, "online_reward_gain_pct": 25.0}
+    )
+    md = experiments.format_markdown(out, "cmd", "today")
+    assert "| (b) cumulative jerk, chunk vs one-step — sampled | -25.00% |" in md
+    assert "| (c) online reward, adaptive vs fixed — sampled | +25.00% |" in md and "at or beyond" in md
+    assert "| chunk policy (offline, full chunks), sampled | 10.00 |" in md
+    # without every sampled arm of (a)-(c) there are no sampled rows
+    del raw["fixed_sampled"]
+    out = aggregate(raw, [0], budget)
+    assert "sampled" not in out and "offline_jerk_sampled" not in out["comparisons"]
 
 
 def test_online_phase_stats_and_curve_by_hand() -> None:
@@ -329,8 +370,14 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
     units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
     # dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online evals 3,
-    # δ sweep 2, style 3, ablation 4
-    assert len(units) == 30 and "seed0/pretrain/pretrain_k2" in units
+    # δ sweep 2, sampled evals 6, style 3, ablation 4
+    assert len(units) == 36 and "seed0/pretrain/pretrain_k2" in units
+    for method in experiments.SAMPLED_METHODS:  # fresh candidate noise, recorded as such
+        raw = json.loads((quick_run / "fig2_raw" / "seed0" / f"{method}_sampled.json").read_text())
+        assert raw["deterministic"] is False and f"seed0/evaluate/{method}_sampled" in units
+    assert json.loads((quick_run / "fig2_raw" / "seed0" / "chunk.json").read_text())["deterministic"] is True
+    assert set(summary["sampled"]) == set(experiments.PAPER)
+    assert (quick_run / "fig2_b_offline_jerk_sampled.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
     # (N, m): the checkpoints' N = 10 with m = 2, then N = 2 with m = 1 and 2
     assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 2), (2, 1), (2, 2)]

@@ -297,6 +297,28 @@ def test_evaluate_reports_every_metric(traffic_dataset, tmp_path: Path) -> None:
         evaluate(ckpt, n_episodes=1, env_settings_={"env_kwargs": SHORT_ENV}, entropy_threshold=-math.inf)
 
 
+def test_sampled_evaluation_is_seeded_per_episode(traffic_dataset, tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import evaluate, pretrain
+
+    ckpt = pretrain(traffic_dataset, tmp_path / "pre.zip", 2, algo_kwargs={**TINY, "entropy_threshold": float("inf")})
+    model = UA2C.load(ckpt, device="cpu")  # loading seeds torch (SB3's _setup_model): done once, before
+
+    def run(deterministic: bool) -> list[tuple[float, float]]:
+        episodes = evaluate(model, n_episodes=2, seeds=(0,), env_settings_={"env_kwargs": SHORT_ENV},
+                            deterministic=deterministic)
+        return [(e.reward, e.cumulative_jerk) for e in episodes]
+
+    th.manual_seed(123)
+    before = th.random.get_rng_state()
+    sampled = run(False)
+    assert th.equal(th.random.get_rng_state(), before), "the caller's torch generator is left as it was"
+    th.manual_seed(7)  # another global state: the episodes' noise does not depend on it
+    assert run(False) == sampled
+    # fresh noise per replanning is not the fixed noise of deterministic=True (2 untrained updates:
+    # the chunks are nearly noise, so the two rules drive differently)
+    assert run(True) != sampled
+
+
 def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
     from sb3_ua2c.__main__ import main
 
