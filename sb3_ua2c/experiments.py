@@ -61,6 +61,12 @@ PAPER = {
     "offline_jerk_change_pct": -18.37,
     "online_reward_gain_pct": 13.17,
 }
+#: The comparison behind each of the paper's numbers (``comparisons`` key of ``fig2.json``).
+CLAIM_COMPARISONS = {
+    "offline_reward_gain_pct": "offline_reward",
+    "offline_jerk_change_pct": "offline_jerk",
+    "online_reward_gain_pct": "online_reward",
+}
 #: Metrics of :class:`sb3_ua2c.pipeline.EpisodeMetrics` aggregated per method.
 METRICS = (
     "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
@@ -1187,8 +1193,8 @@ def aggregate(
             if all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
                 result["comparisons"][f"{key}_sampled"] = compare(per_seed(names[0], metric), per_seed(names[1], metric))
         result["sampled"] = {
-            paper_key: result["comparisons"][f"{key}_sampled"]["change_pct"]
-            for paper_key, key in zip(PAPER, ("offline_reward", "offline_jerk", "online_reward"), strict=True)
+            paper_key: result["comparisons"].get(f"{key}_sampled", {}).get("change_pct", math.nan)
+            for paper_key, key in CLAIM_COMPARISONS.items()
         }
     if "adaptive_style" in methods:
         result["style_context"] = {
@@ -1568,7 +1574,7 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
     if "sampled" in summary:  # the same panels for the evaluations with fresh candidate noise
         panels += tuple(
             (name.replace(".png", "_sampled.png"), f"{title}, sampled", ylabel, arms, key, summary["sampled"][pk], paper)
-            for (name, title, ylabel, arms, key, _, paper), pk in zip(panels, PAPER, strict=True)
+            for (name, title, ylabel, arms, key, _, paper), pk in zip(panels, CLAIM_COMPARISONS, strict=True)
         )
     short = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
     for name, title, ylabel, arms, key, ours, paper in panels:

@@ -246,6 +246,7 @@ def test_aggregate_sampled_rows_by_hand() -> None:
     assert c["online_reward_sampled"]["change_pct"] == pytest.approx(25.0)  # (20 - 16) / 16
     assert c["offline_jerk_per_step_sampled"]["change_pct"] == pytest.approx(-50.0)  # (2 - 4) / 4
     assert "online_execution_rule_sampled" not in c  # fixed_adaptive_sampled was not evaluated
+    assert set(experiments.CLAIM_COMPARISONS) == set(experiments.PAPER)
     assert out["sampled"] == pytest.approx(
         {"offline_reward_gain_pct": 25.0, "offline_jerk_change_pct": -25.0, "online_reward_gain_pct": 25.0}
     )
