@@ -2,13 +2,15 @@
 
 Usage::
 
-    python benchmarks/pool_online_replicates.py results results/fig2_online_seeds [more report dirs]
+    python benchmarks/pool_online_replicates.py results results/fig2_online_seeds [more report dirs] [--sampled]
 
 Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
 evaluations of the two fine-tuned arms. The replicates must share their pre-trained checkpoints
 (same seeds, same Phase-1 budget) and differ in the online seeds only. Prints per directory and
 pooled: the mean reward of both arms, (c) as the change of the means, and the mean ± 95 %
 Student-t interval of the paired per-run changes (one run = one seed of one replicate).
+``--sampled`` pools the evaluations with fresh candidate noise (``{adaptive,fixed}_sampled.json``,
+``Fig2Budget.sampled_eval``) instead.
 """
 
 from __future__ import annotations
@@ -22,11 +24,13 @@ import numpy as np
 from sb3_ua2c.experiments import PAPER, relative_change_pct, t_confidence_interval
 
 
-def arm_rewards(report: Path) -> dict[int, tuple[float, float]]:
-    """``{seed: (adaptive reward, fixed reward)}`` of one report directory."""
+def arm_rewards(report: Path, suffix: str = "") -> dict[int, tuple[float, float]]:
+    """``{seed: (adaptive reward, fixed reward)}`` of one report directory (``suffix``: ``"_sampled"``)."""
     out = {}
     for seed_dir in sorted((report / "fig2_raw").glob("seed*")):
-        arms = [json.loads((seed_dir / f"{arm}.json").read_text())["summary"]["reward"] for arm in ("adaptive", "fixed")]
+        arms = [
+            json.loads((seed_dir / f"{arm}{suffix}.json").read_text())["summary"]["reward"] for arm in ("adaptive", "fixed")
+        ]
         out[int(seed_dir.name.removeprefix("seed"))] = (arms[0], arms[1])
     if not out:
         raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
@@ -46,8 +50,9 @@ def describe(name: str, pairs: list[tuple[float, float]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("reports", nargs="+", type=Path)
+    parser.add_argument("--sampled", action="store_true", help="pool the evaluations with fresh candidate noise")
     args = parser.parse_args()
-    runs = {report: arm_rewards(report) for report in args.reports}
+    runs = {report: arm_rewards(report, "_sampled" if args.sampled else "") for report in args.reports}
     seeds = {tuple(sorted(r)) for r in runs.values()}
     if len(seeds) != 1:
         raise SystemExit(f"error: the reports hold different seeds: {sorted(seeds)}")
