@@ -125,6 +125,10 @@ class Fig2Budget:
     :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
     :param algo_kwargs: extra UA2C constructor arguments of every pre-trained arm (the fine-tuned
         arms inherit them from their checkpoint), e.g. ``{"smooth_weight": 100.0}``
+    :param onestep_kwargs: UA2C constructor arguments of the one-step baseline (k = 1, also the k
+        sweep's k = 1) that replace those of ``algo_kwargs`` key by key, so that each arm can run
+        at its own size, e.g. ``{"policy_kwargs": {"net_arch": [128, 128]}}`` next to a larger
+        chunk actor in ``algo_kwargs``; empty = the same arguments as the chunk policy
     :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
         fine-tuned arm (e.g. ``{"smooth_weight": 100.0}``; ``train_freq`` and ``gradient_steps``
         are set by the runner, see :func:`finetune_overrides`)
@@ -153,6 +157,7 @@ class Fig2Budget:
     flow_sweep: tuple[int, ...] = (2,)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    onestep_kwargs: Mapping[str, Any] = field(default_factory=dict)
     finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
     online_seed_offset: int = 0
     sampled_eval: bool = True
@@ -189,7 +194,10 @@ class Fig2Budget:
         ks = tuple(self.k_sweep)
         for k in ks:
             check_int("Fig2Budget.k_sweep", k)
-        n_candidates = self.algo_kwargs.get("n_candidates", 32) if isinstance(self.algo_kwargs, Mapping) else 32
+        n_candidates = min(
+            kwargs.get("n_candidates", 32) if isinstance(kwargs, Mapping) else 32
+            for kwargs in (self.algo_kwargs, self.onestep_kwargs)
+        )
         for m in self.elite_sweep:
             check_int("Fig2Budget.elite_sweep", m)
             if m > n_candidates:
@@ -199,14 +207,15 @@ class Fig2Budget:
         for name in ("style_ablation", "sampled_eval"):  # JSON bools only (the budget is written to JSON)
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"Fig2Budget.{name} must be a bool, got {getattr(self, name)!r}")
-        for name in ("env_kwargs", "algo_kwargs", "finetune_kwargs"):
+        for name in ("env_kwargs", "algo_kwargs", "onestep_kwargs", "finetune_kwargs"):
             if not isinstance(getattr(self, name), Mapping):
                 raise ValueError(f"Fig2Budget.{name} must be a mapping, got {getattr(self, name)!r}")
-        reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
-        if reserved:
-            raise ValueError(
-                f"Fig2Budget.algo_kwargs must not set {sorted(reserved)}: they are Fig2Budget fields"
-            )
+        for name in ("algo_kwargs", "onestep_kwargs"):
+            reserved = {"chunk_size", "entropy_threshold"} & set(getattr(self, name))
+            if reserved:
+                raise ValueError(
+                    f"Fig2Budget.{name} must not set {sorted(reserved)}: they are Fig2Budget fields"
+                )
         reserved = {"chunk_size", "entropy_threshold", "train_freq", "gradient_steps"} & set(self.finetune_kwargs)
         if reserved:
             raise ValueError(
@@ -219,6 +228,7 @@ class Fig2Budget:
         object.__setattr__(self, "entropy_threshold", float(self.entropy_threshold))
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
+        object.__setattr__(self, "onestep_kwargs", dict(self.onestep_kwargs))
         object.__setattr__(self, "finetune_kwargs", dict(self.finetune_kwargs))
 
     @classmethod
@@ -254,6 +264,11 @@ class Fig2Budget:
         without ``(None, 1)``, which is how (a) and (b) act."""
         pairs = [(n, m) for n in (None, *self.flow_sweep) for m in (1, *self.elite_sweep)]
         return tuple(p for p in pairs if p != (None, 1))
+
+    def arm_kwargs(self, k: int) -> dict[str, Any]:
+        """UA2C constructor arguments of the pre-trained arm with chunk length ``k``."""
+        extra = self.onestep_kwargs if k == 1 else {}
+        return {**self.algo_kwargs, **extra, "chunk_size": k, "entropy_threshold": self.entropy_threshold}
 
     @property
     def pretrain_ks(self) -> tuple[int, ...]:
@@ -733,9 +748,8 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     def pretrained(k: int, dataset: Any, name: str) -> Path:
         path = work / f"{name}.zip"
         if not path.is_file():
-            kwargs = {**budget.algo_kwargs, "chunk_size": k, "entropy_threshold": budget.entropy_threshold}
             with log.timed(f"seed{seed}/pretrain/{name}"):
-                pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=kwargs)
+                pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=budget.arm_kwargs(k))
         return path
 
     def finetuned(start: Path, dataset: Any, name: str, delta: float) -> Path:
@@ -872,6 +886,7 @@ UNIT_FIELDS = (
     "style_max_epochs",
     "env_kwargs",
     "algo_kwargs",
+    "onestep_kwargs",
     "finetune_kwargs",
     "online_seed_offset",
 )
@@ -1406,6 +1421,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
         f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
         f"UA2C {b['algo_kwargs'] or 'defaults'}"
+        + (f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else "")
         + (f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else "")
         + (
             f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}"

@@ -533,6 +533,63 @@ def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path
     assert calls == [("pretrain_k3.zip", 1 + 2 * experiments.MAX_SEED)]
 
 
+def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
+    import shutil
+
+    from sb3_ua2c import pipeline
+
+    small, large = {"net_arch": [128, 128]}, {"net_arch": [256, 256, 256]}
+    budget = QUICK_BUDGET.replace(
+        algo_kwargs={"batch_size": 32, "policy_kwargs": large}, onestep_kwargs={"policy_kwargs": small}
+    )
+    # key by key over algo_kwargs, for k = 1 only
+    assert budget.arm_kwargs(1) == {"batch_size": 32, "policy_kwargs": small, "chunk_size": 1, "entropy_threshold": 0.0}
+    assert budget.arm_kwargs(3) == {"batch_size": 32, "policy_kwargs": large, "chunk_size": 3, "entropy_threshold": 0.0}
+    assert QUICK_BUDGET.arm_kwargs(1) == {"batch_size": 32, "chunk_size": 1, "entropy_threshold": 0.0}
+    assert Fig2Budget.from_dict(budget.to_dict()) == budget
+    assert Fig2Budget.from_dict({k: v for k, v in FULL_BUDGET.to_dict().items() if k != "onestep_kwargs"}) == FULL_BUDGET
+    assert "onestep_kwargs" in experiments.UNIT_FIELDS  # a resumed run refuses another one-step size
+    with pytest.raises(ValueError, match=r"onestep_kwargs must not set \['chunk_size'\]"):
+        Fig2Budget(onestep_kwargs={"chunk_size": 1})
+    with pytest.raises(ValueError, match="onestep_kwargs must be a mapping"):
+        Fig2Budget(onestep_kwargs=[("policy_kwargs", small)])
+    with pytest.raises(ValueError, match="elite_sweep holds 16, more than the 8 candidates"):
+        Fig2Budget(onestep_kwargs={"n_candidates": 8})  # the default elite sweep reaches 16
+    # the runner passes them to the k = 1 unit alone
+    paths = experiments.RunPaths.under(tmp_path)
+    paths.seed_work(1).mkdir(parents=True)
+    shutil.copytree(quick_run / "fig2_work" / "seed1" / "dataset", paths.seed_work(1) / "dataset")
+    calls = {}
+
+    def fake_pretrain(dataset, out, steps, seed, algo_kwargs):
+        calls[Path(out).name] = algo_kwargs
+        if len(calls) == len(budget.pretrain_ks):
+            raise KeyboardInterrupt  # stop before the evaluations
+        return Path(out)
+
+    monkeypatch.setattr(pipeline, "pretrain", fake_pretrain)
+    with pytest.raises(KeyboardInterrupt):
+        experiments.run_seed(1, budget, paths)
+    assert calls == {f"pretrain_k{k}.zip": budget.arm_kwargs(k) for k in (1, 2, 3)}
+    assert calls["pretrain_k1.zip"]["policy_kwargs"] == small and calls["pretrain_k3.zip"]["policy_kwargs"] == large
+
+
+def test_explicit_default_net_arch_builds_the_same_networks() -> None:
+    """``onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}`` trains the default one-step
+    baseline: a checkpoint of the default budget stands for it."""
+    import gymnasium as gym
+
+    from sb3_ua2c import UA2C
+
+    models = [
+        UA2C("MlpPolicy", gym.make("Pendulum-v1"), seed=3, device="cpu", **kwargs)
+        for kwargs in ({}, {"policy_kwargs": {"net_arch": [128, 128]}})
+    ]
+    (a, b) = (m.policy.state_dict() for m in models)
+    assert a.keys() == b.keys()
+    assert all(np.array_equal(a[key].numpy(), b[key].numpy()) for key in a)
+
+
 def test_command_line_is_quoted_for_the_shell() -> None:
     assert experiments.command_line("python -m sb3_ua2c fig2", []) == "python -m sb3_ua2c fig2"
     line = experiments.command_line("python -m sb3_ua2c fig2", ["--budget", '{"a": 1}', "--out", "r"])
