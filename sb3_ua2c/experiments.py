@@ -130,7 +130,7 @@ class Fig2Budget:
         at its own size, e.g. ``{"policy_kwargs": {"net_arch": [128, 128]}}`` next to a larger
         chunk actor in ``algo_kwargs``; empty = the same arguments as the chunk policy
     :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
-        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}``; ``train_freq`` and ``gradient_steps``
+        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}`` or ``{"n_elite": 8}``; ``train_freq`` and ``gradient_steps``
         are set by the runner, see :func:`finetune_overrides`)
     :param online_seed_offset: Phase 2 of seed ``s`` runs with seed ``s + MAX_SEED · offset``
         (online scenarios, sampling noise, minibatches; the networks start from the same

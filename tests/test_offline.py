@@ -256,6 +256,28 @@ def test_pretrain_then_finetune_starts_from_loaded_weights(traffic_dataset, tmp_
     assert any(not th.equal(v, saved[k]) for k, v in tuned.policy.state_dict().items()), "online updates ran"
 
 
+def test_finetune_n_elite_override_reaches_rollouts_and_checkpoint(traffic_dataset, tmp_path: Path, monkeypatch) -> None:
+    from sb3_ua2c.pipeline import finetune, pretrain
+
+    ckpt = pretrain(traffic_dataset, tmp_path / "pre.zip", 2, algo_kwargs=TINY)
+    seen = []
+    original = UA2C.learn
+
+    def learn(self, *args, **kwargs):  # the elite mean is set before the first rollout
+        seen.append(self.policy.n_elite)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(UA2C, "learn", learn)
+    out = finetune(ckpt, tmp_path / "fine.zip", 6, dataset=traffic_dataset, algo_overrides={"n_elite": 2})
+    assert seen == [2]
+    tuned = UA2C.load(out)
+    assert tuned.policy.n_elite == 2 and tuned.policy_kwargs["n_elite"] == 2
+    assert UA2C.load(ckpt).policy.n_elite == 1  # the pre-trained checkpoint is untouched
+    with pytest.raises(ValueError, match="n_elite=5 must not exceed n_candidates=4"):
+        finetune(ckpt, tmp_path / "bad.zip", 6, dataset=traffic_dataset, algo_overrides={"n_elite": 5})
+    assert not (tmp_path / "bad.zip").exists()
+
+
 def test_mismatched_dataset_or_checkpoint_raises(traffic_dataset, tmp_path: Path) -> None:
     from sb3_ua2c.pipeline import evaluate, finetune, pretrain
 
