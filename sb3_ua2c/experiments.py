@@ -216,6 +216,12 @@ class Fig2Budget:
                 raise ValueError(
                     f"Fig2Budget.{name} must not set {sorted(reserved)}: they are Fig2Budget fields"
                 )
+        elites = {k: _policy_elite(self, k) for k in (1, self.chunk_size)}
+        if elites[1] != elites[self.chunk_size]:  # (a) and (b) compare both arms acting by one rule
+            raise ValueError(
+                f"Fig2Budget.onestep_kwargs: the one-step baseline acts with n_elite={elites[1]} and the "
+                f"chunk policy with n_elite={elites[self.chunk_size]}; (a) and (b) need the same acting rule"
+            )
         reserved = {"chunk_size", "entropy_threshold", "train_freq", "gradient_steps"} & set(self.finetune_kwargs)
         if reserved:
             raise ValueError(
@@ -259,11 +265,19 @@ class Fig2Budget:
         return out
 
     @property
+    def default_elite(self) -> int:
+        """``n_elite`` the pre-trained arms act with (their ``policy_kwargs``; 1 = best-of-S)."""
+        return _policy_elite(self, self.chunk_size)
+
+    @property
     def acting_variants(self) -> tuple[tuple[int | None, int], ...]:
-        """``(flow_steps, n_elite)`` pairs of the acting sweep (``None`` = the checkpoint's ``N``),
-        without ``(None, 1)``, which is how (a) and (b) act."""
-        pairs = [(n, m) for n in (None, *self.flow_sweep) for m in (1, *self.elite_sweep)]
-        return tuple(p for p in pairs if p != (None, 1))
+        """``(flow_steps, n_elite)`` pairs of the acting sweep (``None`` = the checkpoint's ``N``):
+        ``n_elite`` in :attr:`default_elite`, 1 and ``elite_sweep``, without
+        ``(None, default_elite)``, which is how (a) and (b) act."""
+        m0 = self.default_elite
+        elites = (m0, *sorted({1, *self.elite_sweep} - {m0}))
+        pairs = [(n, m) for n in (None, *self.flow_sweep) for m in elites]
+        return tuple(p for p in pairs if p != (None, m0))
 
     def arm_kwargs(self, k: int) -> dict[str, Any]:
         """UA2C constructor arguments of the pre-trained arm with chunk length ``k``."""
@@ -274,6 +288,12 @@ class Fig2Budget:
     def pretrain_ks(self) -> tuple[int, ...]:
         """Chunk lengths pre-trained per seed: 1, ``chunk_size`` and the k sweep."""
         return tuple(sorted({1, self.chunk_size, *self.k_sweep}))
+
+
+def _policy_elite(budget: Fig2Budget, k: int) -> int:
+    """``policy_kwargs["n_elite"]`` of the arm with chunk length ``k`` (1 when unset)."""
+    policy_kwargs = budget.arm_kwargs(k).get("policy_kwargs") or {}
+    return int(policy_kwargs.get("n_elite", 1)) if isinstance(policy_kwargs, Mapping) else 1
 
 
 #: Default budget: about two hours for 5 seeds on 2 cores (see :func:`estimate_seconds`).
@@ -536,10 +556,12 @@ def sampled_name(method: str) -> str:
     return f"{method}_sampled"
 
 
-def acting_name(arm: str, flow_steps: int | None, n_elite: int) -> str:
+def acting_name(arm: str, flow_steps: int | None, n_elite: int, default_elite: int = 1) -> str:
     """Method name of an arm evaluated with another acting rule: ``("chunk", 2, 8) -> "chunk_flow2_elite8"``,
-    ``("onestep", None, 8) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps)."""
-    return arm + ("" if flow_steps is None else f"_flow{flow_steps}") + ("" if n_elite == 1 else f"_elite{n_elite}")
+    ``("onestep", None, 8) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps; ``n_elite``
+    is named unless it is the checkpoints' ``default_elite``: ``("chunk", None, 1, 8) -> "chunk_elite1"``)."""
+    elite = "" if n_elite == default_elite else f"_elite{n_elite}"
+    return arm + ("" if flow_steps is None else f"_flow{flow_steps}") + elite
 
 
 def command_line(prog: str, argv: Sequence[str]) -> str:
@@ -776,7 +798,8 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
         for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
             delta = None if k == 1 else math.inf
-            _evaluation(raw, acting_name(arm, n, m), ckpt[k], seed, budget, settings, delta, log, m, n)
+            name = acting_name(arm, n, m, budget.default_elite)
+            _evaluation(raw, name, ckpt[k], seed, budget, settings, delta, log, m, n)
     # (c): both from the same chunk checkpoint, same online budget
     adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
     fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
@@ -1145,8 +1168,9 @@ def aggregate(
     from sb3_ua2c.ua2c import UA2CConfig
 
     default_n = int(budget.algo_kwargs.get("flow_steps", UA2CConfig.flow_steps))
+    result["acting_default"] = {"flow_steps": default_n, "n_elite": budget.default_elite}
     for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints
-        arms = {arm: acting_name(arm, n, m) for arm in ("onestep", "chunk")}
+        arms = {arm: acting_name(arm, n, m, budget.default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
         row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
@@ -1386,10 +1410,12 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
                 f"| {_fmt(row['collision'])} |"
             )
     if summary.get("acting_sweep"):
+        default = summary.get("acting_default", {"n_elite": 1})
         lines += [
             "",
             "## Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
-            "the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and m = 1",
+            f"the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and "
+            f"m = {default['n_elite']}",
             "",
             "| N | m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
             "chunk jerk per step | chunk collision rate |",

@@ -128,6 +128,18 @@ def test_budget_validation_names_the_key() -> None:
     budget = FULL_BUDGET.replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
     assert budget.k_sweep == (3, 10) and budget.delta_sweep == (0.0, math.inf)
     assert budget.pretrain_ks == (1, 3, 5, 10)  # 1 and chunk_size always
+    # checkpoints that act by an elite mean: the sweep names m = 1 and evaluates it like any other m
+    elite8 = {"policy_kwargs": {"n_elite": 8}}
+    budget = FULL_BUDGET.replace(algo_kwargs=elite8, elite_sweep=[4, 8], flow_sweep=[2])
+    assert budget.default_elite == 8 and FULL_BUDGET.default_elite == 1
+    assert budget.acting_variants == ((None, 1), (None, 4), (2, 8), (2, 1), (2, 4))
+    assert [experiments.acting_name("chunk", n, m, 8) for n, m in budget.acting_variants] == [
+        "chunk_elite1", "chunk_elite4", "chunk_flow2", "chunk_flow2_elite1", "chunk_flow2_elite4"
+    ]
+    assert experiments.acting_name("onestep", None, 8) == "onestep_elite8"  # default_elite = 1: the old names
+    assert Fig2Budget(algo_kwargs=elite8).arm_kwargs(1)["policy_kwargs"] == elite8["policy_kwargs"]  # inherited
+    with pytest.raises(ValueError, match="one-step baseline acts with n_elite=1 and the chunk policy with n_elite=8"):
+        Fig2Budget(algo_kwargs=elite8, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}})
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
 
 
