@@ -333,6 +333,11 @@ class CostModel:
     :param style_context_factor: slowdown of env steps with the style wrapper
     :param adaptive_plan_length: assumed mean ``L_t`` of the adaptive arm (one replanning per L steps)
     :param plan_ms: one replanning during Phase 2
+    :param update_ms_per_kweight: extra cost of a gradient step (Phase 1 and 2) per 1,000
+        hidden-to-hidden weights of the velocity field beyond the default 128 × 2 (see
+        :func:`velocity_field_weights`; measured on 2026-12-02 with one torch thread: 128 × 2 / 3 × 256 /
+        3 × 512 took 13.4 / 19.2 / 32.4 ms per step at k = 1 and 25.5 / 29.8 / 41.8 ms at k = 5)
+    :param plan_ms_per_kweight: the same for one replanning (measured 1.6 / 2.6 / 5.5 ms at k = 5)
     """
 
     collect_ms_per_step: float = 0.4
@@ -346,6 +351,17 @@ class CostModel:
     style_context_factor: float = 2.0
     adaptive_plan_length: float = 1.0
     plan_ms: float = 4.0
+    update_ms_per_kweight: float = 0.032
+    plan_ms_per_kweight: float = 0.008
+
+
+def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
+    """Hidden-to-hidden weights of the velocity field that UA2C arguments ``kwargs`` build
+    (``policy_kwargs["net_arch"]``, default 128 × 2: 16,384), the part of its size that grows with
+    the hidden widths."""
+    policy_kwargs = kwargs.get("policy_kwargs") or {}
+    net_arch = list(policy_kwargs.get("net_arch") or [128, 128]) if isinstance(policy_kwargs, Mapping) else [128, 128]
+    return sum(a * b for a, b in zip(net_arch[:-1], net_arch[1:]))
 
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None = None) -> dict[str, float]:
@@ -363,17 +379,25 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     ms = 1e-3
     data = budget.dataset_episodes * steps_per_episode * c.collect_ms_per_step * ms
 
+    default_weights = velocity_field_weights({})
+
+    def extra_kweights(k: int) -> float:  # velocity-field weights beyond the default, in thousands
+        return max(0, velocity_field_weights(budget.arm_kwargs(k)) - default_weights) / 1000
+
     def pretrain_s(k: int) -> float:
-        return budget.pretrain_steps * (c.pretrain_ms_per_step + k * c.pretrain_ms_per_step_per_k) * ms
+        per_step = c.pretrain_ms_per_step + k * c.pretrain_ms_per_step_per_k + extra_kweights(k) * c.update_ms_per_kweight
+        return budget.pretrain_steps * per_step * ms
 
     pre = sum(pretrain_s(k) for k in budget.pretrain_ks)
     updates_scale = budget.algo_kwargs.get("batch_size", 256) / 256
 
+    extra = extra_kweights(budget.chunk_size)
+
     def online(plan_length: float) -> float:  # one update per chunk_size env steps (both arms)
         per_step = (
             c.finetune_ms_per_env_step
-            + c.plan_ms / plan_length
-            + c.finetune_ms_per_update * updates_scale / budget.chunk_size
+            + (c.plan_ms + extra * c.plan_ms_per_kweight) / plan_length
+            + (c.finetune_ms_per_update * updates_scale + extra * c.update_ms_per_kweight) / budget.chunk_size
         )
         return budget.finetune_steps * per_step * ms
 
@@ -382,7 +406,9 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
         + 2 * len(budget.acting_variants) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
     )
-    evals = n_evals * budget.eval_episodes * steps_per_episode * c.eval_ms_per_step * ms
+    # a larger velocity field replans more slowly: chunk arms replan about every k steps, one-step arms every step
+    eval_ms = c.eval_ms_per_step + (extra / budget.chunk_size + extra_kweights(1)) * c.plan_ms_per_kweight
+    evals = n_evals * budget.eval_episodes * steps_per_episode * eval_ms * ms
     style = (
         budget.style_episodes * steps_per_episode * c.style_ms_per_step * ms
         + budget.style_max_epochs * c.style_s_per_epoch * budget.style_episodes / 60

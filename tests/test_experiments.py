@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -197,6 +198,18 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     # sampled evaluations: the 6 methods of SAMPLED_METHODS once more
     sampled = estimate_seconds(budget.replace(sampled_eval=True), n_seeds=2, costs=costs)
     assert sampled["evaluate"] - est["evaluate"] == pytest.approx(2 * 6 * 2 * steps * 1e-3)
+    # a larger velocity field for the chunk policy alone: its gradient steps and replannings cost more
+    assert experiments.velocity_field_weights({}) == 128 * 128
+    assert experiments.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
+    wide = budget.replace(
+        algo_kwargs={"policy_kwargs": {"net_arch": [512, 512, 512]}}, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}
+    )
+    est_wide = estimate_seconds(wide, n_seeds=2, costs=dataclasses.replace(costs, update_ms_per_kweight=1.0, plan_ms_per_kweight=2.0))
+    extra = (2 * 512 * 512 - 128 * 128) / 1000  # 507.904 thousand weights beyond 128 x 2
+    assert est_wide["pretrain"] - est["pretrain"] == pytest.approx(2 * 100 * extra * 1e-3)  # k = 2 only
+    # adaptive (L = 1) and fixed (L = 2) replannings, one update per k = 2 env steps for both arms
+    assert est_wide["finetune"] - est["finetune"] == pytest.approx(2 * 50 * (2 * extra / 1 + extra / 2 + 2 * extra / 2 + extra / 2) * 1e-3)
+    assert est_wide["evaluate"] - est["evaluate"] == pytest.approx(2 * 8 * 2 * steps * 2 * (extra / 2) * 1e-3)
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
