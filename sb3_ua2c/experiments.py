@@ -290,10 +290,16 @@ class Fig2Budget:
         return tuple(sorted({1, self.chunk_size, *self.k_sweep}))
 
 
+def _policy_kwargs(kwargs: Mapping[str, Any]) -> Mapping[str, Any]:
+    """``policy_kwargs`` of UA2C arguments ``kwargs`` (empty when unset or not a mapping: UA2C itself
+    rejects the latter when the arm is built)."""
+    policy_kwargs = kwargs.get("policy_kwargs") or {}
+    return policy_kwargs if isinstance(policy_kwargs, Mapping) else {}
+
+
 def _policy_elite(budget: Fig2Budget, k: int) -> int:
     """``policy_kwargs["n_elite"]`` of the arm with chunk length ``k`` (1 when unset)."""
-    policy_kwargs = budget.arm_kwargs(k).get("policy_kwargs") or {}
-    return int(policy_kwargs.get("n_elite", 1)) if isinstance(policy_kwargs, Mapping) else 1
+    return int(_policy_kwargs(budget.arm_kwargs(k)).get("n_elite", 1))
 
 
 #: Default budget: about two hours for 5 seeds on 2 cores (see :func:`estimate_seconds`).
@@ -359,8 +365,9 @@ def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
     """Hidden-to-hidden weights of the velocity field that UA2C arguments ``kwargs`` build
     (``policy_kwargs["net_arch"]``, default 128 × 2: 16,384), the part of its size that grows with
     the hidden widths."""
-    policy_kwargs = kwargs.get("policy_kwargs") or {}
-    net_arch = list(policy_kwargs.get("net_arch") or [128, 128]) if isinstance(policy_kwargs, Mapping) else [128, 128]
+    from sb3_ua2c.policies import DEFAULT_NET_ARCH
+
+    net_arch = list(_policy_kwargs(kwargs).get("net_arch") or DEFAULT_NET_ARCH)
     return sum(a * b for a, b in zip(net_arch[:-1], net_arch[1:]))
 
 
@@ -821,10 +828,11 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
     )
     for k in budget.k_sweep:
         _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
+    default_elite = budget.default_elite
     for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
         for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
             delta = None if k == 1 else math.inf
-            name = acting_name(arm, n, m, budget.default_elite)
+            name = acting_name(arm, n, m, default_elite)
             _evaluation(raw, name, ckpt[k], seed, budget, settings, delta, log, m, n)
     # (c): both from the same chunk checkpoint, same online budget
     adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
@@ -1194,9 +1202,10 @@ def aggregate(
     from sb3_ua2c.ua2c import UA2CConfig
 
     default_n = int(budget.algo_kwargs.get("flow_steps", UA2CConfig.flow_steps))
-    result["acting_default"] = {"flow_steps": default_n, "n_elite": budget.default_elite}
+    default_elite = budget.default_elite
+    result["acting_default"] = {"flow_steps": default_n, "n_elite": default_elite}
     for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints
-        arms = {arm: acting_name(arm, n, m, budget.default_elite) for arm in ("onestep", "chunk")}
+        arms = {arm: acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
         row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}

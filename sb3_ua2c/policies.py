@@ -268,6 +268,10 @@ class ChunkCritics(nn.Module):
         return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
 
 
+#: Hidden sizes of the velocity field when ``net_arch`` is not given.
+DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
+
+
 class UA2CPolicy(BasePolicy):
     """
     Policy of UA2C: flow-matching chunk actor, twin Transformer chunk critics (+ Polyak targets) and
@@ -340,7 +344,7 @@ class UA2CPolicy(BasePolicy):
             squash_output=True,
             normalize_images=False,
         )
-        net_arch = [128, 128] if net_arch is None else list(net_arch)
+        net_arch = list(DEFAULT_NET_ARCH if net_arch is None else net_arch)
         for name, value in [
             ("critic_embed_dim", critic_embed_dim),
             ("critic_n_layers", critic_n_layers),
