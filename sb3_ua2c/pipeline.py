@@ -157,8 +157,8 @@ def finetune(
     :param seed: seed of the online phase
     :param callback: SB3 callback(s) passed to ``learn``
     :param algo_overrides: further attributes to override on load (e.g. ``{"gradient_steps": 1}``);
-        ``n_elite`` goes through :meth:`UA2C.set_n_elite` (rollouts and the saved checkpoint act by
-        the elite mean); shape-changing arguments (``chunk_size``, ``history_len``,
+        ``n_elite`` sets the policy's elite mean (``UA2C.load``: rollouts and the saved checkpoint act
+        by it); shape-changing arguments (``chunk_size``, ``history_len``,
         ``policy_kwargs``) are refused
     :param monitor_file: write SB3's ``Monitor`` log of the online episodes (return, length, wall
         time and ``collision``) to this CSV file (``.monitor.csv`` is appended unless present); read
@@ -173,7 +173,6 @@ def finetune(
     if shape_args:
         raise ValueError(f"algo_overrides cannot change the network shapes of a checkpoint: {sorted(shape_args)}")
     overrides: dict[str, Any] = {"learning_starts": 0, **(algo_overrides or {})}
-    n_elite = overrides.pop("n_elite", None)  # a policy setting, not an attribute of the algorithm
     if offline_ratio is not None:
         overrides["offline_ratio"] = offline_ratio
     if entropy_threshold is not None:
@@ -183,8 +182,6 @@ def finetune(
         env = Monitor(env, str(monitor_file), info_keywords=("collision",))
     try:
         model = load_checkpoint(checkpoint, env, **overrides)
-        if n_elite is not None:
-            model.set_n_elite(n_elite)
         model.set_random_seed(seed)
         if ds is not None:
             ds.check_compatible(env)

@@ -383,6 +383,37 @@ class UA2C(OffPolicyAlgorithm):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "actor.optimizer", "critic.optimizer"], []
 
+    @classmethod
+    def load(  # type: ignore[override]
+        cls,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> UA2C:
+        """
+        SB3's ``load``; keyword arguments override the saved attributes as in SB3
+        (``UA2C.load(path, flow_steps=2)``), and ``n_elite=m`` sets the elite mean of the loaded
+        policy (:meth:`set_n_elite`). Without that, SB3 would store ``n_elite`` as an unused
+        attribute and the policy would go on acting with its saved ``m``.
+        """
+        n_elite = kwargs.pop("n_elite", None)
+        model = super().load(
+            path,
+            env=env,
+            device=device,
+            custom_objects=custom_objects,
+            print_system_info=print_system_info,
+            force_reset=force_reset,
+            **kwargs,
+        )
+        if n_elite is not None:
+            model.set_n_elite(n_elite)
+        return model
+
     def set_parameters(
         self,
         load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],

@@ -242,6 +242,27 @@ def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
             model.set_n_elite(bad)
 
 
+def test_load_n_elite_override_sets_the_policy(tmp_path):
+    """``UA2C.load(path, n_elite=m)`` acts by the elite mean of m, as ``set_n_elite`` does."""
+    kwargs = {k: v for k, v in FAST.items() if k != "n_candidates"}
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **kwargs)
+    model.save(tmp_path / "m.zip")
+    obs = np.zeros(3, dtype=np.float32)
+    model.set_n_elite(4)
+    mean, _ = model.predict(obs, deterministic=True)
+    loaded = UA2C.load(tmp_path / "m.zip", n_elite=4)
+    assert loaded.policy.n_elite == 4 and loaded.policy_kwargs["n_elite"] == 4
+    assert "n_elite" not in loaded.__dict__  # not left behind as an unused attribute
+    assert np.array_equal(loaded.predict(obs, deterministic=True)[0], mean)
+    loaded.save(tmp_path / "m4.zip")  # and kept by save
+    assert UA2C.load(tmp_path / "m4.zip").policy.n_elite == 4
+    assert UA2C.load(tmp_path / "m.zip").policy.n_elite == 1  # the file itself is unchanged
+    with pytest.raises(ValueError, match="n_elite=5 must not exceed n_candidates=4"):
+        UA2C.load(tmp_path / "m.zip", n_elite=5)
+    with pytest.raises(ValueError, match="n_elite"):
+        UA2C.load(tmp_path / "m.zip", n_elite=0)
+
+
 def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
     from sb3_ua2c.policies import DETERMINISTIC_NOISE_SEED
 
