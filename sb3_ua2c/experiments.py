@@ -136,6 +136,10 @@ class Fig2Budget:
         (online scenarios, sampling noise, minibatches; the networks start from the same
         checkpoint): a replicate of the online phase on the same pre-trained checkpoints. 0 = the
         seed itself
+    :param online_replicates: online phases per seed, all from the same pre-trained checkpoint: phase
+        ``r`` runs with offset ``online_seed_offset + r`` (units ``adaptive_r<r>`` / ``fixed_r<r>``
+        for ``r >= 1``). (c) pools the paired runs of every phase: one online phase moves a
+        five-seed mean by 10-20 %, more than the paper's +13.17 %
     :param sampled_eval: also evaluate :data:`SAMPLED_METHODS` with fresh candidate noise at every
         replanning (``predict(deterministic=False)``, seeded per episode), the acting rule of the
         Phase-2 rollouts, into ``<method>_sampled``; the headline rows use the fixed noise of
@@ -160,6 +164,7 @@ class Fig2Budget:
     onestep_kwargs: Mapping[str, Any] = field(default_factory=dict)
     finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
     online_seed_offset: int = 0
+    online_replicates: int = 1
     sampled_eval: bool = True
 
     def __post_init__(self) -> None:
@@ -174,6 +179,7 @@ class Fig2Budget:
             check_int(f"Fig2Budget.{name}", getattr(self, name))
         check_int("Fig2Budget.style_episodes", self.style_episodes, low=3)
         check_int("Fig2Budget.online_seed_offset", self.online_seed_offset, low=0)
+        check_int("Fig2Budget.online_replicates", self.online_replicates)
         for name, limit in (("dataset_episodes", 9_999), ("style_episodes", 9_999), ("eval_episodes", 1_000)):
             if getattr(self, name) > limit:
                 raise ValueError(
@@ -302,8 +308,16 @@ def _policy_elite(budget: Fig2Budget, k: int) -> int:
     return int(_policy_kwargs(budget.arm_kwargs(k)).get("n_elite", 1))
 
 
-#: Default budget: about two hours for 5 seeds on 2 cores (see :func:`estimate_seconds`).
-FULL_BUDGET = Fig2Budget()
+#: Default budget: about two hours for 5 seeds on 2 cores (see :func:`estimate_seconds`). Each
+#: offline arm at its better size by reward (the chunk policy's velocity field 3 × 512, the one-step
+#: baseline's 128 × 2), every arm acting by the elite mean of 8 candidates, two online phases pooled
+#: into (c); the k sweep stops at k = 5 to stay within the budget (k = 10 collapsed at 128 × 2).
+FULL_BUDGET = Fig2Budget(
+    k_sweep=(1, 3, 5),
+    algo_kwargs={"policy_kwargs": {"net_arch": [512, 512, 512], "n_elite": 8}},
+    onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128], "n_elite": 8}},
+    online_replicates=2,
+)
 #: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI.
 QUICK_BUDGET = Fig2Budget(
     dataset_episodes=3,
@@ -319,6 +333,7 @@ QUICK_BUDGET = Fig2Budget(
     chunk_size=3,
     env_kwargs={"time_limit": 4.0},
     algo_kwargs={"batch_size": 32},
+    online_replicates=2,
 )
 
 
@@ -337,7 +352,10 @@ class CostModel:
     :param style_ms_per_step: style-data collection, per env step
     :param style_s_per_epoch: style classifier training, per epoch of a 60-episode dataset
     :param style_context_factor: slowdown of env steps with the style wrapper
-    :param adaptive_plan_length: assumed mean ``L_t`` of the adaptive arm (one replanning per L steps)
+    :param adaptive_plan_length: mean ``L_t`` of the adaptive arm's Phase-2 rollouts (one replanning
+        per L steps; the default runs executed 4.4-4.6 of k = 5 actions per plan: the adaptive arm
+        fine-tuned in 74 s per seed against 70 s for the fixed arm at 128 × 2, 130 s against 120 s at
+        3 × 512)
     :param plan_ms: one replanning during Phase 2
     :param update_ms_per_kweight: extra cost of a gradient step (Phase 1 and 2) per 1,000
         hidden-to-hidden weights of the velocity field beyond the default 128 × 2 (see
@@ -355,10 +373,20 @@ class CostModel:
     style_ms_per_step: float = 0.3
     style_s_per_epoch: float = 0.05
     style_context_factor: float = 2.0
-    adaptive_plan_length: float = 1.0
+    adaptive_plan_length: float = 4.0
     plan_ms: float = 4.0
     update_ms_per_kweight: float = 0.032
     plan_ms_per_kweight: float = 0.008
+
+    def pretrain_step_ms(self, k: int, extra_kweights: float = 0.0) -> float:
+        """One Phase-1 gradient step of a k-step policy whose velocity field has ``extra_kweights``
+        thousand hidden weights beyond the default (:func:`extra_kweights`)."""
+        return self.pretrain_ms_per_step + k * self.pretrain_ms_per_step_per_k + extra_kweights * self.update_ms_per_kweight
+
+    def replan_ms(self, extra_kweights: float = 0.0) -> float:
+        """One replanning during Phase 2, for a velocity field ``extra_kweights`` thousand weights
+        beyond the default."""
+        return self.plan_ms + extra_kweights * self.plan_ms_per_kweight
 
 
 def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
@@ -369,6 +397,12 @@ def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
 
     net_arch = list(_policy_kwargs(kwargs).get("net_arch") or DEFAULT_NET_ARCH)
     return sum(a * b for a, b in zip(net_arch[:-1], net_arch[1:]))
+
+
+def extra_kweights(kwargs: Mapping[str, Any]) -> float:
+    """Hidden weights of the velocity field built by UA2C arguments ``kwargs`` beyond the default
+    128 × 2, in thousands (0 for smaller fields): what :class:`CostModel` scales with."""
+    return max(0, velocity_field_weights(kwargs) - velocity_field_weights({})) / 1000
 
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None = None) -> dict[str, float]:
@@ -386,35 +420,33 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None =
     ms = 1e-3
     data = budget.dataset_episodes * steps_per_episode * c.collect_ms_per_step * ms
 
-    default_weights = velocity_field_weights({})
-
-    def extra_kweights(k: int) -> float:  # velocity-field weights beyond the default, in thousands
-        return max(0, velocity_field_weights(budget.arm_kwargs(k)) - default_weights) / 1000
+    def extra(k: int) -> float:  # the k-step arm's velocity-field weights beyond the default [thousands]
+        return extra_kweights(budget.arm_kwargs(k))
 
     def pretrain_s(k: int) -> float:
-        per_step = c.pretrain_ms_per_step + k * c.pretrain_ms_per_step_per_k + extra_kweights(k) * c.update_ms_per_kweight
-        return budget.pretrain_steps * per_step * ms
+        return budget.pretrain_steps * c.pretrain_step_ms(k, extra(k)) * ms
 
     pre = sum(pretrain_s(k) for k in budget.pretrain_ks)
     updates_scale = budget.algo_kwargs.get("batch_size", 256) / 256
 
-    extra = extra_kweights(budget.chunk_size)
+    chunk_extra = extra(budget.chunk_size)
 
     def online(plan_length: float) -> float:  # one update per chunk_size env steps (both arms)
         per_step = (
             c.finetune_ms_per_env_step
-            + (c.plan_ms + extra * c.plan_ms_per_kweight) / plan_length
-            + (c.finetune_ms_per_update * updates_scale + extra * c.update_ms_per_kweight) / budget.chunk_size
+            + c.replan_ms(chunk_extra) / plan_length
+            + (c.finetune_ms_per_update * updates_scale + chunk_extra * c.update_ms_per_kweight) / budget.chunk_size
         )
         return budget.finetune_steps * per_step * ms
 
-    fine = online(c.adaptive_plan_length) + online(budget.chunk_size)
+    fine = (online(c.adaptive_plan_length) + online(budget.chunk_size)) * budget.online_replicates
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
         + 2 * len(budget.acting_variants) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
+        + 2 * (budget.online_replicates - 1) * (1 + int(budget.sampled_eval))  # both arms of each further phase
     )
     # a larger velocity field replans more slowly: chunk arms replan about every k steps, one-step arms every step
-    eval_ms = c.eval_ms_per_step + (extra / budget.chunk_size + extra_kweights(1)) * c.plan_ms_per_kweight
+    eval_ms = c.eval_ms_per_step + (chunk_extra / budget.chunk_size + extra(1)) * c.plan_ms_per_kweight
     evals = n_evals * budget.eval_episodes * steps_per_episode * eval_ms * ms
     style = (
         budget.style_episodes * steps_per_episode * c.style_ms_per_step * ms
@@ -582,6 +614,12 @@ class RunPaths:
 def delta_name(delta: float) -> str:
     """File-name-safe label of a threshold: ``0.5 -> "0.5"``, ``-1 -> "m1"``, ``inf -> "inf"``."""
     return "inf" if math.isinf(delta) else f"{delta:g}".replace("-", "m")
+
+
+def replicate_name(arm: str, replicate: int) -> str:
+    """Unit name of a fine-tuned arm in online phase ``replicate``: ``("fixed", 0) -> "fixed"``,
+    ``("fixed", 2) -> "fixed_r2"`` (see ``Fig2Budget.online_replicates``)."""
+    return arm if replicate == 0 else f"{arm}_r{replicate}"
 
 
 def sampled_name(method: str) -> str:
@@ -807,13 +845,13 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
                 pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=budget.arm_kwargs(k))
         return path
 
-    def finetuned(start: Path, dataset: Any, name: str, delta: float) -> Path:
+    def finetuned(start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
         path, monitor = work / f"{name}.zip", work / f"{name}.monitor.csv"
         if not path.is_file():
             with log.timed(f"seed{seed}/finetune/{name}"):
                 finetune(
                     start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                    seed=seed + MAX_SEED * budget.online_seed_offset,
+                    seed=seed + MAX_SEED * (budget.online_seed_offset + replicate),
                     algo_overrides=finetune_overrides(budget), monitor_file=monitor,
                 )
         _online_episodes(raw / "online" / f"{name}.json", monitor)
@@ -879,6 +917,14 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
             budget.entropy_threshold,
             log,
         )
+    # more online phases from the same checkpoint, pooled into (c) (the first one is above)
+    for r in range(1, budget.online_replicates):
+        for arm, delta in (("adaptive", budget.entropy_threshold), ("fixed", math.inf)):
+            name = replicate_name(arm, r)
+            tuned = finetuned(ckpt[budget.chunk_size], ds, name, delta, r)
+            _evaluation(raw, name, tuned, seed, budget, settings, delta, log)
+            if budget.sampled_eval:
+                _evaluation(raw, sampled_name(name), tuned, seed, budget, settings, delta, log, deterministic=False)
 
 
 def _online_episodes(path: Path, monitor: Path) -> None:
@@ -1141,9 +1187,18 @@ def aggregate(
     def per_seed(method: str, key: str) -> list[float]:
         return methods[method][key]["per_seed"]
 
+    # online phases complete for every seed; (c) pools their paired runs (phase-major order)
+    phases = [
+        r for r in range(budget.online_replicates)
+        if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
+    ]
+
+    def pooled(arm: str, suffix: str = "") -> list[float]:
+        return [v for r in phases for v in per_seed(replicate_name(arm, r) + suffix, "reward")]
+
     offline_reward = compare(per_seed("chunk", "reward"), per_seed("onestep", "reward"))
     offline_jerk = compare(per_seed("chunk", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
-    online_reward = compare(per_seed("adaptive", "reward"), per_seed("fixed", "reward"))
+    online_reward = compare(pooled("adaptive"), pooled("fixed"))
     result: dict[str, Any] = {
         "offline_reward_gain_pct": offline_reward["change_pct"],
         "offline_jerk_change_pct": offline_jerk["change_pct"],
@@ -1158,6 +1213,7 @@ def aggregate(
         "methods": methods,
         "seeds": seeds,
         "budget": budget.to_dict(),
+        "online_phases": _online_phases(raw, methods, seeds, phases),
     }
     if "style" in raw and all(s in raw["style"] for s in seeds):
         styles = [raw["style"][s] for s in seeds]
@@ -1240,13 +1296,11 @@ def aggregate(
                 stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
             stats["curve"] = online_curve([raw[f"online/{arm}"][s]["episodes"] for s in seeds], budget.finetune_steps)
             result["online_phase"][arm] = stats
-    if {"fixed", "adaptive"} <= set(online):
-        ph = result["online_phase"]
-        result["comparisons"]["online_phase_reward"] = compare(
-            ph["adaptive"]["reward"]["per_seed"], ph["fixed"]["reward"]["per_seed"]
-        )
+    episodes = result["online_phases"]["training_episodes"]
+    if episodes:  # (c') and (c''), pooled over the online phases like (c)
+        result["comparisons"]["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
         result["comparisons"]["online_phase_reward_last"] = compare(
-            ph["adaptive"]["reward_last"]["per_seed"], ph["fixed"]["reward_last"]["per_seed"]
+            episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"]
         )
     if {"chunk", "onestep"} <= set(methods) and all(
         math.isfinite(v) for m in ("chunk", "onestep") for v in per_seed(m, "jerk_per_step")
@@ -1264,7 +1318,10 @@ def aggregate(
         }
         for key, (new, base, metric) in sampled.items():
             names = (sampled_name(new), sampled_name(base))
-            if all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
+            if key == "online_reward":  # pooled over the online phases, like (c)
+                if all(sampled_name(replicate_name(a, r)) in methods for a in ("adaptive", "fixed") for r in phases):
+                    result["comparisons"][f"{key}_sampled"] = compare(pooled("adaptive", "_sampled"), pooled("fixed", "_sampled"))
+            elif all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
                 result["comparisons"][f"{key}_sampled"] = compare(per_seed(names[0], metric), per_seed(names[1], metric))
         result["sampled"] = {
             paper_key: result["comparisons"].get(f"{key}_sampled", {}).get("change_pct", math.nan)
@@ -1277,6 +1334,47 @@ def aggregate(
             "reward_gain_pct": compare(per_seed("adaptive_style", "reward"), per_seed("adaptive", "reward")),
         }
     return result
+
+
+def _online_phases(
+    raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int], phases: Sequence[int]
+) -> dict[str, Any]:
+    """The online phases behind (c): which were pooled, (c) within each, and the pooled per-run
+    rewards of both arms (``runs``: phase-major, ``len(phases) · len(seeds)``): final evaluations
+    (``adaptive``, ``fixed``, and ``*_sampled`` when every phase has them) and Phase-2 training
+    episodes (``training_episodes``: empty unless every run has its log)."""
+
+    def rewards(arm: str, suffix: str = "") -> list[float]:
+        return [v for r in phases for v in methods[replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
+
+    out: dict[str, Any] = {"phases": list(phases), "runs": len(phases) * len(seeds), "per_phase": []}
+    for r in phases:
+        names = {arm: replicate_name(arm, r) for arm in ("adaptive", "fixed")}
+        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in names.items()}}
+        row["change"] = compare(methods[names["adaptive"]]["reward"]["per_seed"], methods[names["fixed"]]["reward"]["per_seed"])
+        if all(sampled_name(n) in methods for n in names.values()):
+            row["change_sampled"] = compare(
+                methods[sampled_name(names["adaptive"])]["reward"]["per_seed"],
+                methods[sampled_name(names["fixed"])]["reward"]["per_seed"],
+            )
+        out["per_phase"].append(row)
+    for arm in ("adaptive", "fixed"):
+        for suffix in ("", "_sampled"):
+            if suffix and not all(sampled_name(replicate_name(arm, r)) in methods for r in phases):
+                continue
+            values = rewards(arm, suffix)
+            mean, half = t_confidence_interval(values) if values else (math.nan, math.nan)
+            out[arm + suffix] = {"mean": mean, "ci95": half, "per_seed": values}  # per run
+    logs = {
+        arm: [raw.get(f"online/{replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
+        for arm in ("adaptive", "fixed")
+    }
+    out["training_episodes"] = {}
+    if phases and all(log is not None for runs in logs.values() for log in runs):
+        for arm, runs in logs.items():
+            stats = [online_phase_stats(log["episodes"]) for log in runs]
+            out["training_episodes"][arm] = {key: [st[key] for st in stats] for key in ("reward", "reward_last")}
+    return out
 
 
 def _fmt(stat: Mapping[str, Any], digits: int = 2) -> str:
@@ -1303,6 +1401,8 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
     """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
     c = summary["comparisons"]
     n = len(summary["seeds"])
+    phases = summary.get("online_phases", {}).get("phases", [0])
+    pooled = f" ({n} seeds × {len(phases)} online phases, pooled)" if len(phases) > 1 else ""
     lines = [
         "# Figure 2 reproduction on MixedTraffic-v0",
         "",
@@ -1325,7 +1425,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
     rows = (
         ("(a) offline reward, chunk vs one-step", "offline_reward", "offline_reward_gain_pct"),
         ("(b) cumulative jerk, chunk vs one-step", "offline_jerk", "offline_jerk_change_pct"),
-        ("(c) online reward, adaptive vs fixed", "online_reward", "online_reward_gain_pct"),
+        (f"(c) online reward, adaptive vs fixed{pooled}", "online_reward", "online_reward_gain_pct"),
     )
     extra = (
         (
@@ -1340,13 +1440,14 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         ),
         ("(b'') jerk per step (Σ\\|jerk\\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
         (
-            "(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed",
+            f"(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed{pooled}",
             "online_phase_reward",
             None,
         ),
-        ("(c'') the same over the last quarter of the training episodes", "online_phase_reward_last", None),
+        (f"(c'') the same over the last quarter of the training episodes{pooled}", "online_phase_reward_last", None),
         (
-            "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks",
+            "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks"
+            + (" (first online phase)" if pooled else ""),
             "online_execution_rule",
             None,
         ),
@@ -1386,10 +1487,36 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
             f"| {_fmt(s['jerk_per_step'])} | {_fmt(s['collision'])} "
             f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
         )
+    if len(phases) > 1:
+        offset = summary["budget"].get("online_seed_offset", 0)
+        lines += [
+            "",
+            "## (c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
+            "",
+            "The methods table and the Phase-2 table show the first online phase; (c), (c') and (c'') pool "
+            f"the {summary['online_phases']['runs']} paired runs of all phases. Phase r runs seed s with "
+            f"s + {MAX_SEED} × (online_seed_offset + r).",
+            "",
+            "| online phase | fixed | adaptive | (c) | (c) sampled |",
+            "|---|---|---|---|---|",
+        ]
+        for row in summary["online_phases"]["per_phase"]:
+            sampled_change = _pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""
+            lines.append(
+                f"| {offset + row['phase']} | {_fmt(row['fixed'])} | {_fmt(row['adaptive'])} "
+                f"| {_pct(row['change']['change_pct'])} | {sampled_change} |"
+            )
+        op = summary["online_phases"]
+        sampled_pooled = _pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""
+        lines.append(
+            f"| pooled ({op['runs']} runs) | {_fmt(op['fixed'])} | {_fmt(op['adaptive'])} "
+            f"| {_pct(c['online_reward']['change_pct'])} | {sampled_pooled} |"
+        )
     if summary.get("online_phase"):
         lines += [
             "",
-            "## Phase 2: the training episodes (candidates drawn with fresh noise, as during training)",
+            "## Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
+            + (", first online phase" if len(phases) > 1 else ""),
             "",
             "| arm | mean return | mean return, last quarter | collision rate | episodes |",
             "|---|---|---|---|---|",
@@ -1654,15 +1781,13 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
             for (name, title, ylabel, arms, key, _, paper), pk in zip(panels, CLAIM_COMPARISONS, strict=True)
         )
     short = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
+    op = summary.get("online_phases", {})
     for name, title, ylabel, arms, key, ours, paper in panels:
         suffix = "_sampled" if name.endswith("_sampled.png") else ""
-        _bar_panel(
-            out / name,
-            title,
-            ylabel,
-            [(short[a], m[a + suffix][key]) for a in arms],
-            f"ours {_pct(ours)}, paper {paper:+.2f}%",
-        )
+        stats = {a: m[a + suffix][key] for a in arms}
+        if name.startswith("fig2_c_online_reward") and len(op.get("phases", [0])) > 1:  # every pooled run
+            stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"
+        _bar_panel(out / name, title, ylabel, [(short[a], stats[a]) for a in arms], f"ours {_pct(ours)}, paper {paper:+.2f}%")
         files.append(out / name)
     if "style" in summary:
         from sb3_ua2c.style import plot_confusion

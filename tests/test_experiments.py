@@ -115,7 +115,7 @@ def test_budget_validation_names_the_key() -> None:
         Fig2Budget(elite_sweep=(0,))
     with pytest.raises(ValueError, match="elite_sweep holds 9, more than the 8 candidates"):
         Fig2Budget(elite_sweep=(9,), algo_kwargs={"n_candidates": 8})
-    assert FULL_BUDGET.replace(elite_sweep=[16, 8, 8]).elite_sweep == (8, 16)
+    assert Fig2Budget().replace(elite_sweep=[16, 8, 8]).elite_sweep == (8, 16)
     for bad in (1, "yes", np.bool_(True)):  # written to JSON: Python bools only
         with pytest.raises(ValueError, match="Fig2Budget.sampled_eval must be a bool"):
             Fig2Budget(sampled_eval=bad)
@@ -123,16 +123,16 @@ def test_budget_validation_names_the_key() -> None:
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.flow_sweep"):
             Fig2Budget(flow_sweep=(bad,))
-    budget = FULL_BUDGET.replace(flow_sweep=[3, 2, 2], elite_sweep=[8])
+    budget = Fig2Budget().replace(flow_sweep=[3, 2, 2], elite_sweep=[8])
     assert budget.flow_sweep == (2, 3) and budget.to_dict()["flow_sweep"] == [2, 3]
     assert budget.acting_variants == ((None, 8), (2, 1), (2, 8), (3, 1), (3, 8))
-    budget = FULL_BUDGET.replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
+    budget = Fig2Budget().replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
     assert budget.k_sweep == (3, 10) and budget.delta_sweep == (0.0, math.inf)
     assert budget.pretrain_ks == (1, 3, 5, 10)  # 1 and chunk_size always
     # checkpoints that act by an elite mean: the sweep names m = 1 and evaluates it like any other m
     elite8 = {"policy_kwargs": {"n_elite": 8}}
-    budget = FULL_BUDGET.replace(algo_kwargs=elite8, elite_sweep=[4, 8], flow_sweep=[2])
-    assert budget.default_elite == 8 and FULL_BUDGET.default_elite == 1
+    budget = Fig2Budget().replace(algo_kwargs=elite8, elite_sweep=[4, 8], flow_sweep=[2])
+    assert budget.default_elite == 8 and Fig2Budget().default_elite == 1
     assert budget.acting_variants == ((None, 1), (None, 4), (2, 8), (2, 1), (2, 4))
     assert [experiments.acting_name("chunk", n, m, 8) for n, m in budget.acting_variants] == [
         "chunk_elite1", "chunk_elite4", "chunk_flow2", "chunk_flow2_elite1", "chunk_flow2_elite4"
@@ -142,6 +142,11 @@ def test_budget_validation_names_the_key() -> None:
     with pytest.raises(ValueError, match="one-step baseline acts with n_elite=1 and the chunk policy with n_elite=8"):
         Fig2Budget(algo_kwargs=elite8, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}})
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
+    # the default run: each offline arm at its own size, both acting by the elite mean of 8
+    assert FULL_BUDGET.default_elite == 8 and FULL_BUDGET.online_replicates == 2
+    assert FULL_BUDGET.arm_kwargs(1)["policy_kwargs"] == {"net_arch": [128, 128], "n_elite": 8}
+    assert FULL_BUDGET.arm_kwargs(3)["policy_kwargs"] == {"net_arch": [512, 512, 512], "n_elite": 8}  # k sweep too
+    assert Fig2Budget.from_dict(FULL_BUDGET.to_dict()) == FULL_BUDGET
 
 
 def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> None:
@@ -149,7 +154,7 @@ def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> N
     assert experiments.finetune_overrides(budget) == {"smooth_weight": 100.0, "train_freq": 5, "gradient_steps": 1}
     assert experiments.finetune_overrides(FULL_BUDGET) == {"train_freq": 5, "gradient_steps": 1}
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
-    assert Fig2Budget.from_dict({k: v for k, v in FULL_BUDGET.to_dict().items() if k != "finetune_kwargs"}) == FULL_BUDGET
+    assert Fig2Budget.from_dict({k: v for k, v in Fig2Budget().to_dict().items() if k != "finetune_kwargs"}) == Fig2Budget()
     with pytest.raises(ValueError, match=r"finetune_kwargs must not set \['gradient_steps'\]"):
         Fig2Budget(finetune_kwargs={"gradient_steps": 4})
     with pytest.raises(ValueError, match="finetune_kwargs must be a mapping"):
@@ -198,6 +203,10 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     # sampled evaluations: the 6 methods of SAMPLED_METHODS once more
     sampled = estimate_seconds(budget.replace(sampled_eval=True), n_seeds=2, costs=costs)
     assert sampled["evaluate"] - est["evaluate"] == pytest.approx(2 * 6 * 2 * steps * 1e-3)
+    # two more online phases: both arms fine-tuned and evaluated twice more (no sampled evaluations here)
+    phases = estimate_seconds(budget.replace(online_replicates=3), n_seeds=2, costs=costs)
+    assert phases["finetune"] == pytest.approx(3 * est["finetune"])
+    assert phases["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 2) * 2 * steps * 1e-3)
     # a larger velocity field for the chunk policy alone: its gradient steps and replannings cost more
     assert experiments.velocity_field_weights({}) == 128 * 128
     assert experiments.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
@@ -210,6 +219,13 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     # adaptive (L = 1) and fixed (L = 2) replannings, one update per k = 2 env steps for both arms
     assert est_wide["finetune"] - est["finetune"] == pytest.approx(2 * 50 * (2 * extra / 1 + extra / 2 + 2 * extra / 2 + extra / 2) * 1e-3)
     assert est_wide["evaluate"] - est["evaluate"] == pytest.approx(2 * 8 * 2 * steps * 2 * (extra / 2) * 1e-3)
+    # the per-unit costs behind it (benchmarks/cost_model.py compares them with measured times)
+    assert experiments.extra_kweights({"policy_kwargs": {"net_arch": [64, 64]}}) == 0.0  # smaller: no saving
+    assert experiments.extra_kweights(wide.arm_kwargs(2)) == pytest.approx(extra)
+    unit = CostModel()
+    assert unit.pretrain_step_ms(5, 100.0) == pytest.approx(14.0 + 5 * 2.8 + 100 * 0.032)  # 31.2 ms
+    assert unit.pretrain_step_ms(1) == pytest.approx(16.8)
+    assert unit.replan_ms(100.0) == pytest.approx(4.0 + 100 * 0.008)  # 4.8 ms
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
@@ -283,6 +299,53 @@ def test_aggregate_sampled_rows_by_hand() -> None:
     del raw["fixed_sampled"]
     out = aggregate(raw, [0], budget)
     assert "sampled" not in out and "offline_jerk_sampled" not in out["comparisons"]
+
+
+def test_aggregate_pools_online_phases_by_hand(tmp_path: Path) -> None:
+    ep = lambda r: {"episodes": [{"reward": r, "length": 10, "collision": False}] * 4}  # noqa: E731
+    raw = {
+        "onestep": {0: _summary(10.0), 1: _summary(10.0)},
+        "chunk": {0: _summary(12.0), 1: _summary(12.0)},
+        "fixed": {0: _summary(100.0), 1: _summary(200.0)},
+        "adaptive": {0: _summary(110.0), 1: _summary(180.0)},
+        "fixed_r1": {0: _summary(50.0), 1: _summary(150.0)},
+        "adaptive_r1": {0: _summary(100.0), 1: _summary(150.0)},
+        "fixed_r2": {0: _summary(1.0)},  # phase 2 is missing seed 1: not pooled
+        "adaptive_r2": {0: _summary(2.0)},
+        "online/fixed": {0: ep(10.0), 1: ep(10.0)},
+        "online/adaptive": {0: ep(20.0), 1: ep(20.0)},
+        "online/fixed_r1": {0: ep(10.0), 1: ep(30.0)},
+        "online/adaptive_r1": {0: ep(10.0), 1: ep(30.0)},
+    }
+    budget = QUICK_BUDGET.replace(delta_sweep=[math.inf], k_sweep=[1], online_replicates=3, sampled_eval=False)
+    out = aggregate(raw, [0, 1], budget)
+    # pooled runs (phase-major): adaptive 110, 180, 100, 150 (mean 135); fixed 100, 200, 50, 150 (mean 125)
+    assert out["online_reward_gain_pct"] == pytest.approx(100 * (135 - 125) / 125)  # +8%
+    c = out["comparisons"]
+    assert c["online_reward"]["per_seed_pct"] == pytest.approx([10.0, -10.0, 100.0, 0.0])
+    op = out["online_phases"]
+    assert op["phases"] == [0, 1] and op["runs"] == 4
+    assert op["adaptive"]["per_seed"] == [110.0, 180.0, 100.0, 150.0] and op["fixed"]["mean"] == 125.0
+    assert [row["change"]["change_pct"] for row in op["per_phase"]] == pytest.approx(
+        [100 * (145 - 150) / 150, 100 * (125 - 100) / 100]  # -3.33%, +25%
+    )
+    # (c'): training-episode returns, pooled the same way: adaptive 20, 20, 10, 30; fixed 10, 10, 10, 30
+    assert c["online_phase_reward"]["change_pct"] == pytest.approx(100 * (20 - 15) / 15)
+    assert out["methods"]["adaptive"]["reward"]["mean"] == 145.0  # the methods table: first phase
+    md = experiments.format_markdown(out, "cmd", "today")
+    assert "| (c) online reward, adaptive vs fixed (2 seeds × 2 online phases, pooled) | +8.00% |" in md
+    assert "| 1 | 100.00 ± 635.31 | 125.00 ± 317.66 | +25.00% |  |" in md
+    # t intervals over the 4 runs: 3.182 · sd / 2, sd = 64.55 (fixed) and 36.97 (adaptive)
+    assert "| pooled (4 runs) | 125.00 ± 102.71 | 135.00 ± 58.83 | +8.00% |  |" in md
+    # one phase (the default): the report is that of the first phase alone, as before
+    single = aggregate(raw, [0, 1], budget.replace(online_replicates=1))
+    assert single["online_reward_gain_pct"] == pytest.approx(100 * (145 - 150) / 150)
+    assert "online phases" not in experiments.format_markdown(single, "cmd", "today")
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="Fig2Budget.online_replicates"):
+            QUICK_BUDGET.replace(online_replicates=bad)
+    assert "online_replicates" not in experiments.UNIT_FIELDS  # more phases only add units
+    assert experiments.replicate_name("fixed", 0) == "fixed" and experiments.replicate_name("fixed", 2) == "fixed_r2"
 
 
 def test_online_phase_stats_and_curve_by_hand() -> None:
@@ -396,8 +459,12 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
     units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
     # dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online evals 3,
-    # δ sweep 2, sampled evals 6, style 3, ablation 4
-    assert len(units) == 36 and "seed0/pretrain/pretrain_k2" in units
+    # δ sweep 2, sampled evals 6, style 3, ablation 4, second online phase 2 + 2 evals + 2 sampled
+    assert len(units) == 42 and "seed0/pretrain/pretrain_k2" in units
+    assert "seed0/finetune/adaptive_r1" in units and "seed0/evaluate/fixed_r1_sampled" in units
+    # (c) pools both online phases: 2 seeds x 2 phases
+    assert summary["online_phases"]["phases"] == [0, 1] and summary["online_phases"]["runs"] == 4
+    assert len(summary["comparisons"]["online_reward"]["per_seed_pct"]) == 4
     for method in experiments.SAMPLED_METHODS:  # fresh candidate noise, recorded as such
         raw = json.loads((quick_run / "fig2_raw" / "seed0" / f"{method}_sampled.json").read_text())
         assert raw["deterministic"] is False and f"seed0/evaluate/{method}_sampled" in units
@@ -451,7 +518,11 @@ def test_quick_run_numbers_follow_from_the_raw_data(quick_run: Path) -> None:
 
     assert summary["offline_reward_gain_pct"] == pytest.approx(gain("chunk", "onestep", "reward"))
     assert summary["offline_jerk_change_pct"] == pytest.approx(gain("chunk", "onestep", "cumulative_jerk"))
-    assert summary["online_reward_gain_pct"] == pytest.approx(gain("adaptive", "fixed", "reward"))
+    # (c) pools the two online phases: the mean over 2 seeds x 2 phases of each arm
+    pooled = {arm: np.mean(seed_means(arm, "reward") + seed_means(f"{arm}_r1", "reward")) for arm in ("adaptive", "fixed")}
+    assert summary["online_reward_gain_pct"] == pytest.approx(100.0 * (pooled["adaptive"] - pooled["fixed"]) / abs(pooled["fixed"]))
+    assert summary["online_phases"]["per_phase"][0]["change"]["change_pct"] == pytest.approx(gain("adaptive", "fixed", "reward"))
+    assert summary["online_phases"]["per_phase"][1]["change"]["change_pct"] == pytest.approx(gain("adaptive_r1", "fixed_r1", "reward"))
     mean, half = t_confidence_interval(seed_means("adaptive", "reward"))
     assert summary["methods"]["adaptive"]["reward"]["mean"] == pytest.approx(mean)
     assert summary["methods"]["adaptive"]["reward"]["ci95"] == pytest.approx(half)
@@ -558,6 +629,41 @@ def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path
     assert calls == [("pretrain_k3.zip", 1 + 2 * experiments.MAX_SEED)]
 
 
+def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
+    quick_run: Path, tmp_path: Path, monkeypatch
+) -> None:
+    import shutil
+
+    from sb3_ua2c import pipeline
+
+    paths = experiments.RunPaths.under(tmp_path)
+    shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
+    shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))
+    for path in [*paths.seed_work(1).glob("*_r1.zip"), *paths.seed_raw(1).glob("*_r1*.json")]:
+        path.unlink()  # the quick run's second phase (offset 0 + 1): trained again below with 1 + 1
+    calls = []
+
+    def fake_finetune(start, out, steps, **kwargs):  # the pre-trained weights, as if fine-tuned
+        calls.append((Path(start).name, Path(out).name, kwargs["entropy_threshold"], kwargs["seed"]))
+        shutil.copy(start, out)
+        return Path(out)
+
+    monkeypatch.setattr(pipeline, "finetune", fake_finetune)
+    budget = QUICK_BUDGET.replace(online_replicates=3, online_seed_offset=1)
+    ran = experiments.run_seed(1, budget, paths)
+    m = experiments.MAX_SEED
+    assert calls == [  # the first phase is reused; phases 1 and 2 run with offsets 1 + 1 and 1 + 2
+        ("pretrain_k3.zip", "adaptive_r1.zip", 0.0, 1 + 2 * m),
+        ("pretrain_k3.zip", "fixed_r1.zip", math.inf, 1 + 2 * m),
+        ("pretrain_k3.zip", "adaptive_r2.zip", 0.0, 1 + 3 * m),
+        ("pretrain_k3.zip", "fixed_r2.zip", math.inf, 1 + 3 * m),
+    ]
+    for name in ("adaptive_r1", "fixed_r1", "adaptive_r2_sampled", "fixed_r2_sampled"):
+        assert (paths.seed_raw(1) / f"{name}.json").is_file(), name
+    assert len(ran) == 4 + 8  # four fine-tunings, eight evaluations
+    assert experiments.run_seed(1, budget, paths) == []  # resumed: nothing left
+
+
 def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
     import shutil
 
@@ -572,7 +678,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
     assert budget.arm_kwargs(3) == {"batch_size": 32, "policy_kwargs": large, "chunk_size": 3, "entropy_threshold": 0.0}
     assert QUICK_BUDGET.arm_kwargs(1) == {"batch_size": 32, "chunk_size": 1, "entropy_threshold": 0.0}
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
-    assert Fig2Budget.from_dict({k: v for k, v in FULL_BUDGET.to_dict().items() if k != "onestep_kwargs"}) == FULL_BUDGET
+    assert Fig2Budget.from_dict({k: v for k, v in Fig2Budget().to_dict().items() if k != "onestep_kwargs"}) == Fig2Budget()
     assert "onestep_kwargs" in experiments.UNIT_FIELDS  # a resumed run refuses another one-step size
     with pytest.raises(ValueError, match=r"onestep_kwargs must not set \['chunk_size'\]"):
         Fig2Budget(onestep_kwargs={"chunk_size": 1})
