@@ -24,29 +24,16 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 
 import numpy as np
 import torch as th
+from bench_ua2c import cpu_ms  # benchmarks/ is on sys.path when run as a script
 from stable_baselines3 import SAC
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.experiments import CostModel, extra_kweights, velocity_field_weights
 from sb3_ua2c.offline import collect_episodes
 from sb3_ua2c.pipeline import TRAFFIC_DEFAULTS, make_env
-
-
-def thread_ms(fn, repeats: int, warmup: int = 3) -> float:
-    """Median CPU time of the calling thread per call of ``fn``, in ms."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        start = time.thread_time()
-        fn()
-        times.append(time.thread_time() - start)
-    return 1e3 * statistics.median(times)
 
 
 def estimated_ms(costs: CostModel, net_arch: list[int]) -> dict[str, float]:
@@ -80,12 +67,12 @@ def main() -> None:
             for k in (1, 5):
                 model = UA2C("MlpPolicy", env, seed=0, device="cpu", chunk_size=k, policy_kwargs={"net_arch": net_arch}, **TRAFFIC_DEFAULTS)
                 model.add_offline_episodes(episodes)
-                row[f"k{k}"] = thread_ms(lambda m=model: m.pretrain(1, log_interval=10**9), args.steps)
+                row[f"k{k}"] = cpu_ms(lambda m=model: m.pretrain(1, log_interval=10**9), args.steps)
             start = np.array([True])
-            row["plan"] = thread_ms(lambda m=model: m.predict(obs, episode_start=start, deterministic=True), args.plans)
+            row["plan"] = cpu_ms(lambda m=model, s=start: m.predict(obs, episode_start=s, deterministic=True), args.plans)
             sac = SAC("MlpPolicy", env, seed=0, device="cpu", batch_size=256, learning_starts=300, policy_kwargs={"net_arch": net_arch})
             sac.learn(301)  # fills the buffer and sets up the logger; one update
-            row["sac"] = thread_ms(lambda s=sac: s.train(gradient_steps=1, batch_size=256), args.steps)
+            row["sac"] = cpu_ms(lambda s=sac: s.train(gradient_steps=1, batch_size=256), args.steps)
             row["est"] = estimated_ms(costs, net_arch)
             rows.append(row)
             print(f"  {row['arch']}: done", flush=True)

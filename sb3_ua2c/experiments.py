@@ -396,7 +396,7 @@ def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
     from sb3_ua2c.policies import DEFAULT_NET_ARCH
 
     net_arch = list(_policy_kwargs(kwargs).get("net_arch") or DEFAULT_NET_ARCH)
-    return sum(a * b for a, b in zip(net_arch[:-1], net_arch[1:]))
+    return sum(a * b for a, b in zip(net_arch[:-1], net_arch[1:], strict=False))
 
 
 def extra_kweights(kwargs: Mapping[str, Any]) -> float:
