@@ -5,8 +5,10 @@ Usage::
     python benchmarks/pool_online_replicates.py results results/fig2_online_seeds [more report dirs] [--sampled]
 
 Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
-evaluations of the two fine-tuned arms. The replicates must share their pre-trained checkpoints
-(same seeds, same Phase-1 budget) and differ in the online seeds only. Prints per directory and
+evaluations of the two fine-tuned arms, and ``{adaptive,fixed}_r<r>.json`` those of its further
+online phases (``Fig2Budget.online_replicates``): every phase a report holds is a run. The reports
+must share their pre-trained checkpoints (same seeds, same Phase-1 budget) and differ in the online
+seeds only; do not pass two reports holding the same phase (e.g. a report and its own rerun). Prints per directory and
 pooled: the mean reward of both arms, (c) as the change of the means, and the mean ± 95 %
 Student-t interval of the paired per-run changes (one run = one seed of one replicate).
 ``--sampled`` pools the evaluations with fresh candidate noise (``{adaptive,fixed}_sampled.json``,
@@ -21,17 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_ua2c.experiments import PAPER, relative_change_pct, t_confidence_interval
+from sb3_ua2c.experiments import PAPER, relative_change_pct, replicate_name, t_confidence_interval
 
 
-def arm_rewards(report: Path, suffix: str = "") -> dict[int, tuple[float, float]]:
-    """``{seed: (adaptive reward, fixed reward)}`` of one report directory (``suffix``: ``"_sampled"``)."""
+def arm_rewards(report: Path, suffix: str = "") -> dict[tuple[int, int], tuple[float, float]]:
+    """``{(seed, phase): (adaptive reward, fixed reward)}`` of one report directory, for every online
+    phase it holds (``suffix``: ``"_sampled"``)."""
     out = {}
     for seed_dir in sorted((report / "fig2_raw").glob("seed*")):
-        arms = [
-            json.loads((seed_dir / f"{arm}{suffix}.json").read_text())["summary"]["reward"] for arm in ("adaptive", "fixed")
-        ]
-        out[int(seed_dir.name.removeprefix("seed"))] = (arms[0], arms[1])
+        seed, phase = int(seed_dir.name.removeprefix("seed")), 0
+        while all((seed_dir / f"{replicate_name(arm, phase)}{suffix}.json").is_file() for arm in ("adaptive", "fixed")):
+            arms = [
+                json.loads((seed_dir / f"{replicate_name(arm, phase)}{suffix}.json").read_text())["summary"]["reward"]
+                for arm in ("adaptive", "fixed")
+            ]
+            out[(seed, phase)] = (arms[0], arms[1])
+            phase += 1
     if not out:
         raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
     return out
@@ -53,7 +60,7 @@ def main() -> None:
     parser.add_argument("--sampled", action="store_true", help="pool the evaluations with fresh candidate noise")
     args = parser.parse_args()
     runs = {report: arm_rewards(report, "_sampled" if args.sampled else "") for report in args.reports}
-    seeds = {tuple(sorted(r)) for r in runs.values()}
+    seeds = {tuple(sorted({seed for seed, _ in r})) for r in runs.values()}
     if len(seeds) != 1:
         raise SystemExit(f"error: the reports hold different seeds: {sorted(seeds)}")
     print("| report | runs | adaptive | fixed | (c) change of the means | per-run changes |")
