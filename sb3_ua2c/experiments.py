@@ -1814,6 +1814,24 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
 # ---------------------------------------------------------------------------------------------
 
 
+def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
+    """The budget a report ran with: the ``budget`` key of its ``fig2.json`` (``report`` is that file or
+    the directory holding it). Fields newer than the report take their class defaults, which are the
+    values every report made before them ran with.
+
+    :raises ValueError: naming the path, when it holds no readable ``fig2.json`` with a budget
+    """
+    path = Path(report)
+    path = path / "fig2.json" if path.is_dir() else path
+    try:
+        recorded = json.loads(path.read_text())["budget"]
+    except FileNotFoundError:
+        raise ValueError(f"--budget-of: {path} does not exist") from None
+    except (json.JSONDecodeError, TypeError, KeyError) as exc:
+        raise ValueError(f"--budget-of: {path} is not a fig2.json with a 'budget' key ({exc!r})") from exc
+    return Fig2Budget.from_dict(recorded)
+
+
 def build_parser(prog: str = "python benchmarks/fig2.py") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog,
@@ -1832,6 +1850,13 @@ def build_parser(prog: str = "python benchmarks/fig2.py") -> argparse.ArgumentPa
         type=json_object_arg,
         default={},
         help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'",
+    )
+    parser.add_argument(
+        "--budget-of",
+        default=None,
+        metavar="REPORT",
+        help="start from the budget a report ran with (its fig2.json, or the directory holding it) instead of "
+        "the default; --budget applies on top. Reruns a report made under another default exactly",
     )
     parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
@@ -1852,7 +1877,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
-        base = QUICK_BUDGET if args.quick else FULL_BUDGET
+        if args.budget_of is not None and args.quick:
+            raise ValueError("--budget-of and --quick both choose the base budget: pass one of them")
+        base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
         budget = base.replace(**args.budget) if args.budget else base
         if args.seed_list is not None:
             seeds = list(dict.fromkeys(args.seed_list))

@@ -751,3 +751,32 @@ def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
     assert "seeds must be in [0, 100)" in capsys.readouterr().err
     assert experiments.main(["--report-only", "--seeds", "1", "--out", str(tmp_path)]) == 2
     assert "no raw results for seed 0" in capsys.readouterr().err
+
+
+def test_budget_of_reruns_a_report_with_its_own_budget(quick_run: Path, tmp_path: Path, capsys) -> None:
+    recorded = experiments.recorded_budget(quick_run)  # the directory, or the file itself
+    assert recorded == QUICK_BUDGET == experiments.recorded_budget(quick_run / "fig2.json")
+    # a report made before a field existed: the field takes its class default
+    old = json.loads((quick_run / "fig2.json").read_text())
+    del old["budget"]["online_replicates"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert experiments.recorded_budget(tmp_path / "old.json") == QUICK_BUDGET.replace(online_replicates=1)
+    # rerun with the recorded budget: every unit of seed 0 exists
+    rerun = ["--budget-of", str(quick_run), "--seeds", "1", "--workers", "1", "--out", str(tmp_path / "rerun"),
+             "--work", str(quick_run / "fig2_work"), "--raw", str(quick_run / "fig2_raw")]
+    assert experiments.main(rerun) == 0
+    assert "seed 0: 0 unit(s) run" in capsys.readouterr().out  # the quick run's own budget: every unit exists
+    assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET
+    assert experiments.main([*rerun, "--budget", '{"online_replicates": 1}']) == 0  # --budget applies on top
+    assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET.replace(online_replicates=1)
+    (tmp_path / "nobudget.json").write_text("{}")
+    for bad, message in (
+        (tmp_path / "missing", "does not exist"),
+        (tmp_path / "nobudget.json", "is not a fig2.json with a 'budget' key"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            experiments.main(["--budget-of", str(bad), "--out", str(tmp_path)])
+        assert exc.value.code == 2 and message in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        experiments.main(["--budget-of", str(quick_run), "--quick", "--out", str(tmp_path)])
+    assert "--budget-of and --quick" in capsys.readouterr().err
