@@ -1606,7 +1606,9 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
         "## Budget (per seed)",
         "",
         f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
-        f"{b['finetune_steps']} online steps per fine-tuned arm; {b['eval_episodes']} evaluation episode(s) per "
+        f"{b['finetune_steps']} online steps per fine-tuned arm"
+        + (f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else "")
+        + f"; {b['eval_episodes']} evaluation episode(s) per "
         f"method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; env {b['env_kwargs'] or 'defaults'}; "
         f"UA2C {b['algo_kwargs'] or 'defaults'}"
         + (f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else "")

@@ -337,6 +337,7 @@ def test_aggregate_pools_online_phases_by_hand(tmp_path: Path) -> None:
     assert "| 1 | 100.00 ± 635.31 | 125.00 ± 317.66 | +25.00% |  |" in md
     # t intervals over the 4 runs: 3.182 · sd / 2, sd = 64.55 (fixed) and 36.97 (adaptive)
     assert "| pooled (4 runs) | 125.00 ± 102.71 | 135.00 ± 58.83 | +8.00% |  |" in md
+    assert "30 online steps per fine-tuned arm in each of 3 online phases;" in md
     # one phase (the default): the report is that of the first phase alone, as before
     single = aggregate(raw, [0, 1], budget.replace(online_replicates=1))
     assert single["online_reward_gain_pct"] == pytest.approx(100 * (145 - 150) / 150)
