@@ -1187,18 +1187,15 @@ def aggregate(
     def per_seed(method: str, key: str) -> list[float]:
         return methods[method][key]["per_seed"]
 
-    # online phases complete for every seed; (c) pools their paired runs (phase-major order)
+    # online phases complete for every seed; (c) pools their paired runs
     phases = [
         r for r in range(budget.online_replicates)
         if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
     ]
-
-    def pooled(arm: str, suffix: str = "") -> list[float]:
-        return [v for r in phases for v in per_seed(replicate_name(arm, r) + suffix, "reward")]
-
+    online_phases = _online_phases(raw, methods, seeds, phases)
     offline_reward = compare(per_seed("chunk", "reward"), per_seed("onestep", "reward"))
     offline_jerk = compare(per_seed("chunk", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
-    online_reward = compare(pooled("adaptive"), pooled("fixed"))
+    online_reward = compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])
     result: dict[str, Any] = {
         "offline_reward_gain_pct": offline_reward["change_pct"],
         "offline_jerk_change_pct": offline_jerk["change_pct"],
@@ -1213,7 +1210,7 @@ def aggregate(
         "methods": methods,
         "seeds": seeds,
         "budget": budget.to_dict(),
-        "online_phases": _online_phases(raw, methods, seeds, phases),
+        "online_phases": online_phases,
     }
     if "style" in raw and all(s in raw["style"] for s in seeds):
         styles = [raw["style"][s] for s in seeds]
@@ -1319,8 +1316,10 @@ def aggregate(
         for key, (new, base, metric) in sampled.items():
             names = (sampled_name(new), sampled_name(base))
             if key == "online_reward":  # pooled over the online phases, like (c)
-                if all(sampled_name(replicate_name(a, r)) in methods for a in ("adaptive", "fixed") for r in phases):
-                    result["comparisons"][f"{key}_sampled"] = compare(pooled("adaptive", "_sampled"), pooled("fixed", "_sampled"))
+                if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
+                    result["comparisons"][f"{key}_sampled"] = compare(
+                        online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"]
+                    )
             elif all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
                 result["comparisons"][f"{key}_sampled"] = compare(per_seed(names[0], metric), per_seed(names[1], metric))
         result["sampled"] = {
