@@ -64,12 +64,13 @@ def main() -> None:
         for arch in args.net_arch:
             net_arch = [int(h) for h in arch.split(",")]
             row = {"arch": "x".join(map(str, net_arch)), "kweights": velocity_field_weights({"policy_kwargs": {"net_arch": net_arch}}) / 1000}
+            models = {}
             for k in (1, 5):
-                model = UA2C("MlpPolicy", env, seed=0, device="cpu", chunk_size=k, policy_kwargs={"net_arch": net_arch}, **TRAFFIC_DEFAULTS)
-                model.add_offline_episodes(episodes)
-                row[f"k{k}"] = cpu_ms(lambda m=model: m.pretrain(1, log_interval=10**9), args.steps)
-            start = np.array([True])
-            row["plan"] = cpu_ms(lambda m=model, s=start: m.predict(obs, episode_start=s, deterministic=True), args.plans)
+                models[k] = UA2C("MlpPolicy", env, seed=0, device="cpu", chunk_size=k, policy_kwargs={"net_arch": net_arch}, **TRAFFIC_DEFAULTS)
+                models[k].add_offline_episodes(episodes)
+                row[f"k{k}"] = cpu_ms(lambda m=models[k]: m.pretrain(1, log_interval=10**9), args.steps)
+            start = np.array([True])  # every call replans
+            row["plan"] = cpu_ms(lambda m=models[5], s=start: m.predict(obs, episode_start=s, deterministic=True), args.plans)
             sac = SAC("MlpPolicy", env, seed=0, device="cpu", batch_size=256, learning_starts=300, policy_kwargs={"net_arch": net_arch})
             sac.learn(301)  # fills the buffer and sets up the logger; one update
             row["sac"] = cpu_ms(lambda s=sac: s.train(gradient_steps=1, batch_size=256), args.steps)

@@ -18,29 +18,33 @@ Student-t interval of the paired per-run changes (one run = one seed of one repl
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
-from sb3_ua2c.experiments import PAPER, relative_change_pct, replicate_name, t_confidence_interval
+from sb3_ua2c.experiments import (
+    PAPER,
+    RunPaths,
+    load_raw,
+    relative_change_pct,
+    replicate_name,
+    t_confidence_interval,
+)
 
 
 def arm_rewards(report: Path, suffix: str = "") -> dict[tuple[int, int], tuple[float, float]]:
     """``{(seed, phase): (adaptive reward, fixed reward)}`` of one report directory, for every online
     phase it holds (``suffix``: ``"_sampled"``)."""
-    out = {}
-    for seed_dir in sorted((report / "fig2_raw").glob("seed*")):
-        seed, phase = int(seed_dir.name.removeprefix("seed")), 0
-        while all((seed_dir / f"{replicate_name(arm, phase)}{suffix}.json").is_file() for arm in ("adaptive", "fixed")):
-            arms = [
-                json.loads((seed_dir / f"{replicate_name(arm, phase)}{suffix}.json").read_text())["summary"]["reward"]
-                for arm in ("adaptive", "fixed")
-            ]
-            out[(seed, phase)] = (arms[0], arms[1])
-            phase += 1
-    if not out:
+    seeds = sorted(int(d.name.removeprefix("seed")) for d in (report / "fig2_raw").glob("seed*"))
+    if not seeds:
         raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
+    raw = load_raw(RunPaths.under(report), seeds)  # {method: {seed: summary}}
+    out = {}
+    for seed in seeds:
+        phase = 0
+        while all(seed in raw.get(replicate_name(arm, phase) + suffix, {}) for arm in ("adaptive", "fixed")):
+            out[(seed, phase)] = tuple(raw[replicate_name(arm, phase) + suffix][seed]["reward"] for arm in ("adaptive", "fixed"))
+            phase += 1
     return out
 
 
