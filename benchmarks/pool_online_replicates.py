@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/pool_online_replicates.py results results/fig2_online_seeds [more report dirs] [--sampled]
+    python benchmarks/pool_online_replicates.py results results/fig2_actor512_m8_online3 [more report dirs] [--sampled]
 
 Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
 evaluations of the two fine-tuned arms, and ``{adaptive,fixed}_r<r>.json`` those of its further

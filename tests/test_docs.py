@@ -1,0 +1,138 @@
+"""The documentation's links resolve: every relative link in README.md, docs/*.md and
+results/README.md names a file or directory of the repository, and an anchor (``page.md#section``)
+names a heading of that page. The README stays a short front page."""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PAGES = sorted([REPO / "README.md", REPO / "results" / "README.md", *(REPO / "docs").glob("*.md")])
+README_MAX_LINES = 300
+
+# [text](target) and ![alt](target); the target stops at whitespace or ")" (no titles are used)
+LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?\s*\)")
+FENCE = re.compile(r"^(```|~~~)")
+INLINE_CODE = re.compile(r"`[^`]*`")
+HEADING = re.compile(r"^#{1,6}\s+(.*?)\s*#*\s*$")
+
+
+def prose_lines(text: str, keep_code: bool = False) -> list[str]:
+    """The lines outside fenced code blocks, with inline code removed unless ``keep_code`` (a link
+    inside code is text, not a link)."""
+    out, fenced = [], False
+    for line in text.splitlines():
+        if FENCE.match(line.lstrip()):
+            fenced = not fenced
+            continue
+        if not fenced:
+            out.append(line if keep_code else INLINE_CODE.sub("", line))
+    return out
+
+
+def links(text: str) -> list[str]:
+    return [m.group(1) for line in prose_lines(text) for m in LINK.finditer(line)]
+
+
+def github_slug(heading: str) -> str:
+    """GitHub's anchor for a heading: inline markup dropped, lower case, every character that is not
+    a letter, digit, space, hyphen or underscore removed, spaces turned into hyphens."""
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading)  # a link keeps its text
+    text = text.replace("`", "").replace("*", "").lower()
+    kept = "".join(c for c in text if c in " -_" or unicodedata.category(c)[0] in "LN")
+    return kept.replace(" ", "-")
+
+
+def anchors(page: Path) -> set[str]:
+    """Every anchor of a markdown page, with GitHub's -1, -2, ... suffixes for repeated headings."""
+    if page.suffix != ".md":
+        return set()
+    counts: dict[str, int] = {}
+    out = set()
+    for line in prose_lines(page.read_text(encoding="utf-8"), keep_code=True):
+        match = HEADING.match(line)
+        if match:
+            slug = github_slug(match.group(1))
+            n = counts.get(slug, 0)
+            out.add(slug if n == 0 else f"{slug}-{n}")
+            counts[slug] = n + 1
+    return out
+
+
+def is_external(target: str) -> bool:
+    return bool(re.match(r"^[a-z][a-z0-9+.-]*:", target, re.IGNORECASE))
+
+
+def broken_links(page: Path) -> list[str]:
+    problems = []
+    for target in links(page.read_text(encoding="utf-8")):
+        if is_external(target):
+            continue
+        path_part, _, anchor = target.partition("#")
+        dest = page if not path_part else (page.parent / path_part).resolve()
+        if not dest.exists():
+            problems.append(f"{target}: no such file")
+        elif REPO not in dest.parents and dest != REPO:
+            problems.append(f"{target}: outside the repository")
+        elif anchor and anchor not in anchors(dest):
+            problems.append(f"{target}: no heading #{anchor} in {dest.relative_to(REPO)}")
+    return problems
+
+
+def test_the_pages_exist() -> None:
+    names = {p.relative_to(REPO).as_posix() for p in PAGES}
+    expected = {"algorithm", "environment", "style", "offline-to-online", "zoo", "benchmarks", "figure2"}
+    assert {f"docs/{n}.md" for n in expected | {"README", "research-log"}} <= names
+    assert {"README.md", "results/README.md"} <= names
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(REPO).as_posix())
+def test_relative_links_resolve(page: Path) -> None:
+    assert links(page.read_text(encoding="utf-8")), f"{page.name} links nowhere"
+    assert broken_links(page) == []
+
+
+def test_readme_is_short() -> None:
+    n_lines = len((REPO / "README.md").read_text(encoding="utf-8").splitlines())
+    assert n_lines <= README_MAX_LINES, f"README.md has {n_lines} lines (at most {README_MAX_LINES})"
+
+
+def test_every_docs_page_is_in_the_index() -> None:
+    index = set(links((REPO / "docs" / "README.md").read_text(encoding="utf-8")))
+    for page in (REPO / "docs").glob("*.md"):
+        if page.name != "README.md":
+            assert page.name in index, f"docs/README.md does not link {page.name}"
+
+
+# the checker itself, on hand-made pages: a broken file, a broken anchor and a link in code
+
+
+def test_the_checker_finds_broken_links(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setitem(globals(), "REPO", tmp_path)
+    (tmp_path / "other.md").write_text(
+        "# Reproducibility per machine\n\n## `make main`\n\n## Offline → online\n"
+    )
+    page = tmp_path / "page.md"
+    page.write_text(
+        "[ok](other.md#reproducibility-per-machine) [ok](other.md#make-main) "
+        "[ok](other.md#offline--online) [web](https://example.org/x) ![img](other.md)\n"
+        "[missing](nothing.md) [bad anchor](other.md#nowhere) `[code](nothing.md)`\n"
+        "```\n[fenced](nothing.md)\n```\n"
+    )
+    assert broken_links(page) == [
+        "nothing.md: no such file",
+        "other.md#nowhere: no heading #nowhere in other.md",
+    ]
+
+
+def test_github_slugs() -> None:
+    assert (
+        github_slug("Learning on Pendulum-v1: what limits UA2C") == "learning-on-pendulum-v1-what-limits-ua2c"
+    )
+    assert github_slug("Entropy, δ and their units") == "entropy-δ-and-their-units"
+    assert github_slug("`make main`") == "make-main"
+    assert github_slug("Cost model of the Figure-2 estimate") == "cost-model-of-the-figure-2-estimate"
