@@ -301,6 +301,8 @@ class UA2CPolicy(BasePolicy):
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
+    :param normalize_images: must be ``False``: observations are flattened as they are (SB3's
+        argument, kept so that ``UA2CPolicy.load`` rebuilds the policy like SB3's policies)
     """
 
     def __init__(
@@ -326,7 +328,12 @@ class UA2CPolicy(BasePolicy):
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = False,
     ) -> None:
+        if normalize_images is not False:
+            raise ValueError(
+                f"normalize_images must be False (UA2C flattens Box observations as they are), got {normalize_images!r}"
+            )
         if not isinstance(action_space, spaces.Box):
             raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
         if not isinstance(observation_space, spaces.Box):
@@ -406,8 +413,9 @@ class UA2CPolicy(BasePolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
+        data = super()._get_constructor_parameters()  # spaces and normalize_images
         data.update(
+            lr_schedule=self._dummy_schedule,  # as SB3's policies: no learning rate to act with
             chunk_size=self.chunk_size,
             history_len=self.history_len,
             flow_steps=self.flow_steps,
