@@ -30,8 +30,16 @@ from sb3_ua2c.chunking import (
 )
 from sb3_ua2c.flow import euler_sample, euler_times
 
-#: seed of the noise used by ``predict(..., deterministic=True)``
+#: seed of the candidate noise ``x_0`` used by ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_SEED = 0
+
+
+def deterministic_generator(device: th.device | str) -> th.Generator:
+    """Generator of the candidate noise of ``predict(..., deterministic=True)``, seeded with
+    :data:`DETERMINISTIC_NOISE_SEED` (a fresh one per call: the same draw at every replanning)."""
+    generator = th.Generator(device=device)
+    generator.manual_seed(DETERMINISTIC_NOISE_SEED)
+    return generator
 
 
 class VelocityField(nn.Module):
@@ -301,6 +309,8 @@ class UA2CPolicy(BasePolicy):
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
+    :param normalize_images: must be ``False``: observations are flattened as they are (SB3's
+        argument, kept so that ``UA2CPolicy.load`` rebuilds the policy like SB3's policies)
     """
 
     def __init__(
@@ -326,7 +336,12 @@ class UA2CPolicy(BasePolicy):
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = False,
     ) -> None:
+        if normalize_images is not False:
+            raise ValueError(
+                f"normalize_images must be False (UA2C flattens Box observations as they are), got {normalize_images!r}"
+            )
         if not isinstance(action_space, spaces.Box):
             raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
         if not isinstance(observation_space, spaces.Box):
@@ -406,8 +421,9 @@ class UA2CPolicy(BasePolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
+        data = super()._get_constructor_parameters()  # spaces and normalize_images
         data.update(
+            lr_schedule=self._dummy_schedule,  # as SB3's policies: no learning rate to act with
             chunk_size=self.chunk_size,
             history_len=self.history_len,
             flow_steps=self.flow_steps,
@@ -454,6 +470,7 @@ class UA2CPolicy(BasePolicy):
         n_samples: int,
         n_steps: int,
         generator: th.Generator | None = None,
+        shared_noise: bool = False,
     ) -> th.Tensor:
         """
         Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
@@ -462,14 +479,22 @@ class UA2CPolicy(BasePolicy):
         :param n_samples: candidates per history
         :param n_steps: Euler steps
         :param generator: optional random generator for the noise
+        :param shared_noise: one noise draw ``(n_samples, k, action_dim)`` for every history, so that
+            a history's chunks do not depend on the other rows of the batch (deterministic acting);
+            ``False``: independent noise per history
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
-        shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
+        b = cond.shape[0]
+        shape = (1 if shared_noise else b, n_samples, self.chunk_size, self.action_dim)
         x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
-        return self.actor.sample(x0, cond, n_steps)
+        return self.actor.sample(x0.expand(b, -1, -1, -1), cond, n_steps)
 
     def plan_tensors(
-        self, obs_history: th.Tensor, action_history: th.Tensor, generator: th.Generator | None = None
+        self,
+        obs_history: th.Tensor,
+        action_history: th.Tensor,
+        generator: th.Generator | None = None,
+        shared_noise: bool = False,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
         One replanning (Eq. 7): sample S chunks, keep the one with the highest ``min_j Q_j``, measure
@@ -479,11 +504,13 @@ class UA2CPolicy(BasePolicy):
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
         :param generator: optional random generator for the noise
+        :param shared_noise: the same S noises for every history (see :meth:`sample_chunks`)
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
-        samples = self.sample_chunks(cond, self.n_candidates, self.flow_steps, generator)  # (m, S, k, A)
+        s, n_steps = self.n_candidates, self.flow_steps
+        samples = self.sample_chunks(cond, s, n_steps, generator, shared_noise)  # (m, S, k, A)
         entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
@@ -499,17 +526,17 @@ class UA2CPolicy(BasePolicy):
         """
         NumPy front end of :meth:`plan_tensors` (a :data:`~sb3_ua2c.chunking.Planner`).
 
-        ``deterministic=True`` draws the noise from a generator with a fixed seed, so the same history
-        always gives the same plan; the selection and prefix rules are unchanged.
+        ``deterministic=True`` starts every history's S candidates from the same noise ``x_0``, drawn
+        with a fixed seed (:func:`deterministic_generator`): a row's plan is a function of its own
+        history, whatever the batch it is planned in and its position there (up to the last-bit
+        rounding of batched matrix products, which depends on the batch size as in any SB3 policy);
+        the selection and prefix rules are unchanged. ``False``: fresh noise for every history.
         """
-        generator = None
-        if deterministic:
-            generator = th.Generator(device=self.device)
-            generator.manual_seed(DETERMINISTIC_NOISE_SEED)
+        generator = deterministic_generator(self.device) if deterministic else None
         with th.inference_mode():
             obs_t = th.as_tensor(obs_history, device=self.device, dtype=th.float32)
             act_t = th.as_tensor(action_history, device=self.device, dtype=th.float32)
-            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator)
+            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator, shared_noise=deterministic)
         return PlanResult(chunks.cpu().numpy(), lengths.cpu().numpy(), entropy.cpu().numpy())
 
     # ------------------------------------------------------------------ SB3 interface
@@ -521,11 +548,8 @@ class UA2CPolicy(BasePolicy):
         assert isinstance(observation, th.Tensor)
         obs = observation.reshape(observation.shape[0], 1, -1).expand(-1, self.history_len, -1)
         act = th.zeros(obs.shape[0], self.history_len, self.action_dim, device=obs.device)
-        generator = None
-        if deterministic:
-            generator = th.Generator(device=obs.device)
-            generator.manual_seed(DETERMINISTIC_NOISE_SEED)
-        chunks, _, _ = self.plan_tensors(obs.float(), act, generator)
+        generator = deterministic_generator(obs.device) if deterministic else None
+        chunks, _, _ = self.plan_tensors(obs.float(), act, generator, shared_noise=deterministic)
         return chunks[:, 0]
 
     def predict(
@@ -543,7 +567,8 @@ class UA2CPolicy(BasePolicy):
         :param observation: observation(s)
         :param state: state returned by the previous call (``None`` = new episodes)
         :param episode_start: whether each observation starts an episode
-        :param deterministic: fixed-seed noise (same history -> same plan) instead of fresh noise
+        :param deterministic: the same fixed-seed noise for every replanning and every env (same
+            history -> same plan, whatever the other rows) instead of fresh noise
         :return: actions in the env's action space and the next state
         """
         if self.actor.training or self.critic.training:

@@ -1,10 +1,16 @@
-"""UA2CPolicy's replanning: which chunk a replanning executes (best-of-S or elite mean)."""
+"""UA2CPolicy's replanning: which chunk a replanning executes (best-of-S or elite mean), and
+deterministic plans that do not depend on the batch."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import DummyVecEnv
+from ua2c_helpers import FAST
 
+from sb3_ua2c import UA2C
 from sb3_ua2c.policies import UA2CPolicy
 
 
@@ -106,3 +112,104 @@ def test_commit_discrete_extends_only_the_prefix_length():
 def test_policy_rejects_non_bool_commit_discrete(bad):
     with pytest.raises(ValueError, match="commit_discrete"):
         make_policy(commit_discrete=bad)
+
+
+# ---------------------------------------------------------------- deterministic predict on a batch
+#: batched matrix products round a row differently at different batch sizes (a few float32 ulps, as
+#: for SB3's SAC); a noise draw that depends on the batch moves the actions by tenths
+ROUNDING = 1e-5
+
+
+def batch_policy(chunk_size: int) -> UA2CPolicy:
+    """A policy whose executable length ``L_t`` varies with the history for ``k = 3``."""
+    th.manual_seed(0)
+    return UA2CPolicy(
+        spaces.Box(-5.0, 5.0, (3,), dtype=np.float32),
+        spaces.Box(-2.0, 2.0, (2,), dtype=np.float32),
+        lambda _: 1e-3,
+        chunk_size=chunk_size,
+        history_len=2,
+        n_candidates=6,
+        flow_steps=2,
+        entropy_threshold=2.72,
+        net_arch=[16],
+        critic_embed_dim=8,
+        critic_ff_dim=16,
+    )
+
+
+def stateful_rollout(policy: UA2CPolicy, obs: np.ndarray, starts: np.ndarray):
+    """Deterministic actions ``(T, R, A)`` and plan lengths ``(T, R)`` of ``R`` envs fed ``obs`` ``(T, R, obs_dim)``."""
+    state, actions, lengths = None, [], []
+    for o, s in zip(obs, starts, strict=True):
+        a, state = policy.predict(o, state=state, episode_start=s, deterministic=True)
+        actions.append(a)
+        lengths.append(state.plan_length)
+    return np.array(actions), np.array(lengths)
+
+
+@pytest.mark.parametrize("chunk_size", [1, 3])
+def test_deterministic_predict_of_identical_rows_in_one_batch(chunk_size):
+    policy = batch_policy(chunk_size)
+    obs = np.array([0.5, -1.0, 2.0], np.float32)
+    alone, _ = policy.predict(obs, deterministic=True)
+    batch, _ = policy.predict(np.tile(obs, (5, 1)), deterministic=True)
+    np.testing.assert_allclose(batch, np.tile(alone, (5, 1)), rtol=0, atol=ROUNDING)
+    with th.inference_mode():
+        forward = policy(th.as_tensor(np.tile(obs, (5, 1))), deterministic=True)
+    np.testing.assert_allclose(policy.unscale_action(forward.numpy()), batch, rtol=0, atol=ROUNDING)
+
+
+@pytest.mark.parametrize("chunk_size", [1, 3])
+def test_deterministic_predict_row_is_independent_of_the_batch(chunk_size):
+    """A row's action alone, in a batch of 5 with other rows, and with the rows permuted."""
+    policy = batch_policy(chunk_size)
+    obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
+    alone = np.array([policy.predict(o, deterministic=True)[0] for o in obs])
+    batch, _ = policy.predict(obs, deterministic=True)
+    perm = np.array([3, 0, 4, 1, 2])
+    permuted, _ = policy.predict(obs[perm], deterministic=True)
+    np.testing.assert_allclose(batch, alone, rtol=0, atol=ROUNDING)
+    np.testing.assert_allclose(permuted, alone[perm], rtol=0, atol=ROUNDING)
+    assert np.abs(alone[:, None] - alone[None]).max() > 0.1  # the rows do act differently
+
+
+@pytest.mark.parametrize("chunk_size", [1, 3])
+def test_deterministic_stateful_predict_row_is_independent_of_the_batch(chunk_size):
+    """Five envs carrying ``state``, episodes starting at different steps: each env's actions and
+    ``L_t`` are those it gets alone, and in a permuted batch, although its replannings share calls
+    with different sets of other envs."""
+    policy = batch_policy(chunk_size)
+    n_steps, n_envs = 12, 5
+    obs = np.random.default_rng(1).normal(size=(n_steps, n_envs, 3)).astype(np.float32)
+    starts = np.zeros((n_steps, n_envs), dtype=bool)
+    starts[0] = True
+    for env, t in enumerate([5, 2, 7, 4, 9]):  # a second episode per env
+        starts[t, env] = True
+    batch, batch_len = stateful_rollout(policy, obs, starts)
+    for env in range(n_envs):
+        alone, alone_len = stateful_rollout(policy, obs[:, env : env + 1], starts[:, env : env + 1])
+        np.testing.assert_allclose(batch[:, env], alone[:, 0], rtol=0, atol=ROUNDING)
+        np.testing.assert_array_equal(batch_len[:, env], alone_len[:, 0])
+    perm = np.array([2, 4, 0, 3, 1])
+    permuted, permuted_len = stateful_rollout(policy, obs[:, perm], starts[:, perm])
+    np.testing.assert_allclose(permuted, batch[:, perm], rtol=0, atol=ROUNDING)
+    np.testing.assert_array_equal(permuted_len, batch_len[:, perm])
+    if chunk_size > 1:  # adaptive chunks: envs replan at different steps, so calls mix different rows
+        assert len(np.unique(batch_len)) > 1
+
+
+def test_evaluate_policy_with_several_envs_gives_each_env_its_own_returns():
+    """``evaluate_policy`` on 3 envs: each env's episode return is the one it gets evaluated alone."""
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=3, entropy_threshold=1.5, **FAST)
+
+    def returns(seeds: list[int]) -> list[float]:
+        env = DummyVecEnv([lambda: gym.make("Pendulum-v1", max_episode_steps=40)] * len(seeds))
+        env.seed(seeds[0])  # env i gets seed seeds[0] + i
+        rewards, _ = evaluate_policy(model, env, len(seeds), deterministic=True, return_episode_rewards=True, warn=False)
+        return rewards
+
+    together = returns([5, 6, 7])  # one episode per env, in the order they end (all after 40 steps)
+    alone = [returns([seed])[0] for seed in (5, 6, 7)]
+    np.testing.assert_allclose(together, alone, rtol=1e-5)
+    assert min(alone) < max(alone) - 1.0  # the envs do differ
