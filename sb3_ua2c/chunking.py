@@ -137,7 +137,7 @@ def select_chunk(
     discrete_dims: Mapping[int, int] | None = None,
 ) -> th.Tensor:
     """
-    The chunk a replanning executes, from its S candidates and their values ``min_j Q_j``.
+    The chunk a replanning executes, from its S candidates and their values ``min_j Q_j`` (:func:`pessimistic_q`).
 
     ``n_elite = 1`` keeps the candidate of highest value (best-of-S). ``n_elite = m > 1`` averages the
     continuous action dims of the ``m`` highest-valued candidates position by position (an elite mean,
@@ -223,6 +223,31 @@ def discounted_chunk_return(rewards: th.Tensor, horizon: th.Tensor, gamma: float
     return (rewards * discounts * mask).sum(dim=-1)
 
 
+def pessimistic_q(q_values: th.Tensor) -> th.Tensor:
+    """
+    Pessimistic value ``min_j Q_j(h, a)`` over the critic ensemble (clipped double-Q): the value that
+    ranks the replanning candidates of Eq. 7, scores the actor's chunk in Eq. 2, and, over the
+    target critics, enters the bootstrap of Eq. 4 / Eq. 8 (:func:`bootstrap_value`).
+
+    :param q_values: one value per critic, shape ``(n_critics, *batch)``, e.g. ``(n_critics, B, C)``
+        from the chunk critic on ``C`` chunks per history
+    :return: minimum over the critics, shape ``(*batch,)``
+    """
+    return q_values.min(dim=0).values  # (n_critics, *batch) -> (*batch)
+
+
+def bootstrap_value(q_candidates: th.Tensor) -> th.Tensor:
+    """
+    Bootstrap value of Eq. 4 / Eq. 8: ``max_q min_j Q_target_j(h', a^(q))``, the best of ``Q`` chunks
+    sampled from the policy at the next history ``h'``, each valued pessimistically over the target
+    critics.
+
+    :param q_candidates: target-critic values of the candidates, shape ``(n_critics, B, Q)``
+    :return: ``V(h')``, shape ``(B,)``
+    """
+    return pessimistic_q(q_candidates).max(dim=1).values  # (n, B, Q) -> (B, Q) -> (B,)
+
+
 def chunk_target(
     rewards: th.Tensor,
     horizon: th.Tensor,
@@ -240,7 +265,7 @@ def chunk_target(
     :param rewards: window rewards, shape ``(batch, k)``
     :param horizon: ``L`` per sample (``k`` for full offline windows, ``L_t`` for online plans), ``(batch,)``
     :param bootstrap_mask: ``m`` in {0, 1}, shape ``(batch,)``
-    :param next_value: ``max_q min_j Q_target_j(h_{t+L}, a^(q))``, shape ``(batch,)``
+    :param next_value: ``max_q min_j Q_target_j(h_{t+L}, a^(q))`` (:func:`bootstrap_value`), shape ``(batch,)``
     :param gamma: discount factor
     :return: targets ``y``, shape ``(batch,)``
     """

@@ -26,6 +26,7 @@ from sb3_ua2c.chunking import (
     commit_through_switch,
     continuous_dims,
     executable_prefix_length,
+    pessimistic_q,
     select_chunk,
 )
 from sb3_ua2c.flow import euler_sample, euler_times
@@ -514,7 +515,7 @@ class UA2CPolicy(BasePolicy):
         entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
-        q = self.critic(obs_history.reshape(m, -1), clipped).min(dim=0).values  # (m, S)
+        q = pessimistic_q(self.critic(obs_history.reshape(m, -1), clipped))  # (n, m, S) -> (m, S)
         chunks = select_chunk(clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)

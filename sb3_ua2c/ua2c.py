@@ -41,9 +41,11 @@ from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ExecutorStep,
     PlanResult,
+    bootstrap_value,
     chunk_critic_loss,
     chunk_target,
     normalize_discrete_dims,
+    pessimistic_q,
 )
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
@@ -744,7 +746,7 @@ class UA2C(OffPolicyAlgorithm):
             next_q = self.critic_target(
                 data.next_observation_history.reshape(b, -1), candidates.clamp(-1.0, 1.0)
             )
-            next_value = next_q.min(dim=0).values.max(dim=1).values  # (n, B, Q) -> (B,)
+            next_value = bootstrap_value(next_q)  # (n, B, Q) -> (B,)
             target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
         q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(-1)  # (n, B, 1) -> (n, B)
         critic_loss = chunk_critic_loss(q, target)
@@ -762,7 +764,7 @@ class UA2C(OffPolicyAlgorithm):
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
         try:
             # (n, B, 1) -> (B,)
-            q_pi = self.critic(obs_flat, x_hat.unsqueeze(1)).min(dim=0).values.squeeze(-1)
+            q_pi = pessimistic_q(self.critic(obs_flat, x_hat.unsqueeze(1))).squeeze(-1)
         finally:
             self.critic.requires_grad_(True)
         roughness = chunk_roughness(x_hat, policy.continuous_dims) if self.smooth_weight > 0.0 else None

@@ -10,6 +10,7 @@ from sb3_ua2c.chunking import (
     ENTROPY_EPS,
     AdaptiveChunkExecutor,
     PlanResult,
+    bootstrap_value,
     categorical_entropy,
     categorize,
     chunk_critic_loss,
@@ -20,6 +21,7 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     gaussian_entropy,
     normalize_discrete_dims,
+    pessimistic_q,
     select_chunk,
 )
 
@@ -149,6 +151,35 @@ def test_chunk_target_terminal_and_truncation_inside_window():
     # adaptive prefix L_t = 1 (Eq. 8): 2 + 0.5 * 10
     assert y.tolist() == pytest.approx([1.5, 3.5, 7.0])
     assert discounted_chunk_return(r, horizon, 0.5).tolist() == pytest.approx([1.5, 1.5, 2.0])
+
+
+def test_pessimistic_q_is_the_min_over_critics_and_its_gradient_picks_that_critic():
+    # (n_critics=2, B=2, C=1), as the actor's value term of Eq. 2 sees it
+    q = th.tensor([[[3.0], [-1.0]], [[2.0], [4.0]]], requires_grad=True)
+    v = pessimistic_q(q)
+    assert v.shape == (2, 1)
+    assert v.tolist() == [[2.0], [-1.0]]
+    v.sum().backward()
+    # only the pessimistic critic of each sample receives the gradient
+    assert q.grad.tolist() == [[[0.0], [1.0]], [[1.0], [0.0]]]
+    # (n_critics=3, m=1, S=2), as the replanning of Eq. 7 ranks its candidates
+    assert pessimistic_q(th.tensor([[[5.0, 0.0]], [[1.0, 9.0]], [[7.0, 2.0]]])).tolist() == [[1.0, 0.0]]
+
+
+def test_bootstrap_value_is_max_over_candidates_of_min_over_critics():
+    # (n_critics=2, B=2, Q=3)
+    q = th.tensor(
+        [
+            [[1.0, 5.0, 3.0], [0.0, -2.0, 4.0]],
+            [[2.0, 4.0, 6.0], [-1.0, 7.0, 1.0]],
+        ]
+    )
+    # min_j: [[1, 4, 3], [-1, -2, 1]] -> max_q: [4, 1]
+    assert bootstrap_value(q).tolist() == [4.0, 1.0]
+    # the order matters: min_j max_q would give [min(5, 6), min(4, 7)] = [5, 4]
+    assert q.max(dim=2).values.min(dim=0).values.tolist() == [5.0, 4.0]
+    # one candidate (Q = 1) is the pessimistic value itself
+    assert bootstrap_value(q[..., 1:2]).tolist() == [4.0, -2.0]
 
 
 def test_chunk_critic_loss_hand_computed():

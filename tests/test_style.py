@@ -2,6 +2,8 @@
 
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -348,6 +350,29 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train", "--data", str(tmp_path / "d.npz"), "--model", "d_modle=8", "--no-progress"])
     assert "d_modle" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("module_args", [["sb3_ua2c", "style"], ["sb3_ua2c.style"]])
+def test_cli_entry_points(module_args):
+    """Both spellings of the command line reach the same parser."""
+    done = subprocess.run(
+        [sys.executable, "-m", *module_args, "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: python -m sb3_ua2c.style [-h] {collect,train,evaluate}")
+
+
+def test_package_reexports_every_public_name():
+    import sb3_ua2c.style as style_pkg
+    from sb3_ua2c.style import cli, data, model, train
+
+    assert style_pkg.main is cli.main and style_pkg.StyleDataset is data.StyleDataset
+    assert style_pkg.DrivingStyleClassifier is model.DrivingStyleClassifier
+    assert style_pkg.train_style_classifier is train.train_style_classifier
+    assert all(hasattr(style_pkg, name) for name in style_pkg.__all__)
+    # the packaged classifier sits next to the package, not inside it
+    assert DEFAULT_CLASSIFIER_PATH.parent.name == "data"
+    assert DEFAULT_CLASSIFIER_PATH.parent.parent.name == "sb3_ua2c"
 
 
 # ---------------------------------------------------------------------------- environment and package data
