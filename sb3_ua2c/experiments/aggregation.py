@@ -94,50 +94,135 @@ def aggregate(
     :param budget: the run's budget (recorded, and it names the sweep arms)
     """
     seeds = list(seeds)
-    missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
-    if missing:
-        raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
-    methods = {
-        m: _stats(raw[m], seeds)
-        for m in raw
-        if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)
-    }
-
-    def per_seed(method: str, key: str) -> list[float]:
-        return methods[method][key]["per_seed"]
-
-    # online phases complete for every seed; (c) pools their paired runs
-    phases = [
-        r for r in range(budget.online_replicates)
-        if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
-    ]
-    online_phases = _online_phases(raw, methods, seeds, phases)
-    offline_reward = compare(per_seed("chunk", "reward"), per_seed("onestep", "reward"))
-    offline_jerk = compare(per_seed("chunk", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk"))
-    online_reward = compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])
+    methods = _methods(raw, seeds)
+    online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
+    comparisons = _claim_comparisons(methods, online_phases)
     result: dict[str, Any] = {
-        "offline_reward_gain_pct": offline_reward["change_pct"],
-        "offline_jerk_change_pct": offline_jerk["change_pct"],
-        "online_reward_gain_pct": online_reward["change_pct"],
-        "comparisons": {
-            "offline_reward": offline_reward,
-            "offline_jerk": offline_jerk,
-            "online_reward": online_reward,
-        },
+        **{paper_key: comparisons[key]["change_pct"] for paper_key, key in CLAIM_COMPARISONS.items()},
+        "comparisons": comparisons,
         "paper": dict(PAPER),
         "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
         "methods": methods,
         "seeds": seeds,
         "budget": budget.to_dict(),
         "online_phases": online_phases,
+        **_style_summary(raw, seeds),
+        "delta_sweep": _delta_sweep(methods, budget),
+        "k_sweep": _k_sweep(methods, budget),
+        **_acting_sweep(methods, budget),
     }
-    if "style" in raw and all(s in raw["style"] for s in seeds):
-        styles = [raw["style"][s] for s in seeds]
-        macro = [float(r["macro_accuracy"]) for r in styles]
-        mean, half = t_confidence_interval(macro)
-        matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
-        result["style_macro_accuracy"] = mean
-        result["style"] = {
+    comparisons.update(_further_comparisons(methods, online_phases))
+    training = _training_episodes(raw, seeds, budget)
+    if training:
+        result["online_phase"] = training
+    if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
+        comparisons.update(_sampled_comparisons(methods, online_phases))
+        result["sampled"] = {
+            paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
+            for paper_key, key in CLAIM_COMPARISONS.items()
+        }
+    if "adaptive_style" in methods:
+        result["style_context"] = {
+            "with": "adaptive_style",
+            "without": "adaptive",
+            "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward"),
+        }
+    return result
+
+
+def _methods(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int]) -> dict[str, Any]:
+    """:func:`_stats` of every method evaluated on all ``seeds``; the four arms of (a)-(c) must be."""
+    missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
+    if missing:
+        raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
+    return {
+        m: _stats(raw[m], seeds)
+        for m in raw
+        if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)
+    }
+
+
+def _per_seed(methods: Mapping[str, Any], method: str, key: str) -> list[float]:
+    return methods[method][key]["per_seed"]
+
+
+def _compare(methods: Mapping[str, Any], new: str, base: str, key: str) -> dict[str, Any]:
+    """:func:`compare` of metric ``key`` of method ``new`` against method ``base``, seed by seed."""
+    return compare(_per_seed(methods, new, key), _per_seed(methods, base, key))
+
+
+def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int]:
+    """The online phases whose two arms were evaluated on every seed: (c) pools their paired runs."""
+    return [
+        r for r in range(budget.online_replicates)
+        if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
+    ]
+
+
+def _claim_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
+    """(a), (b) and (c): the comparisons behind the paper's three numbers (:data:`CLAIM_COMPARISONS`)."""
+    return {
+        "offline_reward": _compare(methods, "chunk", "onestep", "reward"),
+        "offline_jerk": _compare(methods, "chunk", "onestep", "cumulative_jerk"),
+        "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"]),
+    }
+
+
+def _further_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
+    """The comparisons beyond the paper's numbers, for the arms the run has: (c''') the execution rule
+    alone, (a') and (b') the offline chunk policy with Eq. 7 execution, (c') and (c'') the Phase-2
+    training episodes (pooled over the online phases like (c)), (b'') jerk per step."""
+    out: dict[str, Any] = {}
+    if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
+        out["online_execution_rule"] = _compare(methods, "fixed_adaptive", "fixed", "reward")
+    if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
+        out["offline_reward_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "reward")
+        out["offline_jerk_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "cumulative_jerk")
+    episodes = online_phases["training_episodes"]
+    if episodes:  # (c') and (c''), pooled over the online phases like (c)
+        out["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
+        out["online_phase_reward_last"] = compare(episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"])
+    if {"chunk", "onestep"} <= set(methods) and all(
+        math.isfinite(v) for m in ("chunk", "onestep") for v in _per_seed(methods, m, "jerk_per_step")
+    ):
+        out["offline_jerk_per_step"] = _compare(methods, "chunk", "onestep", "jerk_per_step")
+    return out
+
+
+def _sampled_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
+    """(a)-(c), (b'') and (c''') between the evaluations with fresh candidate noise (``<key>_sampled``)."""
+    sampled = {
+        "offline_reward": ("chunk", "onestep", "reward"),
+        "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
+        "online_reward": ("adaptive", "fixed", "reward"),
+        "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
+        "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
+    }
+    out: dict[str, Any] = {}
+    for key, (new, base, metric) in sampled.items():
+        names = (sampled_name(new), sampled_name(base))
+        if key == "online_reward":  # pooled over the online phases, like (c)
+            if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
+                out[f"{key}_sampled"] = compare(
+                    online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"]
+                )
+        elif all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
+            out[f"{key}_sampled"] = _compare(methods, names[0], names[1], metric)
+    return out
+
+
+def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -> dict[str, Any]:
+    """(d): ``style_macro_accuracy`` (NaN without style results for every seed) and ``style``, the
+    classifier's accuracies and its confusion matrix summed over seeds."""
+    if not ("style" in raw and all(s in raw["style"] for s in seeds)):
+        return {"style_macro_accuracy": math.nan}
+    styles = [raw["style"][s] for s in seeds]
+    macro = [float(r["macro_accuracy"]) for r in styles]
+    mean, half = t_confidence_interval(macro)
+    matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
+    return {
+        "style_macro_accuracy": mean,
+        "style": {
             "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
             "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
             "baseline_macro_accuracy_per_seed": [
@@ -146,36 +231,39 @@ def aggregate(
             "confusion_matrix": matrix.tolist(),
             "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds",
             "classes": styles[0]["classes"],
-        }
-    else:
-        result["style_macro_accuracy"] = math.nan
-    result["delta_sweep"] = [
-        {
-            "delta": d,
-            "method": f"delta_{delta_name(d)}",
-            **{
-                k: methods[f"delta_{delta_name(d)}"][k]
-                for k in ("reward", "mean_executed_length", "cumulative_jerk")
-            },
-        }
-        for d in budget.delta_sweep
-        if f"delta_{delta_name(d)}" in methods
-    ]
-    result["k_sweep"] = [
-        {
-            "k": k,
-            "method": f"k{k}",
-            **{key: methods[f"k{k}"][key] for key in ("reward", "cumulative_jerk", "collision")},
-        }
+        },
+    }
+
+
+def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
+    """The fine-tuned adaptive checkpoint executed with each threshold δ of the sweep."""
+    rows = []
+    for d in budget.delta_sweep:
+        name = f"delta_{delta_name(d)}"
+        if name in methods:
+            keys = ("reward", "mean_executed_length", "cumulative_jerk")
+            rows.append({"delta": d, "method": name, **{k: methods[name][k] for k in keys}})
+    return rows
+
+
+def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
+    """The chunk policies pre-trained with each chunk length k of the sweep."""
+    keys = ("reward", "cumulative_jerk", "collision")
+    return [
+        {"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
         for k in budget.k_sweep
         if f"k{k}" in methods
     ]
-    result["acting_sweep"] = []
+
+
+def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> dict[str, Any]:
+    """``acting_sweep``: the offline one-step and chunk checkpoints acting with each other rule (Euler
+    steps N, elite size m) and the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
     from sb3_ua2c.ua2c import UA2CConfig
 
     default_n = int(budget.algo_kwargs.get("flow_steps", UA2CConfig.flow_steps))
     default_elite = budget.default_elite
-    result["acting_default"] = {"flow_steps": default_n, "n_elite": default_elite}
+    rows = []
     for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints
         arms = {arm: acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
@@ -183,75 +271,29 @@ def aggregate(
         row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
         for arm, name in arms.items():
             row[arm] = {key: methods[name][key] for key in ("reward", "cumulative_jerk", "jerk_per_step", "collision")}
-        row["jerk_change"] = compare(per_seed(arms["chunk"], "cumulative_jerk"), per_seed(arms["onestep"], "cumulative_jerk"))
-        row["reward_change"] = compare(per_seed(arms["chunk"], "reward"), per_seed(arms["onestep"], "reward"))
-        result["acting_sweep"].append(row)
-    if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
-        result["comparisons"]["online_execution_rule"] = compare(
-            per_seed("fixed_adaptive", "reward"), per_seed("fixed", "reward")
-        )
-    if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
-        result["comparisons"]["offline_reward_chunk_adaptive"] = compare(
-            per_seed("chunk_adaptive", "reward"), per_seed("onestep", "reward")
-        )
-        result["comparisons"]["offline_jerk_chunk_adaptive"] = compare(
-            per_seed("chunk_adaptive", "cumulative_jerk"), per_seed("onestep", "cumulative_jerk")
-        )
-    online = {
-        arm: [online_phase_stats(raw[f"online/{arm}"][s]["episodes"]) for s in seeds]
-        for arm in ONLINE_ARMS
-        if f"online/{arm}" in raw and all(s in raw[f"online/{arm}"] for s in seeds)
-    }
-    if online:
-        result["online_phase"] = {}
-        for arm, rows in online.items():
-            stats: dict[str, Any] = {}
-            for key in ("reward", "reward_last", "collision", "episodes"):
-                values = [r[key] for r in rows]
-                mean, half = t_confidence_interval(values)
-                stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
-            stats["curve"] = online_curve([raw[f"online/{arm}"][s]["episodes"] for s in seeds], budget.finetune_steps)
-            result["online_phase"][arm] = stats
-    episodes = result["online_phases"]["training_episodes"]
-    if episodes:  # (c') and (c''), pooled over the online phases like (c)
-        result["comparisons"]["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
-        result["comparisons"]["online_phase_reward_last"] = compare(
-            episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"]
-        )
-    if {"chunk", "onestep"} <= set(methods) and all(
-        math.isfinite(v) for m in ("chunk", "onestep") for v in per_seed(m, "jerk_per_step")
-    ):
-        result["comparisons"]["offline_jerk_per_step"] = compare(
-            per_seed("chunk", "jerk_per_step"), per_seed("onestep", "jerk_per_step")
-        )
-    if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
-        sampled = {
-            "offline_reward": ("chunk", "onestep", "reward"),
-            "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
-            "online_reward": ("adaptive", "fixed", "reward"),
-            "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
-            "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
-        }
-        for key, (new, base, metric) in sampled.items():
-            names = (sampled_name(new), sampled_name(base))
-            if key == "online_reward":  # pooled over the online phases, like (c)
-                if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
-                    result["comparisons"][f"{key}_sampled"] = compare(
-                        online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"]
-                    )
-            elif all(n in methods and all(math.isfinite(v) for v in per_seed(n, metric)) for n in names):
-                result["comparisons"][f"{key}_sampled"] = compare(per_seed(names[0], metric), per_seed(names[1], metric))
-        result["sampled"] = {
-            paper_key: result["comparisons"].get(f"{key}_sampled", {}).get("change_pct", math.nan)
-            for paper_key, key in CLAIM_COMPARISONS.items()
-        }
-    if "adaptive_style" in methods:
-        result["style_context"] = {
-            "with": "adaptive_style",
-            "without": "adaptive",
-            "reward_gain_pct": compare(per_seed("adaptive_style", "reward"), per_seed("adaptive", "reward")),
-        }
-    return result
+        row["jerk_change"] = _compare(methods, arms["chunk"], arms["onestep"], "cumulative_jerk")
+        row["reward_change"] = _compare(methods, arms["chunk"], arms["onestep"], "reward")
+        rows.append(row)
+    return {"acting_sweep": rows, "acting_default": {"flow_steps": default_n, "n_elite": default_elite}}
+
+
+def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
+    """Phase-2 training episodes of each logged arm (:data:`ONLINE_ARMS`, first online phase): mean return,
+    over the last quarter, collision rate and episode count over seeds, and the learning curve."""
+    out: dict[str, Any] = {}
+    for arm in ONLINE_ARMS:
+        if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
+            continue
+        logs = raw[f"online/{arm}"]
+        rows = [online_phase_stats(logs[s]["episodes"]) for s in seeds]
+        stats: dict[str, Any] = {}
+        for key in ("reward", "reward_last", "collision", "episodes"):
+            values = [r[key] for r in rows]
+            mean, half = t_confidence_interval(values)
+            stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
+        stats["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
+        out[arm] = stats
+    return out
 
 
 def _online_phases(

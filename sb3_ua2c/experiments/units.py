@@ -244,65 +244,69 @@ def _merge_seconds(path: Path, seconds: Mapping[str, float]) -> None:
     write_json(path, {**old, **seconds})
 
 
+@dataclass(frozen=True)
+class _SeedUnits:
+    """The units of one seed; each one is skipped when its file exists."""
+
+    seed: int
+    budget: Fig2Budget
+    work: Path
+    raw: Path
+    log: UnitLog
+
+    def dataset(self, name: str, style_classifier: str | None = None) -> Any:
+        """The seed's offline dataset ``<work>/<name>`` (the style ablation's: with the style context)."""
+        return _dataset(
+            self.work / name,
+            self.budget.dataset_episodes,
+            DATASET_SEED_BASE + 10_000 * self.seed,
+            dict(self.budget.env_kwargs),
+            style_classifier,
+            self.log,
+            f"seed{self.seed}/{name}",
+        )
+
+    def pretrained(self, k: int, dataset: Any, name: str) -> Path:
+        """Phase 1 of the arm with chunk length ``k`` into ``<work>/<name>.zip``."""
+        from sb3_ua2c.pipeline import pretrain
+
+        path = self.work / f"{name}.zip"
+        if not path.is_file():
+            with self.log.timed(f"seed{self.seed}/pretrain/{name}"):
+                pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, algo_kwargs=self.budget.arm_kwargs(k))
+        return path
+
+    def finetuned(self, start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
+        """Phase 2 from ``start`` with threshold ``delta`` in online phase ``replicate``, into
+        ``<work>/<name>.zip``; its training episodes go to ``<raw>/online/<name>.json``."""
+        from sb3_ua2c.pipeline import finetune
+
+        path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
+        if not path.is_file():
+            with self.log.timed(f"seed{self.seed}/finetune/{name}"):
+                finetune(
+                    start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
+                    seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
+                    algo_overrides=finetune_overrides(self.budget), monitor_file=monitor,
+                )
+        _online_episodes(self.raw / "online" / f"{name}.json", monitor)
+        return path
+
+    def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None, **kwargs: Any) -> None:
+        """:func:`_evaluation` of ``checkpoint`` as ``method`` (``kwargs``: ``n_elite``, ``flow_steps``,
+        ``deterministic``)."""
+        _evaluation(self.raw, method, checkpoint, self.seed, self.budget, settings, delta, self.log, **kwargs)
+
+
 def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
     """The units of :func:`run_seed`, in dependency order."""
-    from sb3_ua2c.pipeline import env_settings, finetune, pretrain
+    from sb3_ua2c.pipeline import env_settings
 
-    env_kwargs = dict(budget.env_kwargs)
-    ds = _dataset(
-        work / "dataset",
-        budget.dataset_episodes,
-        DATASET_SEED_BASE + 10_000 * seed,
-        env_kwargs,
-        None,
-        log,
-        f"seed{seed}/dataset",
-    )
+    units = _SeedUnits(seed, budget, work, raw, log)
+    ds = units.dataset("dataset")
     settings = env_settings(ds)
-
-    def pretrained(k: int, dataset: Any, name: str) -> Path:
-        path = work / f"{name}.zip"
-        if not path.is_file():
-            with log.timed(f"seed{seed}/pretrain/{name}"):
-                pretrain(dataset, path, budget.pretrain_steps, seed=seed, algo_kwargs=budget.arm_kwargs(k))
-        return path
-
-    def finetuned(start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
-        path, monitor = work / f"{name}.zip", work / f"{name}.monitor.csv"
-        if not path.is_file():
-            with log.timed(f"seed{seed}/finetune/{name}"):
-                finetune(
-                    start, path, budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                    seed=seed + MAX_SEED * (budget.online_seed_offset + replicate),
-                    algo_overrides=finetune_overrides(budget), monitor_file=monitor,
-                )
-        _online_episodes(raw / "online" / f"{name}.json", monitor)
-        return path
-
-    # (a), (b) and the k sweep: same data, same gradient budget
-    ckpt = {k: pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
-    _evaluation(raw, "onestep", ckpt[1], seed, budget, settings, None, log)
-    _evaluation(raw, "chunk", ckpt[budget.chunk_size], seed, budget, settings, math.inf, log)
-    _evaluation(
-        raw, "chunk_adaptive", ckpt[budget.chunk_size], seed, budget, settings, budget.entropy_threshold, log
-    )
-    for k in budget.k_sweep:
-        _evaluation(raw, f"k{k}", ckpt[k], seed, budget, settings, math.inf, log)
-    default_elite = budget.default_elite
-    for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
-        for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
-            delta = None if k == 1 else math.inf
-            name = acting_name(arm, n, m, default_elite)
-            _evaluation(raw, name, ckpt[k], seed, budget, settings, delta, log, m, n)
-    # (c): both from the same chunk checkpoint, same online budget
-    adaptive = finetuned(ckpt[budget.chunk_size], ds, "adaptive", budget.entropy_threshold)
-    fixed = finetuned(ckpt[budget.chunk_size], ds, "fixed", math.inf)
-    _evaluation(raw, "adaptive", adaptive, seed, budget, settings, budget.entropy_threshold, log)
-    _evaluation(raw, "fixed", fixed, seed, budget, settings, math.inf, log)
-    # the execution rule alone: the fixed arm's checkpoint executed with adaptive chunks
-    _evaluation(raw, "fixed_adaptive", fixed, seed, budget, settings, budget.entropy_threshold, log)
-    for delta in budget.delta_sweep:
-        _evaluation(raw, f"delta_{delta_name(delta)}", adaptive, seed, budget, settings, delta, log)
+    ckpt = _offline_units(units, ds, settings)
+    adaptive, fixed = _online_units(units, ds, settings, ckpt[budget.chunk_size])
     if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
         k, delta = budget.chunk_size, budget.entropy_threshold
         sampled = {
@@ -311,42 +315,56 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
         }
         for method in SAMPLED_METHODS:
             checkpoint, threshold = sampled[method]
-            _evaluation(
-                raw, sampled_name(method), checkpoint, seed, budget, settings, threshold, log, deterministic=False
-            )
+            units.evaluate(sampled_name(method), checkpoint, settings, threshold, deterministic=False)
     # (d): driving-style inference
     classifier = _style_unit(seed, budget, work, raw, log)
     # beyond the paper: the style context c_t appended to the observation (Eq. 6)
     if budget.style_ablation:
-        ds_style = _dataset(
-            work / "dataset_style",
-            budget.dataset_episodes,
-            DATASET_SEED_BASE + 10_000 * seed,
-            env_kwargs,
-            str(classifier.resolve()),
-            log,
-            f"seed{seed}/dataset_style",
-        )
-        pre_style = pretrained(budget.chunk_size, ds_style, "pretrain_style")
-        fine_style = finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
-        _evaluation(
-            raw,
-            "adaptive_style",
-            fine_style,
-            seed,
-            budget,
-            env_settings(ds_style),
-            budget.entropy_threshold,
-            log,
-        )
-    # more online phases from the same checkpoint, pooled into (c) (the first one is above)
+        ds_style = units.dataset("dataset_style", str(classifier.resolve()))
+        pre_style = units.pretrained(budget.chunk_size, ds_style, "pretrain_style")
+        fine_style = units.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
+        units.evaluate("adaptive_style", fine_style, env_settings(ds_style), budget.entropy_threshold)
+    # more online phases from the same checkpoint, pooled into (c) (the first one is in _online_units)
     for r in range(1, budget.online_replicates):
         for arm, delta in (("adaptive", budget.entropy_threshold), ("fixed", math.inf)):
             name = replicate_name(arm, r)
-            tuned = finetuned(ckpt[budget.chunk_size], ds, name, delta, r)
-            _evaluation(raw, name, tuned, seed, budget, settings, delta, log)
+            tuned = units.finetuned(ckpt[budget.chunk_size], ds, name, delta, r)
+            units.evaluate(name, tuned, settings, delta)
             if budget.sampled_eval:
-                _evaluation(raw, sampled_name(name), tuned, seed, budget, settings, delta, log, deterministic=False)
+                units.evaluate(sampled_name(name), tuned, settings, delta, deterministic=False)
+
+
+def _offline_units(units: _SeedUnits, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
+    """(a), (b), the k sweep and the acting sweep: every chunk length pre-trained on the same data with
+    the same gradient budget, then evaluated; returns the checkpoints by chunk length."""
+    budget = units.budget
+    ckpt = {k: units.pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
+    units.evaluate("onestep", ckpt[1], settings, None)
+    units.evaluate("chunk", ckpt[budget.chunk_size], settings, math.inf)
+    units.evaluate("chunk_adaptive", ckpt[budget.chunk_size], settings, budget.entropy_threshold)
+    for k in budget.k_sweep:
+        units.evaluate(f"k{k}", ckpt[k], settings, math.inf)
+    default_elite = budget.default_elite
+    for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
+        for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
+            delta = None if k == 1 else math.inf
+            units.evaluate(acting_name(arm, n, m, default_elite), ckpt[k], settings, delta, n_elite=m, flow_steps=n)
+    return ckpt
+
+
+def _online_units(units: _SeedUnits, ds: Any, settings: dict[str, Any], start: Path) -> tuple[Path, Path]:
+    """(c) and the δ sweep, first online phase: adaptive and fixed fine-tuned from the same chunk
+    checkpoint ``start`` with the same online budget; returns their checkpoints."""
+    budget = units.budget
+    adaptive = units.finetuned(start, ds, "adaptive", budget.entropy_threshold)
+    fixed = units.finetuned(start, ds, "fixed", math.inf)
+    units.evaluate("adaptive", adaptive, settings, budget.entropy_threshold)
+    units.evaluate("fixed", fixed, settings, math.inf)
+    # the execution rule alone: the fixed arm's checkpoint executed with adaptive chunks
+    units.evaluate("fixed_adaptive", fixed, settings, budget.entropy_threshold)
+    for delta in budget.delta_sweep:
+        units.evaluate(f"delta_{delta_name(delta)}", adaptive, settings, delta)
+    return adaptive, fixed
 
 
 def _online_episodes(path: Path, monitor: Path) -> None:
