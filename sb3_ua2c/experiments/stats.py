@@ -7,51 +7,38 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import scipy.stats
+
+
+def _check_df(df: int) -> None:
+    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
+        raise ValueError(f"df must be an integer >= 1, got {df!r}")
 
 
 def student_t_two_sided_cdf(t: float, df: int) -> float:
-    """``P(|T| <= t)`` for Student's t with integer ``df`` degrees of freedom, closed form of
-    Abramowitz & Stegun 26.7.3-26.7.4 (θ = atan(t / √df)).
+    """``P(|T| <= t) = 1 − 2 · P(T > t)`` for Student's t with integer ``df`` degrees of freedom
+    (:data:`scipy.stats.t`).
 
     :param t: the bound, >= 0
     :param df: degrees of freedom, >= 1
     """
-    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
-        raise ValueError(f"df must be an integer >= 1, got {df!r}")
+    _check_df(df)
     if not t >= 0:
         raise ValueError(f"t must be >= 0, got {t!r}")
-    if math.isinf(t):
-        return 1.0
-    theta = math.atan(t / math.sqrt(df))
-    s, c = math.sin(theta), math.cos(theta)
-    if df % 2 == 1:
-        total, term = 0.0, c  # cos θ (1 + 2/3 cos²θ + 2·4/(3·5) cos⁴θ + ...), df - 2 terms' powers
-        for j in range(1, (df - 1) // 2 + 1):
-            total += term
-            term *= c * c * (2 * j) / (2 * j + 1)
-        return (2.0 / math.pi) * (theta + s * total) if df > 1 else 2.0 * theta / math.pi
-    total, term = 0.0, 1.0  # 1 + 1/2 cos²θ + 1·3/(2·4) cos⁴θ + ..., up to cos^{df-2}
-    for j in range(1, df // 2 + 1):
-        total += term
-        term *= c * c * (2 * j - 1) / (2 * j)
-    return s * total
+    return float(1.0 - 2.0 * scipy.stats.t.sf(t, df))
 
 
 def student_t_quantile(confidence: float, df: int) -> float:
-    """Two-sided critical value ``t`` with ``P(|T| <= t) = confidence`` (bisection, 1e-10).
+    """Two-sided critical value ``t`` with ``P(|T| <= t) = confidence``: the ``(1 + confidence) / 2``
+    quantile of Student's t (:data:`scipy.stats.t`).
 
     :param confidence: in (0, 1), e.g. 0.95 (``t = 2.776`` for ``df = 4``)
     :param df: degrees of freedom, >= 1
     """
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    lo, hi = 0.0, 1.0
-    while student_t_two_sided_cdf(hi, df) < confidence:
-        hi *= 2.0
-    while hi - lo > 1e-10 * max(1.0, hi):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if student_t_two_sided_cdf(mid, df) < confidence else (lo, mid)
-    return 0.5 * (lo + hi)
+    _check_df(df)
+    return float(scipy.stats.t.ppf((1.0 + confidence) / 2.0, df))
 
 
 def t_confidence_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float]:
