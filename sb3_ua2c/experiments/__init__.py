@@ -38,7 +38,8 @@ The package, by role (public names are re-exported here, ``from sb3_ua2c.experim
 * :mod:`~sb3_ua2c.experiments.names`: method names and labels, seed ranges, the paper's numbers
 * :mod:`~sb3_ua2c.experiments.budget`: :class:`Fig2Budget`, ``FULL_BUDGET``, ``QUICK_BUDGET``, :class:`CostModel`
 * :mod:`~sb3_ua2c.experiments.stats`: Student-t intervals and relative changes over seeds
-* :mod:`~sb3_ua2c.experiments.units`: the units of work, their scheduler, lock and manifest
+* :mod:`~sb3_ua2c.experiments.manifest`: the run's directories and the budget manifest of a resumed run
+* :mod:`~sb3_ua2c.experiments.units`: the units of work, their scheduler and lock
 * :mod:`~sb3_ua2c.experiments.aggregation`: per-seed raw results -> ``fig2.json``
 * :mod:`~sb3_ua2c.experiments.report` and :mod:`~sb3_ua2c.experiments.plots`: ``fig2.md`` and the panels
 * :mod:`~sb3_ua2c.experiments.cli`: the command line
@@ -64,6 +65,15 @@ from sb3_ua2c.experiments.cli import (
     command_line,
     main,
     recorded_budget,
+)
+from sb3_ua2c.experiments.manifest import (
+    MANIFEST,
+    UNIT_FIELDS,
+    RunPaths,
+    check_manifest,
+    read_manifest,
+    strict_json,
+    write_manifest,
 )
 from sb3_ua2c.experiments.names import (
     CLAIM_COMPARISONS,
@@ -95,20 +105,13 @@ from sb3_ua2c.experiments.stats import (
     t_confidence_interval,
 )
 from sb3_ua2c.experiments.units import (
-    MANIFEST,
-    UNIT_FIELDS,
-    RunPaths,
     SeedBusyError,
     UnitLog,
-    check_manifest,
     finetune_overrides,
     measured_seconds,
-    read_manifest,
     run_all,
     run_seed,
     seed_lock,
-    strict_json,
-    write_manifest,
 )
 
 __all__ = [

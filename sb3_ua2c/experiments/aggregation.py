@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from sb3_ua2c.experiments.budget import Fig2Budget
+from sb3_ua2c.experiments.manifest import RunPaths
 from sb3_ua2c.experiments.names import (
     CLAIM_COMPARISONS,
     MAIN_METHODS,
@@ -22,7 +23,6 @@ from sb3_ua2c.experiments.names import (
     sampled_name,
 )
 from sb3_ua2c.experiments.stats import compare, t_confidence_interval
-from sb3_ua2c.experiments.units import RunPaths
 
 
 def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[str, Any]]]:

@@ -17,9 +17,10 @@ from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg
 from sb3_ua2c.experiments.aggregation import aggregate, load_raw
 from sb3_ua2c.experiments.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
+from sb3_ua2c.experiments.manifest import RunPaths, read_manifest
 from sb3_ua2c.experiments.names import MAX_SEED, PAPER
 from sb3_ua2c.experiments.report import _pct, write_report
-from sb3_ua2c.experiments.units import RunPaths, SeedBusyError, measured_seconds, read_manifest, run_all
+from sb3_ua2c.experiments.units import SeedBusyError, measured_seconds, run_all
 
 
 def command_line(prog: str, argv: Sequence[str]) -> str:

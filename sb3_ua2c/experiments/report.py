@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_ua2c.experiments.manifest import RunPaths, strict_json
 from sb3_ua2c.experiments.names import (
     CLAIM_COMPARISONS,
     MAX_SEED,
@@ -20,7 +21,6 @@ from sb3_ua2c.experiments.names import (
 )
 from sb3_ua2c.experiments.plots import bar_panel, curve_panel, sweep_panel
 from sb3_ua2c.experiments.stats import t_confidence_interval
-from sb3_ua2c.experiments.units import RunPaths, strict_json
 
 Lines = list[str]
 
