@@ -9,32 +9,15 @@ classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over sev
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from sb3_ua2c.cli_args import float_arg, json_object_arg
+
 DEFAULT_RUNS = Path("runs")
-
-
-def json_object_arg(text: str) -> dict[str, Any]:
-    """argparse type: a JSON object (``dict``), else a clear usage error."""
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
-    return value
-
-
-def _float_arg(text: str) -> float:
-    value = float(text)  # accepts "inf"
-    if math.isnan(value):
-        raise argparse.ArgumentTypeError("NaN is not a valid value")
-    return value
 
 
 def _run_dir(args: argparse.Namespace) -> Path:
@@ -237,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/finetuned.zip)")
     p.add_argument("--timesteps", type=int, default=50_000)
     p.add_argument("--offline-ratio", type=float, default=None)
-    p.add_argument("--entropy-threshold", type=_float_arg, default=None, help="δ of Eq. 7; 'inf' = fixed chunks")
+    p.add_argument("--entropy-threshold", type=float_arg, default=None, help="δ of Eq. 7; 'inf' = fixed chunks")
     p.set_defaults(func=cmd_finetune)
 
     p = sub.add_parser("evaluate", help="evaluate checkpoints: reward, jerk, collisions, merges, mean L_t")
@@ -247,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", default=None, help="take the env configuration from this dataset")
     p.add_argument("--episodes", type=int, default=10, help="episodes per seed")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--entropy-threshold", type=_float_arg, default=None)
+    p.add_argument("--entropy-threshold", type=float_arg, default=None)
     p.add_argument("--stochastic", action="store_true", help="fresh candidate noise at every plan")
     p.add_argument("--json", default=None, help="results file (default: <run-dir>/evaluation.json)")
     p.set_defaults(func=cmd_evaluate)

@@ -740,6 +740,45 @@ def test_the_cli_subcommand_names_itself(capsys) -> None:
     assert capsys.readouterr().out.startswith("usage: python benchmarks/fig2.py ")
 
 
+def test_the_library_does_not_import_its_entry_script() -> None:
+    """``sb3_ua2c.experiments`` takes its argument types from :mod:`sb3_ua2c.cli_args`, not from
+    ``sb3_ua2c.__main__`` (which imports the runner: a circle)."""
+    import subprocess
+    import sys
+
+    code = "import sys, sb3_ua2c.experiments; print('sb3_ua2c.__main__' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+def test_package_re_exports_the_public_names() -> None:
+    import importlib
+
+    for name in experiments.__all__:
+        assert getattr(experiments, name) is not None, name
+    # the submodule is "aggregation", so the package attribute stays the function
+    assert callable(experiments.aggregate) and experiments.aggregate.__module__ == "sb3_ua2c.experiments.aggregation"
+    units = importlib.import_module("sb3_ua2c.experiments.units")
+    assert experiments.run_seed is units.run_seed and experiments.RunPaths is units.RunPaths
+
+
+def test_cli_argument_types() -> None:
+    import argparse
+
+    from sb3_ua2c.cli_args import float_arg, json_object_arg
+
+    assert json_object_arg('{"a": [1, 2]}') == {"a": [1, 2]}
+    with pytest.raises(argparse.ArgumentTypeError, match="expected a JSON object, got '\\[1\\]'"):
+        json_object_arg("[1]")
+    with pytest.raises(argparse.ArgumentTypeError, match="not valid JSON"):
+        json_object_arg("{a: 1}")
+    assert float_arg("inf") == math.inf and float_arg("-0.5") == -0.5
+    with pytest.raises(argparse.ArgumentTypeError, match="NaN is not a valid value"):
+        float_arg("nan")
+    with pytest.raises(ValueError):
+        float_arg("x")
+
+
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         experiments.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])
