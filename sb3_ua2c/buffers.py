@@ -122,9 +122,9 @@ class _Steps:
         self.rewards = np.zeros((capacity, n_envs), dtype=np.float32)
         self.terminated = np.zeros((capacity, n_envs), dtype=bool)
         #: index of the step inside its episode (0 at the first step)
-        self.episode_step = np.zeros((capacity, n_envs), dtype=np.int64)
-        #: window length ``L`` of a sample starting here; 0 = not a valid sample start
-        self.horizon = np.zeros((capacity, n_envs), dtype=np.int64)
+        self.episode_step = np.zeros((capacity, n_envs), dtype=np.int32)
+        #: window length ``L`` of a sample starting here; 0 = no complete window starts here
+        self.horizon = np.zeros((capacity, n_envs), dtype=np.int32)
         self.bootstrap = np.zeros((capacity, n_envs), dtype=bool)
         self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
 
@@ -144,6 +144,57 @@ class _Steps:
             new[: old.shape[0]] = old
             setattr(self, name, new)
         self.capacity = capacity
+
+
+class _StartIndex:
+    """
+    The valid sample starts of the online ring, a set of flat indices ``slot * n_envs + env`` with
+    O(1) insertion and removal (a removed member's place is taken by the last member) and uniform
+    sampling in O(batch), whatever the ring's size.
+    """
+
+    def __init__(self, capacity: int):
+        dtype = np.int32 if capacity < 2**31 else np.int64
+        #: the members are ``items[:size]``; in increasing order as long as they were inserted so
+        self.items = np.zeros(capacity, dtype=dtype)
+        #: place of a member in ``items``, -1 for a non-member, shape ``(capacity,)``
+        self.place = np.full(capacity, -1, dtype=dtype)
+        self.size = 0
+
+    def insert(self, flat: np.ndarray) -> None:
+        """Add the distinct indices ``flat`` (members already in are left alone), in increasing order."""
+        flat = np.sort(flat[self.place[flat] < 0])
+        end = self.size + flat.size
+        self.items[self.size : end] = flat
+        self.place[flat] = np.arange(self.size, end)
+        self.size = end
+
+    def remove(self, flat: np.ndarray) -> None:
+        """Remove the distinct indices ``flat`` (non-members are ignored)."""
+        flat = flat[self.place[flat] >= 0]
+        if flat.size == 0:
+            return
+        holes = self.place[flat]
+        self.place[flat] = -1
+        end = self.size - flat.size
+        tail = self.items[end : self.size]
+        kept = tail[self.place[tail] >= 0]  # members beyond the new end move into the holes before it
+        holes = holes[holes < end]
+        self.items[holes] = kept
+        self.place[kept] = holes
+        self.size = end
+
+    def clear(self) -> None:
+        self.place[self.items[: self.size]] = -1
+        self.size = 0
+
+    def sample(self, n: int) -> np.ndarray:
+        """``n`` members drawn uniformly with replacement (NumPy's global RNG, seeded by SB3)."""
+        return self.items[np.random.randint(0, self.size, size=n)]  # noqa: NPY002
+
+    def members(self) -> np.ndarray:
+        """The members in increasing order (int64)."""
+        return np.sort(self.items[: self.size]).astype(np.int64)
 
 
 class ChunkReplayBuffer(BaseBuffer):
@@ -194,6 +245,14 @@ class ChunkReplayBuffer(BaseBuffer):
         self._plan_start = np.full(n_envs, -1, dtype=np.int64)
         self._plan_target = np.zeros(n_envs, dtype=np.int64)
         self._plan_count = np.zeros(n_envs, dtype=np.int64)
+        #: the valid online sample starts, kept up to date by :meth:`add`
+        self._starts = _StartIndex(buffer_size * n_envs)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if "_starts" not in state:  # pickled before the start index existed
+            self._starts = _StartIndex(self.buffer_size * self.n_envs)
+            self._rebuild_start_index()
 
     # ------------------------------------------------------------------ online part
     def add(  # type: ignore[override]
@@ -228,9 +287,18 @@ class ChunkReplayBuffer(BaseBuffer):
         new_plan = np.asarray(new_plan, dtype=bool).reshape(n)
         terminated = np.asarray(terminated, dtype=bool).reshape(n)
         done = terminated | np.asarray(truncated, dtype=bool).reshape(n)
+        if self.full:
+            self._retire(p)
         if s.plans is not None:
+            plan_lengths = np.asarray(plan_lengths).reshape(n)
+            bad = new_plan & ((plan_lengths < 1) | (plan_lengths > self.chunk_size))
+            if bad.any():
+                raise ValueError(
+                    f"plan_lengths of new plans must be in [1, chunk_size={self.chunk_size}], "
+                    f"got {plan_lengths[bad].tolist()}"
+                )
             # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
-            self._close_plans(new_plan & (self._plan_start >= 0), np.zeros(n, dtype=bool))
+            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), np.zeros(n, dtype=bool))
         s.obs[p] = np.asarray(obs, dtype=np.float32).reshape(n, -1)
         s.next_obs[p] = np.asarray(next_obs, dtype=np.float32).reshape(n, -1)
         s.actions[p] = np.asarray(action, dtype=np.float32).reshape(n, -1)
@@ -246,7 +314,7 @@ class ChunkReplayBuffer(BaseBuffer):
         else:
             s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
             self._plan_start[new_plan] = p
-            self._plan_target[new_plan] = np.asarray(plan_lengths).reshape(n)[new_plan]
+            self._plan_target[new_plan] = plan_lengths[new_plan]
             self._plan_count[new_plan] = 0
             has_plan = self._plan_start >= 0
             self._plan_count[has_plan] += 1
@@ -256,6 +324,34 @@ class ChunkReplayBuffer(BaseBuffer):
             self.full = True
             self.pos = 0
 
+    def _retire(self, p: int) -> None:
+        """
+        Before slot ``p`` of the full ring is overwritten: drop its starts, and those whose history
+        ``a_{t-ℓ:t-1}`` reaches back to it (the starts at ``p + d``, ``d = 1..ℓ``, with ``min(episode
+        step, ℓ) >= d``: their oldest slot of history becomes ``p``).
+        """
+        ell, n = self.history_len, self.n_envs
+        d = np.arange(ell + 1)
+        slots = (p + d) % self.buffer_size  # (ℓ+1,)
+        lookback = np.minimum(self.online.episode_step[slots], ell)  # (ℓ+1, n_envs)
+        gone = lookback >= d[:, None]
+        self._starts.remove((slots[:, None] * n + np.arange(n))[gone])
+
+    def _admit(self, starts: np.ndarray, envs: np.ndarray) -> None:
+        """Add the starts whose window just closed to the index, unless their history left the ring."""
+        self._starts.insert((starts * self.n_envs + envs)[self._history_in_ring(starts, envs)])
+
+    def _history_in_ring(self, starts: np.ndarray, envs: np.ndarray) -> np.ndarray:
+        """
+        Whether the slots ``starts - min(episode step, ℓ) .. starts`` of ``envs`` all hold data written
+        since the last :meth:`reset` and not overwritten since, during :meth:`add` at ``self.pos``.
+        """
+        if self.full:  # the oldest slot still in the ring is pos + 1 (slot pos is being written)
+            age = (starts - self.pos - 1) % self.buffer_size
+        else:
+            age = np.where(starts <= self.pos, starts, -1)
+        return np.minimum(self.online.episode_step[starts, envs], self.history_len) <= age
+
     def _close_plans(self, mask: np.ndarray, terminated: np.ndarray) -> None:
         if not mask.any():
             return
@@ -264,6 +360,7 @@ class ChunkReplayBuffer(BaseBuffer):
         self.online.horizon[starts, envs] = self._plan_count[envs]
         self.online.bootstrap[starts, envs] = ~terminated[envs]
         self._plan_start[envs] = -1
+        self._admit(starts, envs)
 
     def _close_windows(self, p: int, done: np.ndarray, terminated: np.ndarray) -> None:
         """
@@ -273,6 +370,7 @@ class ChunkReplayBuffer(BaseBuffer):
         """
         s, k = self.online, self.chunk_size
         steps = s.episode_step[p]  # (n_envs,) index of step p inside its episode
+        closed_starts, closed_envs = [], []
         # the window a_{p-length+1..p}, inside the episode; shorter ones only at an episode end
         for length in range(1, k + 1) if done.any() else (k,):
             closes = done if length < k else np.ones_like(done)
@@ -280,11 +378,15 @@ class ChunkReplayBuffer(BaseBuffer):
             start = (p - length + 1) % self.buffer_size
             s.horizon[start, envs] = length
             s.bootstrap[start, envs] = ~terminated[envs]
+            closed_starts.append(np.full(envs.size, start))
+            closed_envs.append(envs)
+        self._admit(np.concatenate(closed_starts), np.concatenate(closed_envs))
 
     def reset(self) -> None:
         super().reset()
         self._plan_start[:] = -1
         self.online.horizon[:] = 0
+        self._starts.clear()
 
     # ------------------------------------------------------------------ offline part
     def add_offline_episodes(self, episodes: Iterable[Any]) -> int:
@@ -357,33 +459,43 @@ class ChunkReplayBuffer(BaseBuffer):
         return super().size()
 
     def _online_starts(self) -> np.ndarray:
+        """The valid online sample starts as flat indices ``slot * n_envs + env``, in increasing order."""
+        return self._starts.members()
+
+    def _scan_online_starts(self) -> np.ndarray:
+        """
+        The valid online starts found by scanning the whole ring, O(buffer_size): a complete window
+        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots
+        back) is still in the ring. The reference for the index :meth:`add` keeps.
+        """
         size = self.buffer_size if self.full else self.pos
-        valid = self.online.horizon[:size] > 0  # (size, n_envs)
-        if self.full:
-            # the oldest steps may have lost their history to overwriting
-            age = (np.arange(size) - self.pos) % self.buffer_size
-            lookback = np.minimum(self.online.episode_step[:size], self.history_len - 1)
-            valid &= lookback <= age[:, None]
-        return np.flatnonzero(valid)
+        slots = np.arange(size)
+        age = (slots - self.pos) % self.buffer_size if self.full else slots  # (size,) 0 = oldest
+        lookback = np.minimum(self.online.episode_step[:size], self.history_len)  # (size, n_envs)
+        return np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None]))
+
+    def _rebuild_start_index(self) -> None:
+        """Rebuild the start index from a scan (a buffer pickled before the index existed)."""
+        self._starts.clear()
+        self._starts.insert(self._scan_online_starts())
 
     def n_samples(self) -> tuple[int, int]:
         """Number of sample starts available ``(online, offline)``."""
-        return int(self._online_starts().size), int(self.offline_size)
+        return self._starts.size, int(self.offline_size)
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ChunkReplaySamples:  # type: ignore[override]
         """
         Sample ``batch_size`` chunk transitions; a fraction ``offline_ratio`` comes from the offline part
-        when both parts hold data.
+        when both parts hold data. The cost does not depend on the buffer's size.
 
         :param batch_size: number of samples
         :param env: optional ``VecNormalize`` to normalise observations and rewards
         :return: a batch of chunk transitions
         """
-        online = self._online_starts()
-        n_off_avail = self.offline_size
-        if online.size == 0 and n_off_avail == 0:
+        n_on_avail, n_off_avail = self.n_samples()
+        if n_on_avail == 0 and n_off_avail == 0:
             raise ValueError("the replay buffer holds no complete chunk transition yet")
-        if online.size == 0:
+        if n_on_avail == 0:
             n_off = batch_size
         elif n_off_avail == 0:
             n_off = 0
@@ -394,59 +506,62 @@ class ChunkReplayBuffer(BaseBuffer):
             t = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
             parts.append(self._gather(self.offline, t, np.zeros(n_off, dtype=np.int64), env))
         if batch_size - n_off > 0:
-            flat = online[np.random.randint(0, online.size, size=batch_size - n_off)]  # noqa: NPY002 - as above
-            t, e = np.divmod(flat, self.n_envs)
+            t, e = np.divmod(self._starts.sample(batch_size - n_off).astype(np.int64), self.n_envs)
             parts.append(self._gather(self.online, t, e, env))
         arrays = parts[0] if len(parts) == 1 else [np.concatenate(x) for x in zip(*parts, strict=True)]
         return ChunkReplaySamples(*(self.to_torch(a) for a in arrays))
 
-    def _history(
-        self, s: _Steps, base: np.ndarray, count: np.ndarray, env: np.ndarray, last: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """
-        Observation and action windows ending at ``o_base``: ``o_{base-ℓ+1..base}``, ``a_{base-ℓ..base-1}``,
-        with ``count`` earlier steps available in the episode (repeat-first-obs / zero-action padding).
-        If ``last`` is given, ``o_base`` is ``next_obs[last]`` (the window after the sample's last step).
-        """
-        ell, cap = self.history_len, s.capacity
-        off = np.arange(ell - 1, -1, -1)  # offsets from base, oldest first
-        back = np.minimum(off[None, :], count[:, None])  # (B, ℓ)
-        obs = s.obs[(base[:, None] - back) % cap, env[:, None]]  # (B, ℓ, obs_dim)
-        if last is not None:
-            obs[:, -1] = s.next_obs[last, env]
-        j = off + 1  # action offsets ℓ..1
-        act = s.actions[(base[:, None] - j[None, :]) % cap, env[:, None]]  # (B, ℓ, action_dim)
-        act *= (j[None, :] <= count[:, None])[..., None]
-        return obs, act
+    def to_torch(self, array: np.ndarray, copy: bool = False) -> th.Tensor:
+        """The sampled arrays are fresh: share their memory unless asked to copy."""
+        return th.tensor(array, device=self.device) if copy else th.as_tensor(array, device=self.device)
 
     def _gather(
         self, s: _Steps, t: np.ndarray, env: np.ndarray, vec_env: VecNormalize | None
     ) -> list[np.ndarray]:
-        k, cap = self.chunk_size, s.capacity
-        horizon = s.horizon[t, env]  # (B,)
-        u = np.arange(k)
-        idx = (t[:, None] + u[None, :]) % cap  # (B, k)
-        inside = u[None, :] < horizon[:, None]  # (B, k)
-        rewards = s.rewards[idx, env[:, None]] * inside
-        actions = s.actions[idx, env[:, None]]  # (B, k, action_dim)
-        tail = s.plans[t, env] if s.plans is not None else np.zeros_like(actions)
-        chunks = np.where(inside[..., None], actions, tail)
-        last = (t + horizon - 1) % cap
-        obs_h, act_h = self._history(s, t, s.episode_step[t, env], env, None)
-        next_obs_h, next_act_h = self._history(s, last + 1, s.episode_step[last, env] + 1, env, last)
+        """
+        The fields of the samples starting at slots ``t`` of ``env`` (see :class:`ChunkReplaySamples`).
+        Before the episode start the histories repeat its first observation and hold zero actions.
+        """
+        k, ell, cap, n = self.chunk_size, self.history_len, s.capacity, s.n_envs
+        start = t * n + env  # (B,) flat rows
+        horizon = s.horizon.reshape(-1)[start]  # (B,) L
+        count = s.episode_step.reshape(-1)[start]  # (B,) steps before t in its episode
+        last = (t + horizon - 1) % cap  # (B,) slot of the window's last step
+
+        def rows(offsets: np.ndarray) -> np.ndarray:  # (B, m) slots t + offsets -> flat rows
+            return ((t[:, None] + offsets) % cap) * n + env[:, None]
+
+        # actions a_{t+j} for j = -ℓ..-1 (history), 0..k-1 (chunk) and L-ℓ..L-1 (next history)
+        j_window = np.broadcast_to(np.arange(-ell, k), (t.size, ell + k))
+        j = np.concatenate([j_window, horizon[:, None] + np.arange(-ell, 0)], axis=1)  # (B, 2ℓ+k)
+        actions = np.take(s.actions.reshape(cap * n, -1), rows(j), axis=0)  # (B, 2ℓ+k, action_dim)
+        actions *= (j >= -count[:, None])[..., None]  # zero padding before the episode start
+        inside = np.arange(k)[None, :] < horizon[:, None]  # (B, k)
+        # after L: the unexecuted tail of the selected plan (prefix), zeros (windows)
+        tail = s.plans.reshape(cap * n, k, -1)[start] if s.plans is not None else np.float32(0.0)
+        chunk = np.where(inside[..., None], actions[:, ell : ell + k], tail)  # (B, k, action_dim)
+        rewards = np.take(s.rewards.reshape(-1), rows(np.arange(k))) * inside  # (B, k)
+        # observations o_{t+i}, i = 1-ℓ..0, and o_{t+L+i}, i = 1-ℓ..-1, then o_{t+L} = next_obs[last]
+        i_hist = np.arange(1 - ell, 1)  # (ℓ,)
+        obs_idx = np.maximum(i_hist[None, :], -count[:, None])  # repeat the first observation
+        next_idx = np.maximum(horizon[:, None] + i_hist, -count[:, None])
+        obs2d = s.obs.reshape(cap * n, -1)
+        obs_h = np.take(obs2d, rows(obs_idx), axis=0)  # (B, ℓ, obs_dim)
+        next_obs_h = np.take(obs2d, rows(next_idx), axis=0)
+        next_obs_h[:, -1] = s.next_obs.reshape(cap * n, -1)[last * n + env]
         if vec_env is not None:
             obs_h = self._normalize_obs(obs_h, vec_env).astype(np.float32)
             next_obs_h = self._normalize_obs(next_obs_h, vec_env).astype(np.float32)
             rewards = self._normalize_reward(rewards, vec_env).astype(np.float32) * inside
         return [
             obs_h,
-            act_h,
-            chunks.astype(np.float32),
-            rewards.astype(np.float32),
+            np.ascontiguousarray(actions[:, :ell]),
+            np.ascontiguousarray(chunk, dtype=np.float32),
+            rewards.astype(np.float32, copy=False),
             horizon.astype(np.float32),
-            s.bootstrap[t, env].astype(np.float32),
+            s.bootstrap.reshape(-1)[start].astype(np.float32),
             next_obs_h,
-            next_act_h,
+            np.ascontiguousarray(actions[:, ell + k :]),
         ]
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
