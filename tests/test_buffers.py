@@ -1,11 +1,13 @@
 """Chunk replay buffer: online plans (Eq. 8) and offline windows (Eq. 4) through one sampling path."""
 
+import pickle
+
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, _StartIndex
 
 OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
 ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -427,7 +429,7 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
         driver.add()
         available = driver.available()
         want = sorted((g % size) * n_envs + e for g, e in available)
-        assert buf._online_starts().tolist() == want
+        assert buf._online_starts().tolist() == want == buf._scan_online_starts().tolist()
         assert buf.n_samples() == (len(available), 0)
         if driver.g % 3 or not available:
             continue
@@ -438,3 +440,91 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
             np.testing.assert_array_equal(getattr(samples, name).numpy(), want[name], err_msg=name)
         n_checked += 64
     assert n_checked >= 2000
+
+
+@pytest.mark.parametrize("targets", ["prefix", "window"])
+def test_reset_forgets_the_ring(targets):
+    """After reset() an episode that goes on is a sample start only once its history is stored again."""
+    buf = make_buffer(size=8, targets=targets)
+    for t in range(5):
+        add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, start=(t == 0))
+    buf.reset()
+    assert buf.n_samples() == (0, 0)
+    for t in range(5, 9):  # the episode goes on in slots 0..3; a_{t-2} of t = 5, 6 is not stored
+        add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, terminated=(t == 8))
+    assert buf.n_samples() == (2, 0)
+    got = by_start(buf.sample(64))
+    assert set(got) == {7.0, 8.0}
+    assert got[7.0]["observation_history"] == [6.0, 7.0]
+    assert got[7.0]["action_history"] == pytest.approx([0.6, 0.7])
+
+
+def test_episode_start_closes_an_open_plan():
+    """An episode restarted without a done flag ends the open plan there, even without a new plan."""
+    buf = make_buffer()
+    add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=3, start=True)
+    add_step(buf, 1)
+    add_step(buf, 0, start=True)  # no plan starts here
+    add_step(buf, 1)
+    assert buf.n_samples() == (1, 0)
+    s = rows(buf.sample(8))[0.7]
+    assert s["horizons"] == [2.0] and s["bootstrap"] == [1.0]
+    assert s["chunks"] == pytest.approx([0.1, 0.2, 0.7])
+    assert s["next_observation_history"] == [1.0, 2.0]
+
+
+@pytest.mark.parametrize("length", [0, 4])
+def test_plan_lengths_are_validated(length):
+    buf = make_buffer()  # k = 3
+    with pytest.raises(ValueError, match="plan_lengths"):
+        add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=length, start=True)
+
+
+def wrapped_buffer(targets="prefix"):
+    buf = ChunkReplayBuffer(
+        29, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=3, online_targets=targets
+    )
+    driver = RingDriver(buf, seed=1)
+    for _ in range(100):
+        driver.add()
+    return buf
+
+
+def test_pickled_buffer_keeps_its_starts():
+    buf = wrapped_buffer()
+    starts = buf._online_starts().tolist()
+    assert len(starts) > 10
+    copy = pickle.loads(pickle.dumps(buf))
+    assert copy._online_starts().tolist() == starts
+    np.random.seed(3)  # noqa: NPY002
+    a = buf.sample(32)
+    np.random.seed(3)  # noqa: NPY002
+    b = copy.sample(32)
+    for x, y in zip(a, b, strict=True):
+        assert th.equal(x, y)
+    # a buffer pickled before the index existed gets it rebuilt on loading
+    state = dict(buf.__dict__)
+    del state["_starts"]
+    old = ChunkReplayBuffer.__new__(ChunkReplayBuffer)
+    old.__setstate__(state)
+    assert old._online_starts().tolist() == starts
+    assert old.n_samples() == buf.n_samples()
+
+
+def test_start_index_is_a_set():
+    """Random insertions and removals: the members are those of a Python set, samples are members."""
+    rng = np.random.default_rng(0)
+    index, truth = _StartIndex(50), set()
+    for _ in range(300):
+        flat = rng.choice(50, size=int(rng.integers(0, 6)), replace=False)
+        if rng.random() < 0.5:
+            index.insert(flat)
+            truth |= set(flat.tolist())
+        else:
+            index.remove(flat)
+            truth -= set(flat.tolist())
+        assert index.members().tolist() == sorted(truth)
+        assert index.size == len(truth)
+        assert sorted(np.flatnonzero(index.place >= 0).tolist()) == sorted(truth)
+        if truth:
+            assert set(index.sample(20).tolist()) <= truth
