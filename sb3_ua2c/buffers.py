@@ -126,6 +126,8 @@ class _Steps:
         #: window length ``L`` of a sample starting here; 0 = no complete window starts here
         self.horizon = np.zeros((capacity, n_envs), dtype=np.int32)
         self.bootstrap = np.zeros((capacity, n_envs), dtype=bool)
+        #: the plan selected at a plan start; when the plan closes, its first ``L`` entries become the
+        #: executed actions: the sample's chunk (Eq. 8)
         self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
 
     def grow(self, capacity: int) -> None:
@@ -253,6 +255,9 @@ class ChunkReplayBuffer(BaseBuffer):
         if "_starts" not in state:  # pickled before the start index existed
             self._starts = _StartIndex(self.buffer_size * self.n_envs)
             self._rebuild_start_index()
+            if self.online.plans is not None:  # its plans hold the selected plan, not yet the chunk
+                slots, envs = np.nonzero(self.online.horizon)
+                self._write_chunks(slots, envs, self.online.horizon[slots, envs])
 
     # ------------------------------------------------------------------ online part
     def add(  # type: ignore[override]
@@ -355,12 +360,20 @@ class ChunkReplayBuffer(BaseBuffer):
     def _close_plans(self, mask: np.ndarray, terminated: np.ndarray) -> None:
         if not mask.any():
             return
-        envs = np.flatnonzero(mask)
-        starts = self._plan_start[envs]
-        self.online.horizon[starts, envs] = self._plan_count[envs]
-        self.online.bootstrap[starts, envs] = ~terminated[envs]
+        s, envs = self.online, np.flatnonzero(mask)
+        starts, executed = self._plan_start[envs], self._plan_count[envs]
+        s.horizon[starts, envs] = executed
+        s.bootstrap[starts, envs] = ~terminated[envs]
+        self._write_chunks(starts, envs, executed)
         self._plan_start[envs] = -1
         self._admit(starts, envs)
+
+    def _write_chunks(self, starts: np.ndarray, envs: np.ndarray, executed: np.ndarray) -> None:
+        """Chunks (Eq. 8) at closed plan starts: the ``executed`` actions, then the unexecuted tails."""
+        s, u = self.online, np.arange(self.chunk_size)
+        actions = s.actions[(starts[:, None] + u) % self.buffer_size, envs[:, None]]  # (c, k, action_dim)
+        done = (u < executed[:, None])[..., None]  # (c, k, 1)
+        s.plans[starts, envs] = np.where(done, actions, s.plans[starts, envs])
 
     def _close_windows(self, p: int, done: np.ndarray, terminated: np.ndarray) -> None:
         """
@@ -501,68 +514,88 @@ class ChunkReplayBuffer(BaseBuffer):
             n_off = 0
         else:
             n_off = int(round(self.offline_ratio * batch_size))
-        parts = []
+        k, ell, a_dim = self.chunk_size, self.history_len, self.action_dim
+        # the histories at t and at t + L side by side, (2, B, ℓ, dim): one read fills both
+        obs_pair = np.empty((2, batch_size, ell, self.obs_dim), dtype=np.float32)
+        action_pair = np.empty((2, batch_size, ell, a_dim), dtype=np.float32)
+        out = ChunkReplaySamples(
+            obs_pair[0],
+            action_pair[0],
+            np.empty((batch_size, k, a_dim), dtype=np.float32),
+            np.empty((batch_size, k), dtype=np.float32),
+            np.empty(batch_size, dtype=np.float32),
+            np.empty(batch_size, dtype=np.float32),
+            obs_pair[1],
+            action_pair[1],
+        )
         if n_off > 0:
-            t = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
-            parts.append(self._gather(self.offline, t, np.zeros(n_off, dtype=np.int64), env))
+            rows = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
+            self._gather(self.offline, rows, out, obs_pair, action_pair, 0)
         if batch_size - n_off > 0:
-            t, e = np.divmod(self._starts.sample(batch_size - n_off).astype(np.int64), self.n_envs)
-            parts.append(self._gather(self.online, t, e, env))
-        arrays = parts[0] if len(parts) == 1 else [np.concatenate(x) for x in zip(*parts, strict=True)]
-        return ChunkReplaySamples(*(self.to_torch(a) for a in arrays))
+            rows = self._starts.sample(batch_size - n_off).astype(np.intp)
+            self._gather(self.online, rows, out, obs_pair, action_pair, n_off)
+        if env is not None:
+            inside = np.arange(k)[None, :] < out.horizons[:, None]  # (B, k)
+            out = out._replace(
+                observation_history=self._normalize_obs(out.observation_history, env).astype(np.float32),
+                next_observation_history=self._normalize_obs(out.next_observation_history, env).astype(
+                    np.float32
+                ),
+                rewards=self._normalize_reward(out.rewards, env).astype(np.float32) * inside,
+            )
+        return ChunkReplaySamples(*(self.to_torch(a) for a in out))
 
     def to_torch(self, array: np.ndarray, copy: bool = False) -> th.Tensor:
         """The sampled arrays are fresh: share their memory unless asked to copy."""
-        return th.tensor(array, device=self.device) if copy else th.as_tensor(array, device=self.device)
+        return th.tensor(array, device=self.device) if copy else th.from_numpy(array).to(self.device)
 
     def _gather(
-        self, s: _Steps, t: np.ndarray, env: np.ndarray, vec_env: VecNormalize | None
-    ) -> list[np.ndarray]:
+        self,
+        s: _Steps,
+        rows: np.ndarray,
+        out: ChunkReplaySamples,
+        obs_pair: np.ndarray,
+        action_pair: np.ndarray,
+        lo: int,
+    ) -> None:
         """
-        The fields of the samples starting at slots ``t`` of ``env`` (see :class:`ChunkReplaySamples`).
-        Before the episode start the histories repeat its first observation and hold zero actions.
+        Write the samples starting at the flat rows ``rows = slot * n_envs + env`` of ``s`` into
+        ``out[lo : lo + len(rows)]`` (see :class:`ChunkReplaySamples`). Before the episode start the
+        histories repeat its first observation and hold zero actions.
+
+        Step ``t + j`` of a sample's env is the flat row ``rows + j * n_envs``, taken modulo the ring
+        (``mode="wrap"``); rows outside the sample's episode are only read where they are masked.
         """
-        k, ell, cap, n = self.chunk_size, self.history_len, s.capacity, s.n_envs
-        start = t * n + env  # (B,) flat rows
-        horizon = s.horizon.reshape(-1)[start]  # (B,) L
-        count = s.episode_step.reshape(-1)[start]  # (B,) steps before t in its episode
-        last = (t + horizon - 1) % cap  # (B,) slot of the window's last step
-
-        def rows(offsets: np.ndarray) -> np.ndarray:  # (B, m) slots t + offsets -> flat rows
-            return ((t[:, None] + offsets) % cap) * n + env[:, None]
-
-        # actions a_{t+j} for j = -ℓ..-1 (history), 0..k-1 (chunk) and L-ℓ..L-1 (next history)
-        j_window = np.broadcast_to(np.arange(-ell, k), (t.size, ell + k))
-        j = np.concatenate([j_window, horizon[:, None] + np.arange(-ell, 0)], axis=1)  # (B, 2ℓ+k)
-        actions = np.take(s.actions.reshape(cap * n, -1), rows(j), axis=0)  # (B, 2ℓ+k, action_dim)
-        actions *= (j >= -count[:, None])[..., None]  # zero padding before the episode start
-        inside = np.arange(k)[None, :] < horizon[:, None]  # (B, k)
-        # after L: the unexecuted tail of the selected plan (prefix), zeros (windows)
-        tail = s.plans.reshape(cap * n, k, -1)[start] if s.plans is not None else np.float32(0.0)
-        chunk = np.where(inside[..., None], actions[:, ell : ell + k], tail)  # (B, k, action_dim)
-        rewards = np.take(s.rewards.reshape(-1), rows(np.arange(k))) * inside  # (B, k)
-        # observations o_{t+i}, i = 1-ℓ..0, and o_{t+L+i}, i = 1-ℓ..-1, then o_{t+L} = next_obs[last]
-        i_hist = np.arange(1 - ell, 1)  # (ℓ,)
-        obs_idx = np.maximum(i_hist[None, :], -count[:, None])  # repeat the first observation
-        next_idx = np.maximum(horizon[:, None] + i_hist, -count[:, None])
-        obs2d = s.obs.reshape(cap * n, -1)
-        obs_h = np.take(obs2d, rows(obs_idx), axis=0)  # (B, ℓ, obs_dim)
-        next_obs_h = np.take(obs2d, rows(next_idx), axis=0)
-        next_obs_h[:, -1] = s.next_obs.reshape(cap * n, -1)[last * n + env]
-        if vec_env is not None:
-            obs_h = self._normalize_obs(obs_h, vec_env).astype(np.float32)
-            next_obs_h = self._normalize_obs(next_obs_h, vec_env).astype(np.float32)
-            rewards = self._normalize_reward(rewards, vec_env).astype(np.float32) * inside
-        return [
-            obs_h,
-            np.ascontiguousarray(actions[:, :ell]),
-            np.ascontiguousarray(chunk, dtype=np.float32),
-            rewards.astype(np.float32, copy=False),
-            horizon.astype(np.float32),
-            s.bootstrap.reshape(-1)[start].astype(np.float32),
-            next_obs_h,
-            np.ascontiguousarray(actions[:, ell + k :]),
-        ]
+        k, ell, n = self.chunk_size, self.history_len, s.n_envs
+        sl = slice(lo, lo + rows.size)
+        horizon = s.horizon.reshape(-1).take(rows)  # (m,) L
+        count = s.episode_step.reshape(-1).take(rows)  # (m,) steps before t in its episode
+        out.horizons[sl] = horizon
+        out.bootstrap[sl] = s.bootstrap.reshape(-1).take(rows)
+        base, first = rows[:, None], -count[:, None]  # (m, 1): row of t, offset of the episode start
+        # offsets from t of a_{t-ℓ:t-1} and a_{t+L-ℓ:t+L-1}, (2, m, ℓ)
+        offsets = np.empty((2, rows.size, ell), dtype=np.intp)
+        offsets[0] = np.arange(-ell, 0)
+        np.add(horizon[:, None], offsets[0], out=offsets[1])
+        actions = s.actions.reshape(-1, self.action_dim)
+        actions.take(base + offsets * n, axis=0, out=action_pair[:, sl], mode="wrap")
+        action_pair[:, sl] *= (offsets >= first)[..., None]  # zero actions before the episode start
+        # o_{t-ℓ+1:t} and o_{t+L-ℓ+1:t+L}; before the episode start its first observation
+        obs_rows = base + np.maximum(offsets + 1, first) * n
+        s.obs.reshape(-1, self.obs_dim).take(obs_rows, axis=0, out=obs_pair[:, sl], mode="wrap")
+        last = rows + (horizon - 1) * n  # (m,) the window's last step: o_{t+L} is its next observation
+        next_obs = s.next_obs.reshape(-1, self.obs_dim)
+        next_obs.take(last, axis=0, out=out.next_observation_history[sl, -1], mode="wrap")
+        ahead = np.arange(k)
+        inside = ahead < horizon[:, None]  # (m, k)
+        chunk_rows = rows[:, None] + ahead * n  # (m, k)
+        s.rewards.reshape(-1).take(chunk_rows, out=out.rewards[sl], mode="wrap")
+        out.rewards[sl] *= inside
+        if s.plans is not None:  # the executed actions, then the plan's unexecuted tail (see _write_chunks)
+            s.plans.reshape(-1, k, self.action_dim).take(rows, axis=0, out=out.chunks[sl])
+        else:  # the next k executed actions, zeros after the episode end
+            actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
+            np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
         raise NotImplementedError("use ChunkReplayBuffer.sample()")
