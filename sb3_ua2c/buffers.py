@@ -294,20 +294,21 @@ class ChunkReplayBuffer(BaseBuffer):
         done = terminated | np.asarray(truncated, dtype=bool).reshape(n)
         if self.full:
             self._retire(p)
-        if s.plans is not None:
-            plan_lengths = np.asarray(plan_lengths).reshape(n)
-            bad = new_plan & ((plan_lengths < 1) | (plan_lengths > self.chunk_size))
-            if bad.any():
+        starting = s.plans is not None and new_plan.any()
+        if starting:
+            plan_lengths = np.asarray(plan_lengths).reshape(n)[new_plan]
+            if plan_lengths.min() < 1 or plan_lengths.max() > self.chunk_size:
                 raise ValueError(
                     f"plan_lengths of new plans must be in [1, chunk_size={self.chunk_size}], "
-                    f"got {plan_lengths[bad].tolist()}"
+                    f"got {plan_lengths.tolist()}"
                 )
+        if s.plans is not None:
             # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
-            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), np.zeros(n, dtype=bool))
-        s.obs[p] = np.asarray(obs, dtype=np.float32).reshape(n, -1)
-        s.next_obs[p] = np.asarray(next_obs, dtype=np.float32).reshape(n, -1)
-        s.actions[p] = np.asarray(action, dtype=np.float32).reshape(n, -1)
-        s.rewards[p] = np.asarray(reward, dtype=np.float32).reshape(n)
+            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), np.zeros_like(new_plan))
+        s.obs[p] = np.reshape(obs, (n, -1))  # cast to float32 on assignment
+        s.next_obs[p] = np.reshape(next_obs, (n, -1))
+        s.actions[p] = np.reshape(action, (n, -1))
+        s.rewards[p] = np.reshape(reward, n)
         s.terminated[p] = terminated
         self._next_episode_step[episode_start] = 0
         s.episode_step[p] = self._next_episode_step
@@ -317,10 +318,11 @@ class ChunkReplayBuffer(BaseBuffer):
         if s.plans is None:
             self._close_windows(p, done, terminated)
         else:
-            s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
-            self._plan_start[new_plan] = p
-            self._plan_target[new_plan] = plan_lengths[new_plan]
-            self._plan_count[new_plan] = 0
+            if starting:
+                s.plans[p, new_plan] = np.asarray(plans)[new_plan]
+                self._plan_start[new_plan] = p
+                self._plan_target[new_plan] = plan_lengths
+                self._plan_count[new_plan] = 0
             has_plan = self._plan_start >= 0
             self._plan_count[has_plan] += 1
             self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
@@ -335,12 +337,13 @@ class ChunkReplayBuffer(BaseBuffer):
         ``a_{t-ℓ:t-1}`` reaches back to it (the starts at ``p + d``, ``d = 1..ℓ``, with ``min(episode
         step, ℓ) >= d``: their oldest slot of history becomes ``p``).
         """
-        ell, n = self.history_len, self.n_envs
-        d = np.arange(ell + 1)
-        slots = (p + d) % self.buffer_size  # (ℓ+1,)
-        lookback = np.minimum(self.online.episode_step[slots], ell)  # (ℓ+1, n_envs)
-        gone = lookback >= d[:, None]
-        self._starts.remove((slots[:, None] * n + np.arange(n))[gone])
+        ell, n, steps = self.history_len, self.n_envs, self.online.episode_step
+        if p + ell < self.buffer_size:
+            steps = steps[p : p + ell + 1]  # (ℓ+1, n_envs)
+        else:
+            steps = steps.take(np.arange(p, p + ell + 1), axis=0, mode="wrap")
+        gone = np.flatnonzero(steps >= np.arange(ell + 1)[:, None])  # d * n_envs + env
+        self._starts.remove((gone + p * n) % (self.buffer_size * n))
 
     def _admit(self, starts: np.ndarray, envs: np.ndarray) -> None:
         """Add the starts whose window just closed to the index, unless their history left the ring."""
