@@ -122,10 +122,12 @@ class _Steps:
         self.rewards = np.zeros((capacity, n_envs), dtype=np.float32)
         self.terminated = np.zeros((capacity, n_envs), dtype=bool)
         #: index of the step inside its episode (0 at the first step)
-        self.episode_step = np.zeros((capacity, n_envs), dtype=np.int64)
-        #: window length ``L`` of a sample starting here; 0 = not a valid sample start
-        self.horizon = np.zeros((capacity, n_envs), dtype=np.int64)
+        self.episode_step = np.zeros((capacity, n_envs), dtype=np.int32)
+        #: window length ``L`` of a sample starting here; 0 = no complete window starts here
+        self.horizon = np.zeros((capacity, n_envs), dtype=np.int32)
         self.bootstrap = np.zeros((capacity, n_envs), dtype=bool)
+        #: the plan selected at a plan start; when the plan closes, its first ``L`` entries become the
+        #: executed actions: the sample's chunk (Eq. 8)
         self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
 
     def grow(self, capacity: int) -> None:
@@ -144,6 +146,57 @@ class _Steps:
             new[: old.shape[0]] = old
             setattr(self, name, new)
         self.capacity = capacity
+
+
+class _StartIndex:
+    """
+    The valid sample starts of the online ring, a set of flat indices ``slot * n_envs + env`` with
+    O(1) insertion and removal (a removed member's place is taken by the last member) and uniform
+    sampling in O(batch), whatever the ring's size.
+    """
+
+    def __init__(self, capacity: int):
+        dtype = np.int32 if capacity < 2**31 else np.int64
+        #: the members are ``items[:size]``; in increasing order as long as they were inserted so
+        self.items = np.zeros(capacity, dtype=dtype)
+        #: place of a member in ``items``, -1 for a non-member, shape ``(capacity,)``
+        self.place = np.full(capacity, -1, dtype=dtype)
+        self.size = 0
+
+    def insert(self, flat: np.ndarray) -> None:
+        """Add the distinct indices ``flat`` (members already in are left alone), in increasing order."""
+        flat = np.sort(flat[self.place[flat] < 0])
+        end = self.size + flat.size
+        self.items[self.size : end] = flat
+        self.place[flat] = np.arange(self.size, end)
+        self.size = end
+
+    def remove(self, flat: np.ndarray) -> None:
+        """Remove the distinct indices ``flat`` (non-members are ignored)."""
+        flat = flat[self.place[flat] >= 0]
+        if flat.size == 0:
+            return
+        holes = self.place[flat]
+        self.place[flat] = -1
+        end = self.size - flat.size
+        tail = self.items[end : self.size]
+        kept = tail[self.place[tail] >= 0]  # members beyond the new end move into the holes before it
+        holes = holes[holes < end]
+        self.items[holes] = kept
+        self.place[kept] = holes
+        self.size = end
+
+    def clear(self) -> None:
+        self.place[self.items[: self.size]] = -1
+        self.size = 0
+
+    def sample(self, n: int) -> np.ndarray:
+        """``n`` members drawn uniformly with replacement (NumPy's global RNG, seeded by SB3)."""
+        return self.items[np.random.randint(0, self.size, size=n)]  # noqa: NPY002
+
+    def members(self) -> np.ndarray:
+        """The members in increasing order (int64)."""
+        return np.sort(self.items[: self.size]).astype(np.int64)
 
 
 class ChunkReplayBuffer(BaseBuffer):
@@ -194,6 +247,17 @@ class ChunkReplayBuffer(BaseBuffer):
         self._plan_start = np.full(n_envs, -1, dtype=np.int64)
         self._plan_target = np.zeros(n_envs, dtype=np.int64)
         self._plan_count = np.zeros(n_envs, dtype=np.int64)
+        #: the valid online sample starts, kept up to date by :meth:`add`
+        self._starts = _StartIndex(buffer_size * n_envs)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if "_starts" not in state:  # pickled before the start index existed
+            self._starts = _StartIndex(self.buffer_size * self.n_envs)
+            self._rebuild_start_index()
+            if self.online.plans is not None:  # its plans hold the selected plan, not yet the chunk
+                slots, envs = np.nonzero(self.online.horizon)
+                self._write_chunks(slots, envs, self.online.horizon[slots, envs])
 
     # ------------------------------------------------------------------ online part
     def add(  # type: ignore[override]
@@ -228,13 +292,23 @@ class ChunkReplayBuffer(BaseBuffer):
         new_plan = np.asarray(new_plan, dtype=bool).reshape(n)
         terminated = np.asarray(terminated, dtype=bool).reshape(n)
         done = terminated | np.asarray(truncated, dtype=bool).reshape(n)
+        if self.full:
+            self._retire(p)
+        starting = s.plans is not None and new_plan.any()
+        if starting:
+            plan_lengths = np.asarray(plan_lengths).reshape(n)[new_plan]
+            if plan_lengths.min() < 1 or plan_lengths.max() > self.chunk_size:
+                raise ValueError(
+                    f"plan_lengths of new plans must be in [1, chunk_size={self.chunk_size}], "
+                    f"got {plan_lengths.tolist()}"
+                )
         if s.plans is not None:
             # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
-            self._close_plans(new_plan & (self._plan_start >= 0), np.zeros(n, dtype=bool))
-        s.obs[p] = np.asarray(obs, dtype=np.float32).reshape(n, -1)
-        s.next_obs[p] = np.asarray(next_obs, dtype=np.float32).reshape(n, -1)
-        s.actions[p] = np.asarray(action, dtype=np.float32).reshape(n, -1)
-        s.rewards[p] = np.asarray(reward, dtype=np.float32).reshape(n)
+            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), np.zeros_like(new_plan))
+        s.obs[p] = np.reshape(obs, (n, -1))  # cast to float32 on assignment
+        s.next_obs[p] = np.reshape(next_obs, (n, -1))
+        s.actions[p] = np.reshape(action, (n, -1))
+        s.rewards[p] = np.reshape(reward, n)
         s.terminated[p] = terminated
         self._next_episode_step[episode_start] = 0
         s.episode_step[p] = self._next_episode_step
@@ -244,10 +318,11 @@ class ChunkReplayBuffer(BaseBuffer):
         if s.plans is None:
             self._close_windows(p, done, terminated)
         else:
-            s.plans[p, new_plan] = np.asarray(plans, dtype=np.float32)[new_plan]
-            self._plan_start[new_plan] = p
-            self._plan_target[new_plan] = np.asarray(plan_lengths).reshape(n)[new_plan]
-            self._plan_count[new_plan] = 0
+            if starting:
+                s.plans[p, new_plan] = np.asarray(plans)[new_plan]
+                self._plan_start[new_plan] = p
+                self._plan_target[new_plan] = plan_lengths
+                self._plan_count[new_plan] = 0
             has_plan = self._plan_start >= 0
             self._plan_count[has_plan] += 1
             self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
@@ -256,14 +331,52 @@ class ChunkReplayBuffer(BaseBuffer):
             self.full = True
             self.pos = 0
 
+    def _retire(self, p: int) -> None:
+        """
+        Before slot ``p`` of the full ring is overwritten: drop its starts, and those whose history
+        ``a_{t-ℓ:t-1}`` reaches back to it (the starts at ``p + d``, ``d = 1..ℓ``, with ``min(episode
+        step, ℓ) >= d``: their oldest slot of history becomes ``p``).
+        """
+        ell, n, steps = self.history_len, self.n_envs, self.online.episode_step
+        if p + ell < self.buffer_size:
+            steps = steps[p : p + ell + 1]  # (ℓ+1, n_envs)
+        else:
+            steps = steps.take(np.arange(p, p + ell + 1), axis=0, mode="wrap")
+        gone = np.flatnonzero(steps >= np.arange(ell + 1)[:, None])  # d * n_envs + env
+        self._starts.remove((gone + p * n) % (self.buffer_size * n))
+
+    def _admit(self, starts: np.ndarray, envs: np.ndarray) -> None:
+        """Add the starts whose window just closed to the index, unless their history left the ring."""
+        self._starts.insert((starts * self.n_envs + envs)[self._history_in_ring(starts, envs)])
+
+    def _history_in_ring(self, starts: np.ndarray, envs: np.ndarray) -> np.ndarray:
+        """
+        Whether the slots ``starts - min(episode step, ℓ) .. starts`` of ``envs`` all hold data written
+        since the last :meth:`reset` and not overwritten since, during :meth:`add` at ``self.pos``.
+        """
+        if self.full:  # the oldest slot still in the ring is pos + 1 (slot pos is being written)
+            age = (starts - self.pos - 1) % self.buffer_size
+        else:
+            age = np.where(starts <= self.pos, starts, -1)
+        return np.minimum(self.online.episode_step[starts, envs], self.history_len) <= age
+
     def _close_plans(self, mask: np.ndarray, terminated: np.ndarray) -> None:
         if not mask.any():
             return
-        envs = np.flatnonzero(mask)
-        starts = self._plan_start[envs]
-        self.online.horizon[starts, envs] = self._plan_count[envs]
-        self.online.bootstrap[starts, envs] = ~terminated[envs]
+        s, envs = self.online, np.flatnonzero(mask)
+        starts, executed = self._plan_start[envs], self._plan_count[envs]
+        s.horizon[starts, envs] = executed
+        s.bootstrap[starts, envs] = ~terminated[envs]
+        self._write_chunks(starts, envs, executed)
         self._plan_start[envs] = -1
+        self._admit(starts, envs)
+
+    def _write_chunks(self, starts: np.ndarray, envs: np.ndarray, executed: np.ndarray) -> None:
+        """Chunks (Eq. 8) at closed plan starts: the ``executed`` actions, then the unexecuted tails."""
+        s, u = self.online, np.arange(self.chunk_size)
+        actions = s.actions[(starts[:, None] + u) % self.buffer_size, envs[:, None]]  # (c, k, action_dim)
+        done = (u < executed[:, None])[..., None]  # (c, k, 1)
+        s.plans[starts, envs] = np.where(done, actions, s.plans[starts, envs])
 
     def _close_windows(self, p: int, done: np.ndarray, terminated: np.ndarray) -> None:
         """
@@ -273,6 +386,7 @@ class ChunkReplayBuffer(BaseBuffer):
         """
         s, k = self.online, self.chunk_size
         steps = s.episode_step[p]  # (n_envs,) index of step p inside its episode
+        closed_starts, closed_envs = [], []
         # the window a_{p-length+1..p}, inside the episode; shorter ones only at an episode end
         for length in range(1, k + 1) if done.any() else (k,):
             closes = done if length < k else np.ones_like(done)
@@ -280,11 +394,15 @@ class ChunkReplayBuffer(BaseBuffer):
             start = (p - length + 1) % self.buffer_size
             s.horizon[start, envs] = length
             s.bootstrap[start, envs] = ~terminated[envs]
+            closed_starts.append(np.full(envs.size, start))
+            closed_envs.append(envs)
+        self._admit(np.concatenate(closed_starts), np.concatenate(closed_envs))
 
     def reset(self) -> None:
         super().reset()
         self._plan_start[:] = -1
         self.online.horizon[:] = 0
+        self._starts.clear()
 
     # ------------------------------------------------------------------ offline part
     def add_offline_episodes(self, episodes: Iterable[Any]) -> int:
@@ -357,97 +475,130 @@ class ChunkReplayBuffer(BaseBuffer):
         return super().size()
 
     def _online_starts(self) -> np.ndarray:
+        """The valid online sample starts as flat indices ``slot * n_envs + env``, in increasing order."""
+        return self._starts.members()
+
+    def _scan_online_starts(self) -> np.ndarray:
+        """
+        The valid online starts found by scanning the whole ring, O(buffer_size): a complete window
+        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots
+        back) is still in the ring. The reference for the index :meth:`add` keeps.
+        """
         size = self.buffer_size if self.full else self.pos
-        valid = self.online.horizon[:size] > 0  # (size, n_envs)
-        if self.full:
-            # the oldest steps may have lost their history to overwriting
-            age = (np.arange(size) - self.pos) % self.buffer_size
-            lookback = np.minimum(self.online.episode_step[:size], self.history_len - 1)
-            valid &= lookback <= age[:, None]
-        return np.flatnonzero(valid)
+        slots = np.arange(size)
+        age = (slots - self.pos) % self.buffer_size if self.full else slots  # (size,) 0 = oldest
+        lookback = np.minimum(self.online.episode_step[:size], self.history_len)  # (size, n_envs)
+        return np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None]))
+
+    def _rebuild_start_index(self) -> None:
+        """Rebuild the start index from a scan (a buffer pickled before the index existed)."""
+        self._starts.clear()
+        self._starts.insert(self._scan_online_starts())
 
     def n_samples(self) -> tuple[int, int]:
         """Number of sample starts available ``(online, offline)``."""
-        return int(self._online_starts().size), int(self.offline_size)
+        return self._starts.size, int(self.offline_size)
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ChunkReplaySamples:  # type: ignore[override]
         """
         Sample ``batch_size`` chunk transitions; a fraction ``offline_ratio`` comes from the offline part
-        when both parts hold data.
+        when both parts hold data. The cost does not depend on the buffer's size.
 
         :param batch_size: number of samples
         :param env: optional ``VecNormalize`` to normalise observations and rewards
         :return: a batch of chunk transitions
         """
-        online = self._online_starts()
-        n_off_avail = self.offline_size
-        if online.size == 0 and n_off_avail == 0:
+        n_on_avail, n_off_avail = self.n_samples()
+        if n_on_avail == 0 and n_off_avail == 0:
             raise ValueError("the replay buffer holds no complete chunk transition yet")
-        if online.size == 0:
+        if n_on_avail == 0:
             n_off = batch_size
         elif n_off_avail == 0:
             n_off = 0
         else:
             n_off = int(round(self.offline_ratio * batch_size))
-        parts = []
+        k, ell, a_dim = self.chunk_size, self.history_len, self.action_dim
+        # the histories at t and at t + L side by side, (2, B, ℓ, dim): one read fills both
+        obs_pair = np.empty((2, batch_size, ell, self.obs_dim), dtype=np.float32)
+        action_pair = np.empty((2, batch_size, ell, a_dim), dtype=np.float32)
+        out = ChunkReplaySamples(
+            obs_pair[0],
+            action_pair[0],
+            np.empty((batch_size, k, a_dim), dtype=np.float32),
+            np.empty((batch_size, k), dtype=np.float32),
+            np.empty(batch_size, dtype=np.float32),
+            np.empty(batch_size, dtype=np.float32),
+            obs_pair[1],
+            action_pair[1],
+        )
         if n_off > 0:
-            t = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
-            parts.append(self._gather(self.offline, t, np.zeros(n_off, dtype=np.int64), env))
+            rows = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
+            self._gather(self.offline, rows, out, obs_pair, action_pair, 0)
         if batch_size - n_off > 0:
-            flat = online[np.random.randint(0, online.size, size=batch_size - n_off)]  # noqa: NPY002 - as above
-            t, e = np.divmod(flat, self.n_envs)
-            parts.append(self._gather(self.online, t, e, env))
-        arrays = parts[0] if len(parts) == 1 else [np.concatenate(x) for x in zip(*parts, strict=True)]
-        return ChunkReplaySamples(*(self.to_torch(a) for a in arrays))
+            rows = self._starts.sample(batch_size - n_off).astype(np.intp)
+            self._gather(self.online, rows, out, obs_pair, action_pair, n_off)
+        if env is not None:
+            inside = np.arange(k)[None, :] < out.horizons[:, None]  # (B, k)
+            out = out._replace(
+                observation_history=self._normalize_obs(out.observation_history, env).astype(np.float32),
+                next_observation_history=self._normalize_obs(out.next_observation_history, env).astype(
+                    np.float32
+                ),
+                rewards=self._normalize_reward(out.rewards, env).astype(np.float32) * inside,
+            )
+        return ChunkReplaySamples(*(self.to_torch(a) for a in out))
 
-    def _history(
-        self, s: _Steps, base: np.ndarray, count: np.ndarray, env: np.ndarray, last: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """
-        Observation and action windows ending at ``o_base``: ``o_{base-ℓ+1..base}``, ``a_{base-ℓ..base-1}``,
-        with ``count`` earlier steps available in the episode (repeat-first-obs / zero-action padding).
-        If ``last`` is given, ``o_base`` is ``next_obs[last]`` (the window after the sample's last step).
-        """
-        ell, cap = self.history_len, s.capacity
-        off = np.arange(ell - 1, -1, -1)  # offsets from base, oldest first
-        back = np.minimum(off[None, :], count[:, None])  # (B, ℓ)
-        obs = s.obs[(base[:, None] - back) % cap, env[:, None]]  # (B, ℓ, obs_dim)
-        if last is not None:
-            obs[:, -1] = s.next_obs[last, env]
-        j = off + 1  # action offsets ℓ..1
-        act = s.actions[(base[:, None] - j[None, :]) % cap, env[:, None]]  # (B, ℓ, action_dim)
-        act *= (j[None, :] <= count[:, None])[..., None]
-        return obs, act
+    def to_torch(self, array: np.ndarray, copy: bool = False) -> th.Tensor:
+        """The sampled arrays are fresh: share their memory unless asked to copy."""
+        return th.tensor(array, device=self.device) if copy else th.from_numpy(array).to(self.device)
 
     def _gather(
-        self, s: _Steps, t: np.ndarray, env: np.ndarray, vec_env: VecNormalize | None
-    ) -> list[np.ndarray]:
-        k, cap = self.chunk_size, s.capacity
-        horizon = s.horizon[t, env]  # (B,)
-        u = np.arange(k)
-        idx = (t[:, None] + u[None, :]) % cap  # (B, k)
-        inside = u[None, :] < horizon[:, None]  # (B, k)
-        rewards = s.rewards[idx, env[:, None]] * inside
-        actions = s.actions[idx, env[:, None]]  # (B, k, action_dim)
-        tail = s.plans[t, env] if s.plans is not None else np.zeros_like(actions)
-        chunks = np.where(inside[..., None], actions, tail)
-        last = (t + horizon - 1) % cap
-        obs_h, act_h = self._history(s, t, s.episode_step[t, env], env, None)
-        next_obs_h, next_act_h = self._history(s, last + 1, s.episode_step[last, env] + 1, env, last)
-        if vec_env is not None:
-            obs_h = self._normalize_obs(obs_h, vec_env).astype(np.float32)
-            next_obs_h = self._normalize_obs(next_obs_h, vec_env).astype(np.float32)
-            rewards = self._normalize_reward(rewards, vec_env).astype(np.float32) * inside
-        return [
-            obs_h,
-            act_h,
-            chunks.astype(np.float32),
-            rewards.astype(np.float32),
-            horizon.astype(np.float32),
-            s.bootstrap[t, env].astype(np.float32),
-            next_obs_h,
-            next_act_h,
-        ]
+        self,
+        s: _Steps,
+        rows: np.ndarray,
+        out: ChunkReplaySamples,
+        obs_pair: np.ndarray,
+        action_pair: np.ndarray,
+        lo: int,
+    ) -> None:
+        """
+        Write the samples starting at the flat rows ``rows = slot * n_envs + env`` of ``s`` into
+        ``out[lo : lo + len(rows)]`` (see :class:`ChunkReplaySamples`). Before the episode start the
+        histories repeat its first observation and hold zero actions.
+
+        Step ``t + j`` of a sample's env is the flat row ``rows + j * n_envs``, taken modulo the ring
+        (``mode="wrap"``); rows outside the sample's episode are only read where they are masked.
+        """
+        k, ell, n = self.chunk_size, self.history_len, s.n_envs
+        sl = slice(lo, lo + rows.size)
+        horizon = s.horizon.reshape(-1).take(rows)  # (m,) L
+        count = s.episode_step.reshape(-1).take(rows)  # (m,) steps before t in its episode
+        out.horizons[sl] = horizon
+        out.bootstrap[sl] = s.bootstrap.reshape(-1).take(rows)
+        base, first = rows[:, None], -count[:, None]  # (m, 1): row of t, offset of the episode start
+        # offsets from t of a_{t-ℓ:t-1} and a_{t+L-ℓ:t+L-1}, (2, m, ℓ)
+        offsets = np.empty((2, rows.size, ell), dtype=np.intp)
+        offsets[0] = np.arange(-ell, 0)
+        np.add(horizon[:, None], offsets[0], out=offsets[1])
+        actions = s.actions.reshape(-1, self.action_dim)
+        actions.take(base + offsets * n, axis=0, out=action_pair[:, sl], mode="wrap")
+        action_pair[:, sl] *= (offsets >= first)[..., None]  # zero actions before the episode start
+        # o_{t-ℓ+1:t} and o_{t+L-ℓ+1:t+L}; before the episode start its first observation
+        obs_rows = base + np.maximum(offsets + 1, first) * n
+        s.obs.reshape(-1, self.obs_dim).take(obs_rows, axis=0, out=obs_pair[:, sl], mode="wrap")
+        last = rows + (horizon - 1) * n  # (m,) the window's last step: o_{t+L} is its next observation
+        next_obs = s.next_obs.reshape(-1, self.obs_dim)
+        next_obs.take(last, axis=0, out=out.next_observation_history[sl, -1], mode="wrap")
+        ahead = np.arange(k)
+        inside = ahead < horizon[:, None]  # (m, k)
+        chunk_rows = rows[:, None] + ahead * n  # (m, k)
+        s.rewards.reshape(-1).take(chunk_rows, out=out.rewards[sl], mode="wrap")
+        out.rewards[sl] *= inside
+        if s.plans is not None:  # the executed actions, then the plan's unexecuted tail (see _write_chunks)
+            s.plans.reshape(-1, k, self.action_dim).take(rows, axis=0, out=out.chunks[sl])
+        else:  # the next k executed actions, zeros after the episode end
+            actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
+            np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
         raise NotImplementedError("use ChunkReplayBuffer.sample()")

@@ -1,11 +1,13 @@
 """Chunk replay buffer: online plans (Eq. 8) and offline windows (Eq. 4) through one sampling path."""
 
+import pickle
+
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, OfflineEpisode
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, _StartIndex
 
 OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
 ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -119,11 +121,14 @@ def test_ring_overwrite_invalidates_old_plans():
     buf = make_buffer(size=5)
     for t in range(7):
         add_step(buf, t, plan=[t / 10, t / 10, t / 10], length=1, start=(t == 0))
-    # 5 slots, the 2 oldest plans overwritten; the oldest surviving start (t=2) lost o_1 to overwriting
+    # 5 slots hold t = 2..6; the action history a_{t-2:t-1} of t = 2 and t = 3 reaches the
+    # overwritten a_0, a_1
     starts = buf._online_starts()
-    assert sorted(buf.online.obs[starts, 0, 0].tolist()) == [3.0, 4.0, 5.0, 6.0]
+    assert sorted(buf.online.obs[starts, 0, 0].tolist()) == [4.0, 5.0, 6.0]
     s = rows(buf.sample(64))
-    assert s[0.3]["observation_history"] == [2.0, 3.0]
+    assert set(s) == {0.4, 0.5, 0.6}
+    assert s[0.4]["observation_history"] == [3.0, 4.0]
+    assert s[0.4]["action_history"] == pytest.approx([0.3, 0.4])
 
 
 def by_start(samples):
@@ -175,8 +180,8 @@ def test_online_windows_in_the_ring_and_several_envs():
     buf = make_buffer(size=5, targets="window")
     for t in range(7):
         add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, start=(t == 0))
-    # slots hold t = 2..6; windows complete for t <= 4; t = 2 lost o_1 to overwriting
-    assert sorted(buf.online.obs[buf._online_starts(), 0, 0].tolist()) == [3.0, 4.0]
+    # slots hold t = 2..6; windows complete for t <= 4; t = 2, 3 lost a_0, a_1 to overwriting
+    assert sorted(buf.online.obs[buf._online_starts(), 0, 0].tolist()) == [4.0]
     two = make_buffer(n_envs=2, targets="window")
     for t in range(3):  # env 1 terminates after its second step and starts again
         add_two_envs(two, t, terminated=[False, t == 1], start=[t == 0, t in (0, 2)])
@@ -278,3 +283,258 @@ def test_empty_buffer_and_bad_arguments():
         make_buffer(ratio=1.5)
     with pytest.raises(ValueError, match="buffer_size"):
         make_buffer(size=3)
+
+
+# ---------------------------------------------------------------------------------------------
+# the ring after it wraps: every sampled field against the true trajectory
+
+ACT2 = spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+def true_action(e, j, t):
+    """a_t of episode j of env e (float32, inside [-1, 1])."""
+    return np.array([0.01 * (t + 1), 0.1 * e + 0.001 * (j + 1)], np.float32)
+
+
+def true_reward(e, j, t):
+    return np.float32(10_000 * e + 100 * j + t)
+
+
+def true_plan(e, j, t, k):
+    """The plan selected at step t: entries distinct from every executed action."""
+    return np.array([[-0.01 * (t + u + 1), -0.1 * e - 0.001 * (j + 1)] for u in range(k)], np.float32)
+
+
+class RingDriver:
+    """
+    Feeds a buffer the steps of ``n_envs`` envs whose observation is ``(env, episode, step)`` and keeps the
+    truth: every closed sample start (its episode, step, horizon and bootstrap) by global add index.
+
+    Episodes have 1..12 steps and end terminated, truncated or cut without a done flag (a restart, as
+    when ``learn()`` resets the envs); the last step's next observation is ``(env, episode, T - 0.5)``.
+    Plans have random ``L_t`` in 1..k and start with every episode, as the executor's.
+    """
+
+    def __init__(self, buf, seed):
+        self.buf, self.n, self.k, self.ell = buf, buf.n_envs, buf.chunk_size, buf.history_len
+        self.window = buf.online_targets == "window"
+        self.rng = np.random.default_rng(seed)
+        self.g = 0  # adds so far
+        self.episode = [-1] * self.n
+        self.step = [0] * self.n  # next step inside the current episode
+        self.plan = [None] * self.n  # open plan per env: [start t, start g, L_t, steps executed]
+        self.lengths = {}  # (env, episode) -> T
+        self.ends = {}  # (env, episode) -> "terminated" | "truncated" | "restart"
+        self.starts = {}  # (g, env) -> (episode, t, L, bootstrap) of every closed sample start
+
+    def add(self):
+        n, k = self.n, self.k
+        obs, nxt = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
+        act = np.zeros((n, 2), np.float32)
+        rew, term, trunc = np.zeros(n, np.float32), np.zeros(n, bool), np.zeros(n, bool)
+        start, new_plan = np.zeros(n, bool), np.zeros(n, bool)
+        plans, lengths = np.zeros((n, k, 2), np.float32), np.zeros(n, np.int64)
+        for e in range(n):
+            j = self.episode[e]
+            if j < 0 or self.step[e] == self.lengths[(e, j)]:
+                if self.plan[e] is not None and not self.window:  # a restart: the plan closes, bootstrapped
+                    self._close_plan(e, j, True)
+                j = self.episode[e] = j + 1
+                self.lengths[(e, j)] = int(self.rng.integers(1, 13))
+                end = self.rng.choice(["terminated", "truncated", "restart"], p=[0.4, 0.4, 0.2])
+                self.ends[(e, j)] = str(end)
+                self.step[e], start[e] = 0, True
+            t, last = self.step[e], self.step[e] == self.lengths[(e, j)] - 1
+            obs[e], nxt[e] = (e, j, t), (e, j, t + 0.5 if last else t + 1)
+            act[e], rew[e] = true_action(e, j, t), true_reward(e, j, t)
+            term[e] = last and self.ends[(e, j)] == "terminated"
+            trunc[e] = last and self.ends[(e, j)] == "truncated"
+            if start[e] or self.plan[e] is None:
+                new_plan[e], lengths[e], plans[e] = True, self.rng.integers(1, k + 1), true_plan(e, j, t, k)
+                self.plan[e] = [t, self.g, int(lengths[e]), 0]
+            self.plan[e][3] += 1
+            if self.window:
+                self._close_windows(e, j, t, term[e] or trunc[e], term[e])
+                if self.plan[e][3] == self.plan[e][2] or term[e] or trunc[e]:
+                    self.plan[e] = None
+            elif self.plan[e][3] == self.plan[e][2] or term[e] or trunc[e]:
+                self._close_plan(e, j, not term[e])
+            self.step[e] += 1
+        self.buf.add(obs, nxt, act, rew, term, trunc, start, new_plan, plans, lengths)
+        self.g += 1
+
+    def _close_plan(self, e, j, bootstrap):
+        t0, g0, _, executed = self.plan[e]
+        self.starts[(g0, e)] = (j, t0, executed, bootstrap)
+        self.plan[e] = None
+
+    def _close_windows(self, e, j, t, done, terminated):
+        """Step t completes the window starting k - 1 steps earlier; an episode end closes all later ones."""
+        first = t - self.k + 1
+        for s in range(max(first, 0), t + 1 if done else first + 1):
+            self.starts[(self.g - (t - s), e)] = (j, s, t - s + 1, not terminated)
+
+    def available(self):
+        """Closed starts whose window and history a_{t-ℓ:t-1} are still in the ring: {(g, env): record}."""
+        oldest = self.g - self.buf.buffer_size
+        return {key: rec for key, rec in self.starts.items() if key[0] - min(rec[1], self.ell) >= oldest}
+
+
+def expected_batch(driver, identities):
+    """The true fields of samples starting at ``identities`` [(env, episode, t)], as ChunkReplaySamples."""
+    k, ell = driver.k, driver.ell
+    available = {(e, rec[0], rec[1]): rec for (_, e), rec in driver.available().items()}
+    out = {name: [] for name in ChunkReplaySamples._fields}
+    for e, j, t in identities:
+        assert (e, j, t) in available, f"sampled start (env {e}, episode {j}, step {t}) is not available"
+        _, _, horizon, bootstrap = available[(e, j, t)]
+
+        def o(i, e=e, j=j):  # repeat-first-observation padding
+            return [e, j, max(i, 0)]
+
+        def a(i, e=e, j=j):  # zero-action padding
+            return true_action(e, j, i) if i >= 0 else np.zeros(2, np.float32)
+
+        out["observation_history"].append([o(t - ell + 1 + i) for i in range(ell)])
+        out["action_history"].append([a(t - ell + i) for i in range(ell)])
+        tail = np.zeros((k, 2), np.float32) if driver.window else true_plan(e, j, t, k)
+        out["chunks"].append([a(t + u) if u < horizon else tail[u] for u in range(k)])
+        out["rewards"].append([true_reward(e, j, t + u) if u < horizon else 0.0 for u in range(k)])
+        out["horizons"].append(horizon)
+        out["bootstrap"].append(float(bootstrap))
+        end = t + horizon
+        history = [o(end - ell + 1 + i) for i in range(ell)]
+        if end == driver.lengths[(e, j)]:
+            history[-1] = [e, j, end - 0.5]  # the next observation of the episode's last step
+        out["next_observation_history"].append(history)
+        out["next_action_history"].append([a(end - ell + i) for i in range(ell)])
+    return {name: np.array(v, np.float32) for name, v in out.items()}
+
+
+@pytest.mark.parametrize("targets", ["prefix", "window"])
+@pytest.mark.parametrize(("size", "n_envs"), [(25, 1), (40, 1), (29, 3), (37, 3)])
+def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targets):
+    """
+    Each sample's every field equals the env's true trajectory in the current episode (with the
+    documented padding before its start) while the ring wraps six times; the starts offered are
+    exactly the closed ones whose history a_{t-ℓ:t-1} has not been overwritten.
+    """
+    buf = ChunkReplayBuffer(
+        size, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=n_envs,
+        chunk_size=5, history_len=4, online_targets=targets,
+    )
+    driver = RingDriver(buf, seed=size + n_envs)
+    n_checked = 0
+    while driver.g < 6 * size:
+        driver.add()
+        available = driver.available()
+        want = sorted((g % size) * n_envs + e for g, e in available)
+        assert buf._online_starts().tolist() == want == buf._scan_online_starts().tolist()
+        assert buf.n_samples() == (len(available), 0)
+        if driver.g % 3 or not available:
+            continue
+        samples = buf.sample(64)
+        identities = [tuple(int(x) for x in row) for row in samples.observation_history[:, -1].numpy()]
+        want = expected_batch(driver, identities)
+        for name in ChunkReplaySamples._fields:
+            np.testing.assert_array_equal(getattr(samples, name).numpy(), want[name], err_msg=name)
+        n_checked += 64
+    assert n_checked >= 2000
+
+
+@pytest.mark.parametrize("targets", ["prefix", "window"])
+def test_reset_forgets_the_ring(targets):
+    """After reset() an episode that goes on is a sample start only once its history is stored again."""
+    buf = make_buffer(size=8, targets=targets)
+    for t in range(5):
+        add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, start=(t == 0))
+    buf.reset()
+    assert buf.n_samples() == (0, 0)
+    for t in range(5, 9):  # the episode goes on in slots 0..3; a_{t-2} of t = 5, 6 is not stored
+        add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, terminated=(t == 8))
+    assert buf.n_samples() == (2, 0)
+    got = by_start(buf.sample(64))
+    assert set(got) == {7.0, 8.0}
+    assert got[7.0]["observation_history"] == [6.0, 7.0]
+    assert got[7.0]["action_history"] == pytest.approx([0.6, 0.7])
+
+
+def test_episode_start_closes_an_open_plan():
+    """An episode restarted without a done flag ends the open plan there, even without a new plan."""
+    buf = make_buffer()
+    add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=3, start=True)
+    add_step(buf, 1)
+    add_step(buf, 0, start=True)  # no plan starts here
+    add_step(buf, 1)
+    assert buf.n_samples() == (1, 0)
+    s = rows(buf.sample(8))[0.7]
+    assert s["horizons"] == [2.0] and s["bootstrap"] == [1.0]
+    assert s["chunks"] == pytest.approx([0.1, 0.2, 0.7])
+    assert s["next_observation_history"] == [1.0, 2.0]
+
+
+@pytest.mark.parametrize("length", [0, 4])
+def test_plan_lengths_are_validated(length):
+    buf = make_buffer()  # k = 3
+    with pytest.raises(ValueError, match="plan_lengths"):
+        add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=length, start=True)
+
+
+def wrapped_buffer(targets="prefix"):
+    buf = ChunkReplayBuffer(
+        29, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=3, online_targets=targets
+    )
+    driver = RingDriver(buf, seed=1)
+    for _ in range(100):
+        driver.add()
+    return buf
+
+
+def test_pickled_buffer_keeps_its_starts():
+    buf = wrapped_buffer()
+    starts = buf._online_starts().tolist()
+    assert len(starts) > 10
+    copy = pickle.loads(pickle.dumps(buf))
+    assert copy._online_starts().tolist() == starts
+    np.random.seed(3)  # noqa: NPY002
+    a = buf.sample(32)
+    np.random.seed(3)  # noqa: NPY002
+    b = copy.sample(32)
+    for x, y in zip(a, b, strict=True):
+        assert th.equal(x, y)
+    # a buffer pickled before the index existed, whose plans held the selected plans: on loading it
+    # gets the index and its chunks (the executed actions, then the plan's tail)
+    state = dict(pickle.loads(pickle.dumps(buf)).__dict__)
+    del state["_starts"]
+    online = state["online"]
+    for slot, e in zip(*np.nonzero(online.horizon), strict=True):
+        online.plans[slot, e] = true_plan(*(int(x) for x in online.obs[slot, e]), k=buf.chunk_size)
+    old = ChunkReplayBuffer.__new__(ChunkReplayBuffer)
+    old.__setstate__(state)
+    assert old._online_starts().tolist() == starts
+    assert old.n_samples() == buf.n_samples()
+    copy._rebuild_start_index()  # the same starts, in the order of a rebuilt index
+    np.random.seed(3)  # noqa: NPY002
+    a = copy.sample(64)
+    np.random.seed(3)  # noqa: NPY002
+    for x, y in zip(old.sample(64), a, strict=True):
+        assert th.equal(x, y)
+
+
+def test_start_index_is_a_set():
+    """Random insertions and removals: the members are those of a Python set, samples are members."""
+    rng = np.random.default_rng(0)
+    index, truth = _StartIndex(50), set()
+    for _ in range(300):
+        flat = rng.choice(50, size=int(rng.integers(0, 6)), replace=False)
+        if rng.random() < 0.5:
+            index.insert(flat)
+            truth |= set(flat.tolist())
+        else:
+            index.remove(flat)
+            truth -= set(flat.tolist())
+        assert index.members().tolist() == sorted(truth)
+        assert index.size == len(truth)
+        assert sorted(np.flatnonzero(index.place >= 0).tolist()) == sorted(truth)
+        if truth:
+            assert set(index.sample(20).tolist()) <= truth
