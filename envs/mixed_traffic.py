@@ -321,7 +321,9 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["applied_action"]``).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    # process_exclusive: one live instance per process (libsumo); launchers such as ua2c-zoo
+    # read it to give every env its own process.
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5, "process_exclusive": True}
 
     def __init__(self, render_mode: str | None = None, config: MixedTrafficConfig | None = None, **kwargs: Any):
         super().__init__()
