@@ -104,6 +104,8 @@ _USAGE = """usage: ua2c-zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
             lets workers on several machines share one study
 
 --algo defaults to ua2c. `ua2c-zoo train --help` lists rl-zoo3's own arguments.
+Envs with one simulator per process (MixedTraffic-v0) train and evaluate in SubprocVecEnv
+workers unless --vec-env is given.
 example: ua2c-zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
 """
 
