@@ -49,11 +49,11 @@ def bench_env(steps: int, seed: int) -> tuple[float, float, int]:
 def bench_bare(steps: int, seed: int, episode_steps: int) -> tuple[float, float]:
     """Same start states, then only ``simulationStep``. Returns (steps/s incl. resets, step-only steps/s)."""
     env = gym.make("MixedTraffic-v0").unwrapped
-    libsumo = env.sim.libsumo
     done = 0
     step_time = 0.0
     start = time.perf_counter()
-    env.reset(seed=seed)
+    env.reset(seed=seed)  # starts SUMO
+    libsumo = env.sim.libsumo
     while done < steps:
         n = min(episode_steps, steps - done)
         t0 = time.perf_counter()

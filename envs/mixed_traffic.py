@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -46,10 +46,14 @@ from envs.scenario import (
     STYLE_COLORS,
     STYLE_SPEED_VARIATION,
     STYLE_VTYPES,
+    ScenarioFiles,
     ScenarioGeometry,
     build_scenario,
     speed_fluctuation_step,
 )
+
+if TYPE_CHECKING:
+    from envs.sumo import SumoSimulation
 
 __all__ = [
     "STYLES", "SLOT_NAMES", "SLOT_FEATURES", "OBS_NAMES", "REWARD_TERMS",
@@ -303,8 +307,11 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     ``gym.make("MixedTraffic-v0", render_mode=None, **kwargs)`` with the fields of
     :class:`MixedTrafficConfig` as keywords (``reward`` may be a dict), or ``config=``.
     ``render_mode="rgb_array"`` draws a top-down frame with numpy (no display needed).
-    libsumo holds one simulation per process: a second live env raises
-    :class:`envs.sumo.SumoProcessBusyError`; use ``SubprocVecEnv`` for several envs, e.g.
+    Constructing the env starts nothing (spaces are available at once); SUMO starts at the
+    first ``reset()`` and ``close()`` stops it. libsumo holds one simulation per process, owned
+    by the env that called ``reset()`` last: an env whose simulation another env's ``reset()``
+    took raises :class:`envs.sumo.SumoProcessBusyError` at its next ``step()`` (its own
+    ``reset()`` takes the simulation back). Use ``SubprocVecEnv`` for several envs at once, e.g.
     ``make_vec_env("envs:MixedTraffic-v0", n_envs=4, vec_env_cls=SubprocVecEnv)`` (the
     ``envs:`` prefix imports the package, and so registers the id, in every worker).
 
@@ -314,7 +321,9 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["applied_action"]``).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    # process_exclusive: one live instance per process (libsumo); launchers such as ua2c-zoo
+    # read it to give every env its own process.
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5, "process_exclusive": True}
 
     def __init__(self, render_mode: str | None = None, config: MixedTrafficConfig | None = None, **kwargs: Any):
         super().__init__()
@@ -330,11 +339,13 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
             dtype=np.float32,
         )
         self.observation_space = spaces.Box(low=OBS_LOW.copy(), high=OBS_HIGH.copy(), dtype=np.float32)
-        from envs.sumo import SumoSimulation, import_libsumo
+        from envs.sumo import import_libsumo
 
         import_libsumo()  # raises SumoNotInstalledError saying how to install SUMO
-        self.scenario = build_scenario(cfg.geometry, cfg.max_speed)
-        self.sim = SumoSimulation(self.scenario.net_file, self.scenario.route_file, cfg.step_length)
+        # Built by the first reset(): constructing the env starts nothing and claims nothing.
+        self.scenario: ScenarioFiles | None = None
+        self.sim: SumoSimulation | None = None
+        self._closed = False
         g = cfg.geometry
         # edge -> (road offset [m], lane index shift to g); SUMO lane id -> (offset, g, edge)
         self._edges = {
@@ -373,8 +384,9 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"options['ego_controller'] must be one of {EGO_CONTROLLERS}, got {controller!r}")
         self._ego_controller = controller
         sumo_seed = int(self.np_random.integers(0, 2**31 - 1))
-        if seed is not None or not self.sim.running:
-            self.sim.load(sumo_seed)
+        sim = self._simulation()
+        if seed is not None or not sim.running:
+            sim.load(sumo_seed)  # claims the process (see envs.sumo)
         else:  # ~10x faster than a reload, same dynamics (SUMO's own RNG is never used)
             self.sim.clear((*self._hdv_ids, AV_ID), AV_ID if self._av_subscribed else None, self._context_radius)
         self._av_subscribed = False
@@ -444,7 +456,7 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.render_mode is None:
             gym.logger.warn("render() called without render_mode; use render_mode='rgb_array'")
             return None
-        if not self.sim.running:
+        if self.sim is None:
             raise RuntimeError("call reset() before render()")
         from envs.rendering import draw_frame
 
@@ -457,15 +469,28 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
         return draw_frame(self.config.geometry, av.x if av else 0.0, av.lane if av else 0, vehicles)
 
     def close(self) -> None:
+        """Stop SUMO and release the process (harmless before any reset and when repeated)."""
+        self._closed = True
         sim = getattr(self, "sim", None)
         if sim is not None:
             sim.close()
         self._needs_reset = True
         super().close()
 
+    def _simulation(self) -> SumoSimulation:
+        """The env's :class:`~envs.sumo.SumoSimulation`, created (scenario files included) on first use."""
+        if self._closed:
+            raise RuntimeError("this environment is closed; create a new one")
+        if self.sim is None:
+            from envs.sumo import SumoSimulation
+
+            self.scenario = build_scenario(self.config.geometry, self.config.max_speed)
+            self.sim = SumoSimulation(self.scenario.net_file, self.scenario.route_file, self.config.step_length)
+        return self.sim
+
     def hdv_styles(self) -> dict[str, int]:
         """Every HDV id currently in the simulation → its style label (index into ``STYLES``)."""
-        if not self.sim.running or not self._styles:
+        if self.sim is None or not self.sim.running or not self._styles:
             return {}
         return {vid: self._styles[vid] for vid in self.sim.vehicle_ids() if vid in self._styles}
 

@@ -3,10 +3,14 @@
 libsumo runs SUMO inside the Python process, about 15× faster than TraCI over a socket, but it
 holds ONE simulation per process: a second ``start`` silently replaces the first, so two
 environments in one process (e.g. in a ``DummyVecEnv``) would corrupt each other without any
-error. :class:`SumoSimulation` therefore claims the process when it is created and refuses a
-second live instance with an error that points to ``SubprocVecEnv``. The claim is released by
-:meth:`SumoSimulation.close` (or when the instance is garbage collected) and is ignored in a
-forked child process, which starts its own simulation.
+error. :class:`SumoSimulation` therefore tracks which instance owns the process. Creating one
+claims nothing (environments are cheap to build and Gymnasium's checker may build several);
+:meth:`SumoSimulation.load` claims the process when it starts SUMO. If another instance of the
+same process was running, its simulation is stopped first and every later call on it raises
+:class:`SumoProcessBusyError`, whose message points to ``SubprocVecEnv``: the last ``reset()``
+owns the simulation and an env whose simulation was taken can never read another env's
+vehicles. The claim is released by :meth:`SumoSimulation.close` (or when the instance is
+garbage collected) and is ignored in a forked child process, which starts its own simulation.
 
 Crashes of the interpreter known for libsumo are avoided here: no neighbour/leader query is
 made on a vehicle before it is on the road (``getNeighbors`` on a pending vehicle segfaults;
@@ -90,36 +94,46 @@ def netconvert_binary() -> str:
     raise SumoNotInstalledError("netconvert not found. " + INSTALL_HINT)
 
 
+BUSY_HINT = (
+    "libsumo runs one simulation per process, and another SUMO environment of this process "
+    "started its simulation with reset() after this one did: this env's simulation was stopped "
+    "so that it can never read the other env's vehicles. Call reset() here to start a new episode "
+    "(it stops the other env's simulation in turn), close the other env first, or run several "
+    "envs in separate processes with stable_baselines3.common.vec_env.SubprocVecEnv (e.g. "
+    "make_vec_env(..., vec_env_cls=SubprocVecEnv))."
+)
+
+
+def process_owner() -> SumoSimulation | None:
+    """The simulation that runs SUMO in this process, or ``None`` (nothing claimed here)."""
+    if _owner is None or _owner[0] != os.getpid():
+        return None
+    return _owner[1]()
+
+
 class SumoSimulation:
     """One libsumo simulation of a network, restarted per episode with :meth:`load`.
+
+    Creating an instance starts nothing and claims nothing; the first :meth:`load` starts SUMO
+    and makes this instance the process's owner (stopping the simulation of a previous owner,
+    which then raises :class:`SumoProcessBusyError` until it is loaded again).
 
     :param net_file: SUMO network.
     :param route_file: route file with vehicle types and routes.
     :param step_length: simulation step [s].
     :param extra_args: further ``sumo`` command-line options.
-    :raises SumoProcessBusyError: if another simulation is live in this process.
     """
 
     def __init__(
         self, net_file: str | Path, route_file: str | Path, step_length: float, extra_args: Sequence[str] = ()
     ) -> None:
-        global _owner
         self.libsumo = import_libsumo()
-        if _owner is not None and _owner[0] == os.getpid() and _owner[1]() is not None:
-            raise SumoProcessBusyError(
-                "libsumo runs one simulation per process and another SUMO environment is still open "
-                "here; a second one would silently replace its simulation. Close the first env "
-                "(env.close()), or run several envs in separate processes with "
-                "stable_baselines3.common.vec_env.SubprocVecEnv (e.g. make_vec_env(..., "
-                "vec_env_cls=SubprocVecEnv))."
-            )
-        # A weak reference: an instance that was garbage collected frees the process too.
-        _owner = (os.getpid(), weakref.ref(self))
         self.net_file, self.route_file = str(net_file), str(route_file)
         self.step_length = float(step_length)
         self.extra_args = list(extra_args)
         self._running = False
         self._closed = False
+        self._taken = False  # another instance's load() stopped this simulation
 
     # -- lifecycle -----------------------------------------------------------------------------
     def _args(self, seed: int) -> list[str]:
@@ -137,13 +151,36 @@ class SumoSimulation:
         ]
 
     def load(self, seed: int) -> None:
-        """(Re)start the simulation at time 0 with SUMO's random seed ``seed``."""
+        """(Re)start the simulation at time 0 with SUMO's random seed ``seed``.
+
+        Claims the process: a simulation another instance runs here is stopped first (that
+        instance raises :class:`SumoProcessBusyError` from then on, until its own ``load``).
+        """
+        global _owner
         self._check_open()
         if self._running:
             self.libsumo.load(self._args(seed))
-        else:
-            self.libsumo.start(["sumo", *self._args(seed)])
-            self._running = True
+            return
+        previous = process_owner()
+        if previous is not None and previous is not self:
+            previous._release(taken=True)
+        # A weak reference: an instance that was garbage collected frees the process too.
+        _owner = (os.getpid(), weakref.ref(self))
+        self.libsumo.start(["sumo", *self._args(seed)])
+        self._running, self._taken = True, False
+
+    def _release(self, taken: bool) -> None:
+        """Stop this instance's simulation and give up the process."""
+        global _owner
+        if self._running:
+            self._running = False
+            try:
+                self.libsumo.close()
+            except Exception:  # noqa: BLE001 - closing a dead connection is not an error
+                pass
+        self._taken = taken
+        if process_owner() is self:
+            _owner = None
 
     def clear(self, known_ids: Sequence[str] = (), context_owner: str | None = None, radius: float = 0.0) -> None:
         """Remove every vehicle (on the road and pending) without reloading; time keeps running.
@@ -170,22 +207,20 @@ class SumoSimulation:
 
     @property
     def running(self) -> bool:
+        """Whether this instance's simulation is started and still owns the process."""
         return self._running
 
+    @property
+    def taken(self) -> bool:
+        """Whether another instance's :meth:`load` stopped this simulation (until this one loads again)."""
+        return self._taken
+
     def close(self) -> None:
-        """Stop the simulation and release the process (idempotent)."""
-        global _owner
+        """Stop the simulation and release the process (idempotent; never touches another owner's simulation)."""
         if self._closed:
             return
         self._closed = True
-        if self._running:
-            self._running = False
-            try:
-                self.libsumo.close()
-            except Exception:  # noqa: BLE001 - closing a dead connection is not an error
-                pass
-        if _owner is not None and _owner[0] == os.getpid() and _owner[1]() is self:
-            _owner = None
+        self._release(taken=False)
 
     @property
     def closed(self) -> bool:
@@ -196,8 +231,10 @@ class SumoSimulation:
             raise RuntimeError("this SUMO simulation is closed; create a new environment")
 
     def _check_running(self) -> None:
-        self._check_open()
         if not self._running:
+            self._check_open()
+            if self._taken:
+                raise SumoProcessBusyError(BUSY_HINT)
             raise RuntimeError("the SUMO simulation is not started; call reset() first")
 
     # -- stepping and reading --------------------------------------------------------------------
@@ -220,6 +257,7 @@ class SumoSimulation:
         return self.libsumo.simulation.getArrivedIDList()
 
     def colliding_ids(self) -> tuple[str, ...]:
+        self._check_running()
         return self.libsumo.simulation.getCollidingVehiclesIDList()
 
     def pending_ids(self) -> tuple[str, ...]:
@@ -240,6 +278,7 @@ class SumoSimulation:
 
     def context_results(self, vehicle_id: str) -> dict[str, dict[int, Any]]:
         """``{vehicle id: {variable id: value}}`` around ``vehicle_id`` (itself included); {} once it left."""
+        self._check_running()
         return self.libsumo.vehicle.getContextSubscriptionResults(vehicle_id)
 
     def lane_positions(self) -> list[tuple[str, str, float]]:
@@ -250,10 +289,12 @@ class SumoSimulation:
 
     def acceleration(self, vehicle_id: str) -> float:
         """Acceleration of ``vehicle_id`` during the last step [m/s²]."""
+        self._check_running()
         return float(self.libsumo.vehicle.getAcceleration(vehicle_id))
 
     def min_gap(self, vehicle_id: str) -> float:
         """Standstill gap ``minGap`` of ``vehicle_id``'s type [m]."""
+        self._check_running()
         return float(self.libsumo.vehicle.getMinGap(vehicle_id))
 
     def leader(self, vehicle_id: str, distance: float) -> tuple[str, float] | None:
@@ -261,6 +302,7 @@ class SumoSimulation:
 
         As in TraCI, the returned distance excludes the follower's ``minGap``.
         """
+        self._check_running()
         res = self.libsumo.vehicle.getLeader(vehicle_id, float(distance))
         if res is None or not res[0]:
             return None
@@ -289,9 +331,11 @@ class SumoSimulation:
 
     def set_speed_factor(self, vehicle_id: str, factor: float) -> None:
         """Desired speed of ``vehicle_id`` = ``factor`` × the lane speed limit (works on pending vehicles)."""
+        self._check_running()
         self.libsumo.vehicle.setSpeedFactor(vehicle_id, float(factor))
 
     def remove(self, vehicle_id: str) -> None:
+        self._check_running()
         self.libsumo.vehicle.remove(vehicle_id)
 
     def set_driver(self, vehicle_id: str, params: Mapping[str, float]) -> None:
@@ -329,10 +373,12 @@ class SumoSimulation:
 
     def set_speed(self, vehicle_id: str, speed: float) -> None:
         """Speed [m/s] the vehicle will have after the next step (external control)."""
+        self._check_running()
         self.libsumo.vehicle.setSpeed(vehicle_id, float(speed))
 
     def change_lane(self, vehicle_id: str, lane_index: int, duration: float) -> None:
         """Request a change to ``lane_index`` of the current edge, executed at the next step."""
+        self._check_running()
         self.libsumo.vehicle.changeLane(vehicle_id, int(lane_index), float(duration))
 
     def __del__(self) -> None:  # pragma: no cover - best effort at interpreter shutdown

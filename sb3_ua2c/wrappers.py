@@ -27,7 +27,7 @@ from sb3_ua2c.style import (
 )
 
 
-class DrivingStyleContext(gym.Wrapper):
+class DrivingStyleContext(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Append the inferred driving styles of the observed slots to a flat ``Box`` observation.
 
     Every step (and at ``reset``) the wrapper reads ``info["slots"]`` (the slot contract of
@@ -59,7 +59,8 @@ class DrivingStyleContext(gym.Wrapper):
               update_every: 10
 
     The wrapper holds no simulator state of its own and pickles with its classifier, so it works
-    in ``SubprocVecEnv`` workers.
+    in ``SubprocVecEnv`` workers. It records its arguments in ``env.spec``, so ``env.spec.make()``
+    (Gymnasium's ``check_env`` does) rebuilds the wrapped env.
 
     :param env: environment with a 1-D ``Box`` observation whose ``info`` carries ``"slots"``
     :param classifier: a :class:`~sb3_ua2c.style.DrivingStyleClassifier`, a path to a file written
@@ -75,6 +76,7 @@ class DrivingStyleContext(gym.Wrapper):
         update_every: int = 10,
         empty: str = "zeros",
     ):
+        gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier, update_every=update_every, empty=empty)
         super().__init__(env)
         check_int("DrivingStyleContext: update_every", update_every)
         if empty not in EMPTY_OUTPUTS:

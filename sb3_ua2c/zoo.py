@@ -21,6 +21,11 @@ Choices made here, where rl-zoo3 2.9.2 alone does not do what a UA2C user expect
 
 * Continuing with hyperparameters that change the networks' shapes (``chunk_size``,
   ``history_len``) stops with an error naming the argument.
+* Environments that allow one live instance per process (``metadata["process_exclusive"]``,
+  e.g. ``MixedTraffic-v0``: libsumo runs one simulation per process) run in their own processes:
+  without ``--vec-env`` the training and the evaluation envs are ``SubprocVecEnv``s. An explicit
+  ``--vec-env dummy`` that would put several of them in this process (``n_envs > 1``, an
+  evaluation env, ``--n-jobs > 1``) stops before training with an error saying so.
 * :class:`OfflineDatasetCallback` (YAML ``callback:``) keeps an offline dataset in UA2C's replay
   buffer during online training.
 
@@ -66,6 +71,9 @@ NET_ARCHS: dict[str, tuple[int, ...]] = {
 # Key of the PostgreSQL advisory lock that serialises Optuna's schema creation between workers.
 _SCHEMA_LOCK_KEY = 0x55413243  # "UA2C"
 
+# rl-zoo3's --vec-env and the prefixes argparse accepts for it.
+_VEC_ENV_NAMES = tuple("--vec-env"[:n] for n in range(5, len("--vec-env") + 1))
+
 # rl-zoo3's flag and the prefix argparse accepts for it.
 _OPTIMIZE_FLAGS = frozenset({"-optimize", "--optimize", "--optimize-hyperparameters"})
 
@@ -96,6 +104,8 @@ _USAGE = """usage: ua2c-zoo {train,enjoy,optimize} [rl-zoo3 arguments ...]
             lets workers on several machines share one study
 
 --algo defaults to ua2c. `ua2c-zoo train --help` lists rl-zoo3's own arguments.
+Envs with one simulator per process (MixedTraffic-v0) train and evaluate in SubprocVecEnv
+workers unless --vec-env is given.
 example: ua2c-zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
 """
 
@@ -388,9 +398,56 @@ class OfflineDatasetCallback(BaseCallback):
         return True
 
 
-def _experiment_manager_class() -> type:
+#: ``metadata`` key of an environment class that allows one live instance per process.
+PROCESS_EXCLUSIVE = "process_exclusive"
+
+
+def needs_own_process(env_id: str) -> bool:
     """
-    rl-zoo3's ``ExperimentManager`` with three additions.
+    Whether the environment of ``env_id`` allows one live instance per process.
+
+    Read from the class registered as the id's entry point (``metadata["process_exclusive"]``);
+    nothing is constructed.
+
+    :param env_id: a registered Gymnasium id
+    """
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry_point = gym.spec(env_id).entry_point
+    creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
+    return bool(getattr(creator, "metadata", {}).get(PROCESS_EXCLUSIVE, False))
+
+
+def envs_in_one_process(n_envs: int, n_eval_envs: int, evaluates: bool, n_jobs: int = 1) -> int:
+    """
+    Largest number of environments rl-zoo3 keeps open at once in its own process with ``DummyVecEnv``.
+
+    :param n_envs: training envs
+    :param n_eval_envs: evaluation envs (``--n-eval-envs``)
+    :param evaluates: whether an evaluation env exists (``--eval-freq > 0``, or a sweep)
+    :param n_jobs: trials run in parallel threads of the process (``--n-jobs``, sweeps only)
+    """
+    return n_jobs * (n_envs + (n_eval_envs if evaluates else 0))
+
+
+def _vec_env_choice_error(env_id: str, n_open: int) -> str:
+    return (
+        f"{env_id} allows one live environment per process (libsumo runs one SUMO simulation per "
+        f"process), but --vec-env dummy would keep {n_open} of them open in this process (training, "
+        "evaluation and parallel trials together). Leave --vec-env out (the launcher then runs every "
+        f"{env_id} env in its own process) or pass --vec-env subproc; --vec-env dummy works with "
+        "n_envs 1, --eval-freq -1 and one job."
+    )
+
+
+class VecEnvChoiceError(ValueError):
+    """An explicit ``--vec-env dummy`` would put several process-exclusive environments in one process."""
+
+
+def _experiment_manager_class(vec_env_given: bool = False) -> type:
+    """
+    rl-zoo3's ``ExperimentManager`` with four additions.
 
     * Continued runs (``-i model.zip``) keep counting timesteps: rl-zoo3 2.9.2 calls
       ``model.learn(n_timesteps)``, which resets ``num_timesteps`` to 0 after loading a checkpoint;
@@ -400,10 +457,34 @@ def _experiment_manager_class() -> type:
       :func:`check_checkpoint_compatible`) instead of a tensor-size mismatch deep inside loading.
     * Every Optuna trial records the worker that ran it (user attribute ``worker`` =
       ``"hostname:pid"``), so a study shared by several machines shows who ran what.
+    * Process-exclusive environments (:func:`needs_own_process`) get ``SubprocVecEnv`` for the
+      training and the evaluation envs unless ``--vec-env`` was given (``vec_env_given``); an
+      explicit ``dummy`` that would open several of them in this process raises
+      :class:`VecEnvChoiceError` before the first env is created.
     """
     from rl_zoo3.exp_manager import ExperimentManager
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     class UA2CExperimentManager(ExperimentManager):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.own_process = needs_own_process(self.env_name.gym_id)
+            if self.own_process and not vec_env_given:
+                self.vec_env_class = SubprocVecEnv
+
+        def create_callbacks(self) -> None:
+            # The first step after the hyperparameters (n_envs) are read, before any env is built.
+            if self.own_process and self.vec_env_class is DummyVecEnv:
+                n_open = envs_in_one_process(
+                    self.n_envs,
+                    self.n_eval_envs,
+                    evaluates=self.optimize_hyperparameters or self.eval_freq > 0,
+                    n_jobs=self.n_jobs if self.optimize_hyperparameters else 1,
+                )
+                if n_open > 1:
+                    raise VecEnvChoiceError(_vec_env_choice_error(self.env_name.gym_id, n_open))
+            super().create_callbacks()
+
         def learn(self, model: Any) -> None:
             if not self.continue_training:
                 super().learn(model)
@@ -456,11 +537,11 @@ def check_checkpoint_compatible(checkpoint: str, hyperparams: dict[str, Any]) ->
 
 
 @contextlib.contextmanager
-def _patched_train_module() -> Iterator[None]:
+def _patched_train_module(vec_env_given: bool) -> Iterator[None]:
     import rl_zoo3.train as zoo_train
 
     original = zoo_train.ExperimentManager
-    zoo_train.ExperimentManager = _experiment_manager_class()
+    zoo_train.ExperimentManager = _experiment_manager_class(vec_env_given)
     try:
         yield
     finally:
@@ -597,8 +678,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         else:
             from rl_zoo3.train import train
 
-            with _patched_train_module():
+            # argparse accepts any unambiguous prefix of --vec-env (rl-zoo3 has no other --vec... option)
+            vec_env_given = _option_value(zoo_argv, _VEC_ENV_NAMES) is not None
+            with _patched_train_module(vec_env_given):
                 train()
+    except VecEnvChoiceError as error:
+        raise SystemExit(f"error: {error}") from None
     finally:
         sys.argv = saved_argv
 

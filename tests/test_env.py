@@ -1,5 +1,6 @@
 """MixedTraffic-v0 on SUMO: API contracts, determinism, reward terms in controlled situations, safety guards."""
 
+import contextlib
 import subprocess
 import sys
 import warnings
@@ -12,7 +13,7 @@ import pytest
 import envs
 from envs.mdp import SLOT_FEATURES, STYLES
 from envs.mixed_traffic import AV_ID, MixedTrafficEnv
-from envs.sumo import SumoProcessBusyError
+from envs.sumo import SumoProcessBusyError, process_owner
 
 A_MAX, A_MIN, DT = 3.0, -4.5, 0.2
 
@@ -39,20 +40,70 @@ def test_registered_and_spaces(make_env):
     np.testing.assert_array_equal(env.action_space.high, [A_MAX, 1.0])
 
 
-def test_gymnasium_and_sb3_check_env(make_env):
+def _checker_warnings_are_errors(stack: contextlib.ExitStack) -> None:
+    stack.enter_context(warnings.catch_warnings())
+    warnings.simplefilter("error")  # any other checker warning fails the test
+    # SB3 recommends a [-1, 1] action box; ours is in m/s² (SB3's off-policy algorithms rescale)
+    warnings.filterwarnings("ignore", message="We recommend you to use a symmetric")
+    warnings.filterwarnings("ignore", message=".*we recommend using a symmetric and normalized space")
+
+
+@pytest.mark.parametrize("render_mode", [None, "rgb_array"])
+def test_gymnasium_and_sb3_check_env_with_their_defaults(make_env, render_mode):
+    """Both checkers with default arguments: Gymnasium's builds further envs with ``env.spec.make()``
+    (one reset and rendered, one closed twice) while the checked one is open."""
     from gymnasium.utils.env_checker import check_env as gym_check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-    env = make_env(render_mode="rgb_array")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # any other checker warning fails the test
-        # SB3 recommends a [-1, 1] action box; ours is in m/s² (SB3's off-policy algorithms rescale)
-        warnings.filterwarnings("ignore", message="We recommend you to use a symmetric")
-        warnings.filterwarnings("ignore", message=".*we recommend using a symmetric and normalized space")
-        # gymnasium's render and close sub-checks build a second env in this process, which
-        # libsumo cannot host: they are covered by test_render_rgb_array and test_close_is_idempotent.
-        gym_check_env(env.unwrapped, skip_render_check=True, skip_close_check=True)
-        sb3_check_env(env.unwrapped, warn=False)
+    env = make_env(render_mode=render_mode)
+    with contextlib.ExitStack() as stack:
+        _checker_warnings_are_errors(stack)
+        gym_check_env(env.unwrapped)
+        sb3_check_env(env.unwrapped)
+    assert process_owner() is env.unwrapped.sim  # SB3's checker reset it last
+    env.close()
+    assert process_owner() is None
+
+
+def test_check_env_with_the_style_context_wrapper(make_env):
+    """The rl-zoo configs wrap MixedTraffic-v0 in DrivingStyleContext; ``env.spec.make()`` rebuilds both."""
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    from sb3_ua2c.wrappers import DrivingStyleContext
+
+    env = DrivingStyleContext(make_env(render_mode="rgb_array"), update_every=5)
+    rebuilt = env.spec.make()
+    assert isinstance(rebuilt, DrivingStyleContext) and rebuilt.update_every == 5
+    assert rebuilt.observation_space.shape == (38,)
+    rebuilt.close()
+    with contextlib.ExitStack() as stack:
+        _checker_warnings_are_errors(stack)
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped version")
+        gym_check_env(env)
+        sb3_check_env(env)
+
+
+def test_construction_starts_and_claims_nothing(make_env):
+    first = make_env()
+    first.reset(seed=0)
+    owner = process_owner()
+    assert owner is first.unwrapped.sim and owner.running
+    second = make_env(num_hdvs=12)
+    u = second.unwrapped
+    # Spaces at once, no simulation, no scenario files, the live env untouched.
+    assert second.observation_space.shape == (20,) and second.action_space.shape == (2,)
+    assert u.sim is None and u.scenario is None
+    assert process_owner() is owner and owner.running
+    obs, *_ = first.step(act())
+    assert np.all(np.isfinite(obs))
+    second.close()  # before any reset: harmless, and the first env keeps its simulation
+    second.close()
+    assert process_owner() is owner and owner.running
+    with pytest.raises(RuntimeError, match="closed"):
+        second.reset(seed=0)
+    first.close()
+    assert process_owner() is None
 
 
 def test_close_is_idempotent(make_env):
@@ -293,25 +344,56 @@ def test_bad_kwargs_and_options_raise(make_env):
         env.unwrapped.step(act())
 
 
-def test_second_env_in_process_raises(make_env):
-    env = make_env()
-    env.reset(seed=0)
-    with pytest.raises(SumoProcessBusyError, match="SubprocVecEnv"):
-        gym.make("MixedTraffic-v0")
-    obs, *_ = env.step(act())  # the first env is intact
-    assert np.all(np.isfinite(obs))
-    env.close()
+def test_the_last_reset_owns_the_process_simulation(make_env):
+    """libsumo holds one simulation per process: a reset takes it, and the env it was taken from
+    raises the busy error instead of ever reading the other env's vehicles."""
+    actions = [act(2.0 * np.sin(t / 3.0), 0.0) for t in range(12)]
+
+    def rollout(env, seed):
+        obs, _ = env.reset(seed=seed)
+        return np.array([obs] + [env.step(a)[0] for a in actions])
+
+    reference = {}
+    for seed in (0, 1):  # each env alone
+        env = make_env()
+        reference[seed] = rollout(env, seed)
+        env.close()
+    a, b = make_env(render_mode="rgb_array"), make_env()
+    np.testing.assert_array_equal(rollout(a, 0)[:3], reference[0][:3])  # a mid-episode
+    np.testing.assert_array_equal(rollout(b, 1), reference[1])  # b's reset took the simulation
+    assert process_owner() is b.unwrapped.sim and a.unwrapped.sim.taken
+    for call in (lambda: a.step(act()), a.render, lambda: a.unwrapped.set_ego_controller("sumo")):
+        with pytest.raises(SumoProcessBusyError, match="SubprocVecEnv"):
+            call()
+    assert a.unwrapped.hdv_styles() == {}
+    # b's own second reset is an ordinary reset; a's reset takes the simulation back.
+    np.testing.assert_array_equal(rollout(b, 1), reference[1])
+    np.testing.assert_array_equal(rollout(a, 0), reference[0])
+    with pytest.raises(SumoProcessBusyError, match="reset"):
+        b.step(act())
+    # Closing the env that lost the simulation leaves the owner's running.
+    b.close()
+    assert process_owner() is a.unwrapped.sim
+    assert np.all(np.isfinite(a.step(act())[0]))
+    a.close()
+    assert process_owner() is None
     with pytest.raises(RuntimeError, match="closed"):
-        env.reset()
-    other = make_env()  # allowed once the first is closed
-    other.reset(seed=0)
+        a.reset(seed=0)
+    other = make_env()  # a fresh env after close
+    np.testing.assert_array_equal(rollout(other, 1), reference[1])
 
 
 def test_dummy_vec_env_of_two_refused():
     from stable_baselines3.common.env_util import make_vec_env
 
-    with pytest.raises(SumoProcessBusyError):
-        make_vec_env("envs:MixedTraffic-v0", n_envs=2)
+    vec = make_vec_env("envs:MixedTraffic-v0", n_envs=2, seed=0)  # building them starts nothing
+    try:
+        vec.reset()  # the second env's reset takes the process's simulation from the first
+        with pytest.raises(SumoProcessBusyError, match="SubprocVecEnv"):
+            vec.step(np.zeros((2, 2), dtype=np.float32))
+    finally:
+        vec.close()
+    assert process_owner() is None
 
 
 def test_subproc_vec_env_steps_independently():

@@ -119,10 +119,10 @@ def test_desired_speeds_follow_the_styles_and_fluctuate_every_second(make_env):
 def test_styles_start_sorted_by_lane(make_env):
     """Keep-right start: the conservative HDVs' mean lane is right of the aggressive ones'."""
     u = make_env(hdv_warmup=0.0).unwrapped
-    lib = u.sim.libsumo
     means = np.zeros((5, 3))
     for seed in range(5):
         u.reset(seed=seed)
+        lib = u.sim.libsumo  # the simulation exists from the first reset on
         lanes = {s: [] for s in range(3)}
         for vid in u.sim.vehicle_ids():
             if vid in u._styles:

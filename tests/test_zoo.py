@@ -273,6 +273,75 @@ def test_enjoy_the_mixed_traffic_checkpoint(mixed_traffic_checkpoint, capsys):
     assert "Episode Length" in out  # an episode ends within 200 steps (time limit 40 s at 0.2 s)
 
 
+# --------------------------------------------------------------------------- process-exclusive envs
+
+# Short MixedTraffic-v0 episodes keep the runs below: 20 training steps per episode (4 s), 10 per
+# evaluation episode (the AV is still on the empty ramp after 2 s, so none ends earlier).
+SHORT_EPISODES = ["--env-kwargs", "time_limit:4.0", "--eval-env-kwargs", "time_limit:2.0"]
+
+
+def _mixed_traffic_args(log_folder: Path, *extra: str) -> list[str]:
+    return ["--env", "MixedTraffic-v0", "--gym-packages", "envs", "--conf-file", str(CONFIGS / "ua2c.yml"),
+            "-f", str(log_folder), "--verbose", "0", "--num-threads", "1", "--seed", "0", *extra]  # fmt: skip
+
+
+def test_process_exclusive_envs_are_detected_from_the_registry():
+    import envs  # noqa: F401  (registers MixedTraffic-v0)
+
+    assert zoo.needs_own_process("MixedTraffic-v0") is True
+    assert zoo.needs_own_process("Pendulum-v1") is False
+    # training + evaluation envs, times parallel trials
+    assert zoo.envs_in_one_process(n_envs=1, n_eval_envs=1, evaluates=False) == 1
+    assert zoo.envs_in_one_process(n_envs=1, n_eval_envs=1, evaluates=True) == 2
+    assert zoo.envs_in_one_process(n_envs=4, n_eval_envs=2, evaluates=True, n_jobs=3) == 18
+
+
+def test_train_on_mixed_traffic_with_evaluation(tmp_path):
+    """rl-zoo3 evaluates in the training process's lifetime: both envs run in their own processes."""
+    tiny = {k: v for k, v in TINY_UA2C.items() if k not in ("chunk_size", "learning_starts")}
+    zoo.main(["train", *_mixed_traffic_args(tmp_path, "-n", "80", "--eval-freq", "40", "--eval-episodes", "2",
+                                            *SHORT_EPISODES, *_params(tiny, learning_starts=30))])  # fmt: skip
+    run = tmp_path / "ua2c" / "MixedTraffic-v0_1"
+    evaluations = np.load(run / "evaluations.npz")
+    np.testing.assert_array_equal(evaluations["timesteps"], [40, 80])
+    np.testing.assert_array_equal(evaluations["ep_lengths"], [[10, 10], [10, 10]])
+    assert (run / "best_model.zip").is_file() and (run / "MixedTraffic-v0.zip").is_file()
+    monitor = (run / "0.monitor.csv").read_text().splitlines()[2:]  # after the JSON and the header line
+    assert [line.split(",")[1] for line in monitor] == ["20"] * 4  # 80 steps = 4 training episodes
+
+
+def test_optimize_on_mixed_traffic(tmp_path):
+    storage = f"sqlite:///{tmp_path / 'sweep.db'}"
+    zoo.main(["optimize", *_mixed_traffic_args(tmp_path, "-n", "40", "--n-trials", "1", "--n-evaluations", "2",
+                                               "--eval-episodes", "1", "--sampler", "random", "--pruner", "none",
+                                               "--no-optim-plots", "--storage", storage, "--study-name", "mt",
+                                               *SHORT_EPISODES, "-params", "learning_starts:1000000",
+                                               "buffer_size:1000")])  # fmt: skip
+    (trial,) = optuna.load_study(study_name="mt", storage=storage).trials
+    assert trial.state == optuna.trial.TrialState.COMPLETE
+    assert math.isfinite(trial.value)
+
+
+def test_explicit_dummy_vec_env_with_several_sumo_envs_stops_before_training(tmp_path, capsys):
+    for extra in (["--eval-freq", "40"], ["--eval-freq", "-1", "-params", "n_envs:2"]):
+        with pytest.raises(SystemExit, match="--vec-env dummy would keep 2 of them open") as excinfo:
+            zoo.main(["train", *_mixed_traffic_args(tmp_path, "-n", "40", "--vec-env", "dummy", *extra)])
+        assert "SubprocVecEnv" not in str(excinfo.value) and "libsumo" in str(excinfo.value)
+    with pytest.raises(SystemExit, match="would keep 6 of them open"):
+        zoo.main(["optimize", *_mixed_traffic_args(tmp_path, "-n", "40", "--vec-e=dummy", "--n-jobs", "3")])
+    assert not (tmp_path / "ua2c" / "MixedTraffic-v0_1" / "0.monitor.csv").exists()  # no env was built
+
+
+def test_explicit_dummy_vec_env_with_one_sumo_env_runs_in_process(tmp_path):
+    from envs.sumo import process_owner
+
+    zoo.main(["train", *_mixed_traffic_args(tmp_path, "-n", "40", "--vec-env", "dummy", "--eval-freq", "-1",
+                                            *SHORT_EPISODES, *_params(learning_starts=10**6))])  # fmt: skip
+    monitor = (tmp_path / "ua2c" / "MixedTraffic-v0_1" / "0.monitor.csv").read_text().splitlines()[2:]
+    assert [line.split(",")[1] for line in monitor] == ["20", "20"]
+    assert process_owner() is None  # rl-zoo3 closed the in-process env
+
+
 def test_continue_rejects_a_chunk_size_that_differs_from_the_checkpoint(tmp_path):
     _train(tmp_path, "ua2c", "-n", "150", "--seed", "1", *_params())
     first = tmp_path / "ua2c" / "Pendulum-v1_1" / "Pendulum-v1.zip"
