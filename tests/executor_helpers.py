@@ -8,7 +8,7 @@ import numpy as np
 
 
 def square(x: int) -> dict[str, int]:
-    return {"x": x, "square": x * x}
+    return {"x": x, "square": x * x, "pid": os.getpid()}
 
 
 def process_id() -> int:
@@ -32,6 +32,26 @@ def sumo_episode(seed: int, accel: float = 1.0, time_limit: float = 2.0) -> dict
             total += float(reward)
             steps += 1
             done = terminated or truncated
-        return {"reward": total, "steps": steps}
+        return {"reward": total, "steps": steps, "pid": os.getpid()}
     finally:
         env.close()
+
+
+def demo_units() -> list:
+    """The units the Ray test runs on a real cluster and compares with a local run."""
+    from sb3_ua2c.executor import Unit
+
+    return [Unit("sq3", square, {"x": 3}), Unit("sumo0", sumo_episode, {"seed": 0}),
+            Unit("sumo1", sumo_episode, {"seed": 1, "accel": -1.0})]
+
+
+def run_demo_on_ray(address: str, out_file: str) -> None:
+    """Run :func:`demo_units` through :class:`~sb3_ua2c.executor.RayExecutor` and write their values
+    as JSON (the driver of the Ray test, run inside the cluster's namespace)."""
+    import json
+
+    from sb3_ua2c.executor import RayExecutor, run_units
+
+    results = run_units(demo_units(), RayExecutor(address), printer=None)
+    with open(out_file, "w") as f:
+        json.dump({r.name: r.value for r in results}, f)

@@ -26,7 +26,7 @@ def test_serial_runs_in_order_and_stores_results(tmp_path):
     assert [r.name for r in results] == ["u3", "u1", "u2"]
     assert [r.value["square"] for r in results] == [9, 1, 4]
     assert not any(r.skipped for r in results)
-    assert json.loads((tmp_path / "u3.json").read_text()) == {"x": 3, "square": 9}
+    assert json.loads((tmp_path / "u3.json").read_text()) == {"x": 3, "square": 9, "pid": os.getpid()}
     assert len(lines) == 3 and lines[0].startswith("[1/3] unit u3:")
 
 
@@ -38,7 +38,7 @@ def test_stored_units_are_skipped(tmp_path):
     lines = []
     results = run_units(units, SerialExecutor(), printer=lines.append)
     assert results[0].skipped and results[0].value == {"stored": True} and results[0].wall_seconds == 0.0
-    assert not results[1].skipped and results[1].value == {"x": 4, "square": 16}
+    assert not results[1].skipped and results[1].value["square"] == 16
     assert lines[0] == "1 of 2 unit(s) already stored, 1 to run"
 
 
@@ -66,6 +66,7 @@ def test_process_executor_matches_serial_on_a_sumo_unit(tmp_path):
     units = [Unit(f"s{s}", helpers.sumo_episode, {"seed": s}) for s in (0, 1)]
     local = [r.value for r in run_units(units, ProcessExecutor(workers=2), printer=None)]
     serial = [r.value for r in run_units(units, SerialExecutor(), printer=None)]
+    assert [v.pop("pid") for v in serial] == [os.getpid()] * 2 and os.getpid() not in [v.pop("pid") for v in local]
     assert local == serial
     assert [v["steps"] for v in local] == [10, 10]  # 2 s at 0.2 s per step
     assert local[0]["reward"] != local[1]["reward"]  # two different scenarios
