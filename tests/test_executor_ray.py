@@ -22,6 +22,7 @@ import executor_helpers as helpers
 import pytest
 
 from sb3_ua2c.executor import SerialExecutor, run_units
+from sb3_ua2c.offline import collect_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 PORT = 6390
@@ -55,8 +56,10 @@ def test_ray_head_gives_the_local_results(tmp_path):
     _ray_or_skip()
     short = Path(tempfile.mkdtemp(prefix="ray"))  # Ray's unix sockets need a short path
     out = tmp_path / "ray.json"
+    dataset = collect_dataset(tmp_path / "dataset", 2, env_kwargs={"time_limit": 2.0}, seed=5).path
     ray = Path(sys.executable).parent / "ray"
-    driver = f"import executor_helpers as h; h.run_demo_on_ray('127.0.0.1:{PORT}', {str(out)!r})"
+    args = ", ".join(repr(str(a)) for a in (f"127.0.0.1:{PORT}", dataset, tmp_path / "on_ray", out))
+    driver = f"import executor_helpers as h; h.run_demo_on_ray({args})"
     script = " && ".join([
         "ip link set lo up",
         f"{shlex.quote(str(ray))} start --head --port {PORT} --num-cpus 2 --include-dashboard=false "
@@ -73,11 +76,15 @@ def test_ray_head_gives_the_local_results(tmp_path):
     log = (tmp_path / "ray.log").read_text() if (tmp_path / "ray.log").exists() else ""
     assert proc.returncode == 0, f"{proc.stdout}\n{proc.stderr}\n{log}"
     on_ray = json.loads(out.read_text())
-    local = {r.name: r.value for r in run_units(helpers.demo_units(), SerialExecutor(), printer=None)}
-    assert {value.pop("pid") for value in local.values()} == {os.getpid()}
-    assert len({value.pop("pid") for value in on_ray.values()}) == 3  # max_calls=1: a fresh worker per unit
+    local = {r.name: r.value for r in run_units(helpers.demo_units(dataset, tmp_path / "local"), SerialExecutor(),
+                                                printer=None)}
+    assert {local[name].pop("pid") for name in ("sq3", "sumo0", "sumo1")} == {os.getpid()}
+    assert len({on_ray[name].pop("pid") for name in ("sq3", "sumo0", "sumo1")}) == 3  # max_calls=1: fresh workers
+    for record in (local["sac"], on_ray["sac"]):  # timings differ from run to run
+        del record["wall_seconds"], record["cpu_seconds"]
     assert on_ray == local
     assert local["sq3"] == {"x": 3, "square": 9} and local["sumo0"]["steps"] == 10
+    assert [e["end_step"] for e in local["sac"]["online_episodes"]] == [10, 20]
 
 
 def test_missing_unshare_fails_under_ci(monkeypatch):
