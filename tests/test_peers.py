@@ -200,3 +200,8 @@ def test_d3rlpy_unit_offline_then_online(tiny_dataset, tmp_path, monkeypatch, al
     assert not (tmp_path / "d3rlpy_logs").exists()
     with pytest.raises(ValueError, match="algo must be one of"):
         run_d3rlpy(tmp_path / "x", tiny_dataset.path, 1, 30, (2001,), 2, algo="cql")
+    if algo == "iql":  # seeded: the same unit gives the same record
+        again = run_d3rlpy(tmp_path / "again", tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,),
+                           eval_episodes=2, algo=algo, offline_steps=5, batch_size=8)
+        assert again["evaluation"] == record["evaluation"] and again["online_episodes"] == record["online_episodes"]
+        assert again["offline_evaluation"] == record["offline_evaluation"]
