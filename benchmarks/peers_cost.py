@@ -40,12 +40,19 @@ def peer_units(work: Path, dataset: Path, online: int, offline: int, eval_episod
     ]
 
 
+def online_updates(record: dict, online: int) -> int:
+    """Gradient steps of an online phase of ``online`` env steps: one per step after SB3's
+    ``learning_starts`` random steps (d3rlpy updates from the first step)."""
+    return max(online - int(record["hyperparams"].get("learning_starts", 0)), 1)
+
+
 def full_unit_seconds(record: dict, online: int, offline: int, eval_episodes: int) -> float:
     """CPU seconds of ``record``'s unit scaled to ``online`` env steps, ``offline`` gradient steps and
-    ``eval_episodes`` evaluation episodes per evaluation (phases scale linearly with their counts)."""
+    ``eval_episodes`` evaluation episodes per evaluation: the online phase by its gradient steps
+    (:func:`online_updates`; the env steps cost little next to them), the others linearly."""
     cpu = record["cpu_seconds"]
     per_eval = record["eval_episodes"] * len(record["eval_seeds"])
-    total = cpu.get("online", 0.0) * online / record["online_steps"]
+    total = cpu.get("online", 0.0) * online_updates(record, online) / online_updates(record, record["online_steps"])
     if record["offline_steps"]:
         total += cpu.get("offline", 0.0) * offline / record["offline_steps"]
     for phase in ("evaluate", "evaluate_offline"):
