@@ -212,7 +212,7 @@ class EpisodeMetrics:
 
 
 def evaluate(
-    checkpoint: str | os.PathLike | UA2C,
+    checkpoint: str | os.PathLike | UA2C | Any,
     n_episodes: int = 5,
     seeds: tuple[int, ...] = (0,),
     env_settings_: dict[str, Any] | None = None,
@@ -229,7 +229,11 @@ def evaluate(
     generator seeded with the episode's seed (the global generator is restored afterwards), so
     sampled evaluations are reproducible too.
 
-    :param checkpoint: a ``.zip`` path or a model
+    :param checkpoint: a UA2C ``.zip`` path, a UA2C model, or any policy with SB3's
+        ``predict(obs, state=None, episode_start=None, deterministic=True)`` and
+        ``observation_space``/``action_space`` (e.g. SB3's SAC, or :mod:`sb3_ua2c.peers`' adapter of a
+        d3rlpy policy): such a policy acts one action per decision (``mean_executed_length`` 1) and
+        takes none of the UA2C overrides below
     :param n_episodes: episodes per seed
     :param seeds: evaluation seeds
     :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
@@ -243,11 +247,17 @@ def evaluate(
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
     env = make_env(**settings)
     try:
-        if isinstance(checkpoint, UA2C):
+        if isinstance(checkpoint, str | os.PathLike):
+            model = load_checkpoint(checkpoint, env)
+        elif isinstance(checkpoint, UA2C) or callable(getattr(checkpoint, "predict", None)):
             model = checkpoint
             check_spaces_match(model.observation_space, model.action_space, env, what="the model")
         else:
-            model = load_checkpoint(checkpoint, env)
+            raise TypeError(f"checkpoint must be a path or a policy with predict(), got {type(checkpoint).__name__}")
+        overrides = {"entropy_threshold": entropy_threshold, "n_elite": n_elite, "flow_steps": flow_steps}
+        given = sorted(name for name, value in overrides.items() if value is not None)
+        if given and not isinstance(model, UA2C):
+            raise ValueError(f"{given} apply to UA2C only, not to a {type(model).__name__}")
         if entropy_threshold is not None:
             model.set_entropy_threshold(entropy_threshold)
         if n_elite is not None:
@@ -263,7 +273,7 @@ def evaluate(
         env.close()
 
 
-def _run_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+def _run_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
     if deterministic:
         return _drive_episode(model, env, seed, deterministic)
     with th.random.fork_rng(devices=[]):  # seeded candidate noise, the caller's generator untouched
@@ -271,7 +281,7 @@ def _run_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> Episo
         return _drive_episode(model, env, seed, deterministic)
 
 
-def _drive_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
     obs, info = env.reset(seed=seed)
     state, start = None, np.ones(1, dtype=bool)
     total, jerk, speeds, lengths = 0.0, 0.0, [], []
@@ -280,7 +290,9 @@ def _drive_episode(model: UA2C, env: Any, seed: int, deterministic: bool) -> Epi
     done = False
     while not done:
         action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
-        if int(state.plan_position[0]) == 1:  # a plan was made at this step
+        if not hasattr(state, "plan_position"):  # a one-action-per-decision policy
+            lengths.append(1)
+        elif int(state.plan_position[0]) == 1:  # a plan was made at this step
             lengths.append(int(state.plan_length[0]))
         start = np.zeros(1, dtype=bool)
         obs, reward, terminated, truncated, info = env.step(action)

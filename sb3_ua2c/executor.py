@@ -1,0 +1,260 @@
+"""Run independent units of work in fresh processes: locally (a process pool) or on a Ray cluster.
+
+A :class:`Unit` is a picklable top-level function, its keyword arguments and, optionally, the
+JSON file its result is stored in. :func:`run_units` runs a list of units with one of three
+executors and returns one :class:`UnitResult` per unit, in the order given:
+
+* :class:`SerialExecutor`: one after the other in this process (debugging, tests);
+* :class:`ProcessExecutor`: ``workers`` processes, each unit in a fresh ``spawn``-ed process
+  (libsumo holds one simulation per process, and nothing leaks from one unit into the next);
+* :class:`RayExecutor`: each unit a Ray task with one CPU and its own worker process
+  (``num_cpus=1, max_calls=1``) on the cluster at ``address`` (``pip install "sb3-ua2c[peers]"``).
+
+Resuming. A unit with a ``result_file`` that exists is not run: its stored result is returned
+(``skipped=True``). Otherwise the unit's return value is written there (JSON, atomically) by this
+process once the unit finishes, so an interrupted run resumes with the units not yet stored. Units
+without a ``result_file`` always run (they may resume internally, as the Figure-2 seeds do).
+
+Failures. A unit that raises does not stop the others: every unit runs, then
+:class:`UnitsFailedError` names the failed units with their tracebacks (the stored results of the
+units that succeeded are kept).
+
+On a Ray cluster the units run on other machines: the code (``sb3_ua2c`` and ``envs``) must be
+installed on every node, and the paths a unit reads or writes (datasets, output directories) must
+name a filesystem every node shares. Result files are written by the calling process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sb3_ua2c.checks import check_int
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One independent unit of work.
+
+    :param name: unique name of the unit (e.g. ``"seed0/sac"``), used in progress lines and errors
+    :param fn: a top-level (importable, picklable) function; called as ``fn(**kwargs)``
+    :param kwargs: its keyword arguments (picklable)
+    :param result_file: JSON file of the unit's result; when it exists the unit is skipped, and
+        ``fn``'s return value (JSON-serialisable) is written there when it finishes
+    """
+
+    name: str
+    fn: Callable[..., Any]
+    kwargs: Mapping[str, Any] = field(default_factory=dict)
+    result_file: Path | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Unit.name must be a non-empty string, got {self.name!r}")
+        if not callable(self.fn):
+            raise TypeError(f"Unit.fn of {self.name!r} must be callable, got {type(self.fn).__name__}")
+        if not isinstance(self.kwargs, Mapping):
+            raise TypeError(f"Unit.kwargs of {self.name!r} must be a mapping, got {type(self.kwargs).__name__}")
+        if self.result_file is not None:
+            object.__setattr__(self, "result_file", Path(self.result_file))
+
+
+@dataclass(frozen=True)
+class UnitResult:
+    """What running (or skipping) a unit gave.
+
+    :param name: the unit's name
+    :param value: ``fn``'s return value, or the stored result of a skipped unit
+    :param skipped: the unit's result file existed: nothing ran
+    :param wall_seconds: wall-clock seconds of ``fn`` in its worker (0 when skipped)
+    :param cpu_seconds: CPU seconds of the worker process during ``fn`` (all its threads; 0 when skipped)
+    """
+
+    name: str
+    value: Any
+    skipped: bool
+    wall_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+
+class UnitsFailedError(RuntimeError):
+    """Some units raised; ``failures`` maps their names to the formatted tracebacks and ``results``
+    holds the :class:`UnitResult` of every unit in order (``None`` for the failed ones)."""
+
+    def __init__(self, failures: Mapping[str, str], results: Sequence[UnitResult | None] = ()) -> None:
+        self.failures = dict(failures)
+        self.results = list(results)
+        details = "\n".join(f"--- {name}\n{tb}" for name, tb in self.failures.items())
+        super().__init__(f"{len(self.failures)} unit(s) failed: {sorted(self.failures)}\n{details}")
+
+
+def call_unit(unit: Unit) -> tuple[Any, float, float]:
+    """Run ``unit.fn(**unit.kwargs)``; return its value, wall and CPU seconds (what a worker runs)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    value = unit.fn(**unit.kwargs)
+    return value, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
+    """:func:`call_unit` that returns a failure as ``(False, traceback, 0, 0)`` instead of raising."""
+    try:
+        return (True, *call_unit(unit))
+    except Exception:  # reported by name once every unit has run
+        return False, traceback.format_exc(), 0.0, 0.0
+
+
+class SerialExecutor:
+    """Run units one after the other in this process."""
+
+    def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
+        for i, unit in enumerate(units):
+            on_done(i, _call_unit_safely(unit))
+
+
+class ProcessExecutor:
+    """Run units in ``workers`` processes at a time, each unit in a fresh ``spawn``-ed process.
+
+    :param workers: processes at once (>= 1)
+    """
+
+    def __init__(self, workers: int = 1) -> None:
+        check_int("workers", workers)
+        self.workers = workers
+
+    def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # one process per unit (Python >= 3.11; before, a worker runs several units one after another)
+        fresh = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
+        with ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"), **fresh) as pool:
+            futures = {pool.submit(_call_unit_safely, unit): i for i, unit in enumerate(units)}
+            for future in as_completed(futures):
+                try:
+                    outcome = future.result()
+                except Exception:  # the worker died (e.g. a segfault): BrokenProcessPool
+                    outcome = (False, traceback.format_exc(), 0.0, 0.0)
+                on_done(futures[future], outcome)
+
+
+class RayExecutor:
+    """Run each unit as a Ray task with one CPU in its own worker process (``max_calls=1``).
+
+    :param address: the cluster's address (``"auto"``, ``"HOST:PORT"`` of ``ray start --head``, or
+        ``"ray://HOST:10001"``); ``None`` starts a local single-machine Ray instance
+    :param runtime_env: Ray runtime environment of the tasks (e.g. ``{"env_vars": {...}}``)
+    """
+
+    def __init__(self, address: str | None = "auto", runtime_env: Mapping[str, Any] | None = None) -> None:
+        if address is not None and (not isinstance(address, str) or not address):
+            raise ValueError(f"ray_address must be a non-empty string, got {address!r}")
+        self.address = address
+        self.runtime_env = dict(runtime_env) if runtime_env else None
+
+    def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
+        try:
+            import ray
+        except ImportError as exc:
+            raise ImportError('the Ray executor needs ray: pip install "sb3-ua2c[peers]"') from exc
+
+        started = not ray.is_initialized()
+        if started:
+            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+            ray.init(address=self.address, runtime_env=self.runtime_env, log_to_driver=False)
+        try:
+            task = ray.remote(num_cpus=1, max_calls=1)(_call_unit_safely)
+            refs = {task.remote(unit): i for i, unit in enumerate(units)}
+            pending = list(refs)
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    try:
+                        outcome = ray.get(ref)
+                    except Exception:  # the worker died or the task could not be scheduled
+                        outcome = (False, traceback.format_exc(), 0.0, 0.0)
+                    on_done(refs[ref], outcome)
+        finally:
+            if started:
+                ray.shutdown()
+
+
+Executor = SerialExecutor | ProcessExecutor | RayExecutor
+
+
+def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool = False) -> Executor:
+    """The executor a command line asks for: Ray when ``ray_address`` is given, else local processes.
+
+    :param workers: local processes at once (ignored on Ray, where the cluster's CPUs decide)
+    :param ray_address: address of a Ray cluster (see :class:`RayExecutor`)
+    :param serial: run in this process instead of fresh processes (only without ``ray_address``)
+    """
+    check_int("workers", workers)
+    if ray_address is not None:
+        if serial:
+            raise ValueError("serial=True runs units in this process: it cannot be combined with ray_address")
+        return RayExecutor(ray_address)
+    return SerialExecutor() if serial else ProcessExecutor(workers)
+
+
+def run_units(
+    units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
+) -> list[UnitResult]:
+    """Run ``units`` (skipping those whose result file exists) and return their results in order.
+
+    :param units: the units; their names must be unique
+    :param executor: where they run (default: :class:`SerialExecutor`)
+    :param printer: receives one progress line per finished unit (``None``: silent)
+    :raises UnitsFailedError: after every unit ran, if some raised
+    """
+    from sb3_ua2c.pipeline import write_json
+
+    names = [unit.name for unit in units]
+    if len(set(names)) != len(names):
+        raise ValueError(f"unit names must be unique, got duplicates {sorted({n for n in names if names.count(n) > 1})}")
+    executor = executor or SerialExecutor()
+    results: list[UnitResult | None] = [None] * len(units)
+    todo = []
+    for i, unit in enumerate(units):
+        if unit.result_file is not None and unit.result_file.is_file():
+            results[i] = UnitResult(unit.name, json.loads(unit.result_file.read_text()), skipped=True)
+        else:
+            todo.append(i)
+    failures: dict[str, str] = {}
+    finished = [0]
+
+    def on_done(j: int, outcome: tuple[bool, Any, float, float]) -> None:
+        unit = units[todo[j]]
+        ok, value, wall, cpu = outcome
+        finished[0] += 1
+        progress = f"[{finished[0]}/{len(todo)}]"
+        if not ok:
+            failures[unit.name] = value
+            if printer:
+                printer(f"{progress} unit {unit.name} FAILED")
+            return
+        if unit.result_file is not None:
+            write_json(unit.result_file, value)
+        results[todo[j]] = UnitResult(unit.name, value, skipped=False, wall_seconds=wall, cpu_seconds=cpu)
+        if printer:
+            printer(f"{progress} unit {unit.name}: {wall:.1f} s wall, {cpu:.1f} s CPU")
+
+    if printer and len(todo) < len(units):
+        printer(f"{len(units) - len(todo)} of {len(units)} unit(s) already stored, {len(todo)} to run")
+    if todo:
+        executor.map([units[i] for i in todo], on_done)
+    if failures:
+        raise UnitsFailedError(failures, results)
+    return [r for r in results if r is not None]
+
+
+__all__ = [
+    "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
+    "call_unit", "make_executor", "run_units",
+]

@@ -1,0 +1,27 @@
+"""Peers of UA2C on the Figure-2 protocol (issue 21): one function per arm kind trains one unit
+(one arm, one seed) and returns its record.
+
+* :func:`~sb3_ua2c.peers.sb3_arms.run_sb3_online`: SB3 SAC / sb3-contrib TQC, online from scratch;
+* :func:`~sb3_ua2c.peers.sb3_arms.run_sb3_offline_mix`: SAC with the offline data in its buffer
+  (RLPD's symmetric sampling);
+* :func:`~sb3_ua2c.peers.d3rlpy_arms.run_d3rlpy`: d3rlpy IQL / Cal-QL, offline then online
+  (``pip install --no-deps d3rlpy==2.8.1 gym==0.26.2``, see :mod:`sb3_ua2c.peers.d3rlpy_arms`);
+* :mod:`sb3_ua2c.peers.stats`: IQM, stratified bootstrap CIs and probability of improvement (rliable).
+
+Every unit reads the seed's dataset (which defines the environment), trains for the same online
+step budget and evaluates on the same held-out scenarios as the UA2C arms, with
+:func:`sb3_ua2c.pipeline.evaluate`. Run units through :mod:`sb3_ua2c.executor`.
+"""
+
+from sb3_ua2c.peers.common import EvalProtocol, zoo_hyperparams
+from sb3_ua2c.peers.sb3_arms import OfflineMixReplayBuffer, run_sb3_offline_mix, run_sb3_online
+
+
+def run_d3rlpy(*args, **kwargs):
+    """:func:`sb3_ua2c.peers.d3rlpy_arms.run_d3rlpy` (imported on first use: d3rlpy is optional)."""
+    from sb3_ua2c.peers.d3rlpy_arms import run_d3rlpy as run
+
+    return run(*args, **kwargs)
+
+
+__all__ = ["EvalProtocol", "OfflineMixReplayBuffer", "run_d3rlpy", "run_sb3_offline_mix", "run_sb3_online", "zoo_hyperparams"]

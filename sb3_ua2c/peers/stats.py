@@ -1,0 +1,153 @@
+"""Statistics of the head-to-head with rliable (Agarwal et al., "Deep Reinforcement Learning at the
+Edge of the Statistical Precipice", NeurIPS 2021): interquartile mean (IQM) with stratified bootstrap
+confidence intervals, and the probability of improvement of one arm over another.
+
+Layout. An arm's scores form a matrix ``(n_seeds, n_episodes)``: row ``s`` holds the evaluation
+episodes of the run with seed ``s`` (:func:`score_matrix`). In rliable's terms the rows are runs
+and the columns (evaluation episode ``i`` of every seed) are tasks: the IQM is taken over all
+seeds × episodes, and the stratified bootstrap resamples the seeds independently within each
+episode column, so the intervals carry the spread between training seeds as well as between
+scenarios. The probability of improvement ``P(X > Y)`` is the Mann-Whitney statistic over the
+seeds of each column, averaged over the columns (0.5 = no difference).
+
+Metrics where lower is better (collision, jerk) are negated first (``higher_is_better=False``), so a
+probability above 0.5 always means that X does better.
+
+The point estimates are rliable's own functions (``rliable.metrics``). The bootstrap is rliable's
+stratified resampling written out here (:func:`stratified_resamples`, a few lines of NumPy):
+``rliable.library`` 1.2.0 needs ``arch < 8``, whose 7.x releases fail to import with pandas 3, and
+its resampling draws from NumPy's global generator whatever ``random_state`` it is given; here a
+seeded ``numpy.random.Generator`` makes every interval reproducible.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from sb3_ua2c.checks import check_int
+
+#: Metrics of an evaluation episode where a lower value is better.
+LOWER_IS_BETTER = frozenset({"cumulative_jerk", "jerk_per_step", "collision"})
+
+
+def _metrics() -> Any:
+    try:
+        from rliable import metrics
+    except ImportError as exc:
+        raise ImportError('the peers statistics need rliable: pip install "sb3-ua2c[peers]"') from exc
+    return metrics
+
+
+def score_matrix(records: Sequence[Mapping[str, Any]], metric: str) -> np.ndarray:
+    """The per-episode values of ``metric`` in the unit records of one arm, one row per seed.
+
+    :param records: the records of one arm (:func:`sb3_ua2c.peers.common.unit_record`), any order
+    :param metric: a key of the evaluation episodes (``reward``, ``collision``, ``jerk_per_step``, ...)
+    :return: ``(n_seeds, n_episodes)``, rows in increasing seed order (booleans as 0.0 / 1.0)
+    """
+    if not records:
+        raise ValueError("records must not be empty")
+    rows = []
+    for record in sorted(records, key=lambda r: r["seed"]):
+        episodes = record["evaluation"]["episodes"]
+        if episodes and metric not in episodes[0]:
+            raise ValueError(f"metric {metric!r} is not in the evaluation episodes; keys: {sorted(episodes[0])}")
+        rows.append([float(e[metric]) for e in episodes])
+    if len({len(row) for row in rows}) != 1:
+        raise ValueError(f"every seed needs the same number of evaluation episodes, got {[len(r) for r in rows]}")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _check_matrix(name: str, scores: Any) -> np.ndarray:
+    scores = np.asarray(scores, dtype=np.float64)
+    if scores.ndim != 2 or scores.size == 0:
+        raise ValueError(f"{name} must be a non-empty (n_seeds, n_episodes) matrix, got shape {scores.shape}")
+    if not np.all(np.isfinite(scores)):
+        raise ValueError(f"{name} holds NaN or inf")
+    return scores
+
+
+def stratified_resamples(scores: np.ndarray, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """``reps`` bootstrap copies of ``scores``, each column's rows (seeds) drawn with replacement
+    independently of the other columns (rliable's ``StratifiedBootstrap``).
+
+    :param scores: ``(n_seeds, n_episodes)``
+    :return: ``(reps, n_seeds, n_episodes)``
+    """
+    n, m = scores.shape
+    rows = rng.integers(0, n, size=(reps, n, m))  # (reps, n, m): the seed row taken, per column
+    return scores[rows, np.arange(m)]
+
+
+def _percentile_interval(values: np.ndarray, confidence: float) -> tuple[float, float]:
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    tail = 100.0 * (1.0 - confidence) / 2.0
+    low, high = np.percentile(values, [tail, 100.0 - tail])
+    return float(low), float(high)
+
+
+def iqm(scores: np.ndarray) -> float:
+    """Interquartile mean: the mean of the middle 50 % of all entries (25 % trimmed from each end)."""
+    return float(_metrics().aggregate_iqm(_check_matrix("scores", scores)))
+
+
+def iqm_with_ci(
+    scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
+) -> dict[str, dict[str, float]]:
+    """IQM of each arm with its stratified bootstrap confidence interval (percentile method).
+
+    :param scores: arm name -> ``(n_seeds, n_episodes)`` matrix
+    :param confidence: interval size
+    :param reps: bootstrap replications
+    :param seed: seed of the bootstrap's generator (the same call gives the same interval)
+    :return: arm -> ``{"iqm", "ci_low", "ci_high"}``
+    """
+    check_int("reps", reps)
+    metrics = _metrics()
+    out = {}
+    for name, matrix in scores.items():
+        matrix = _check_matrix(f"scores[{name!r}]", matrix)
+        boot = stratified_resamples(matrix, reps, np.random.default_rng(seed))  # (reps, n, m)
+        low, high = _percentile_interval(np.array([metrics.aggregate_iqm(b) for b in boot]), confidence)
+        out[name] = {"iqm": float(metrics.aggregate_iqm(matrix)), "ci_low": low, "ci_high": high}
+    return out
+
+
+def probability_of_improvement(
+    x: np.ndarray,
+    y: np.ndarray,
+    higher_is_better: bool = True,
+    confidence: float = 0.95,
+    reps: int = 2000,
+    seed: int = 0,
+) -> dict[str, float]:
+    """``P(X > Y)``: how likely a run of X does better than a run of Y on an evaluation episode
+    column, averaged over the columns, with its stratified bootstrap confidence interval (X and Y
+    resampled independently, as rliable's ``StratifiedIndependentBootstrap``).
+
+    :param x: ``(n_seeds_x, n_episodes)`` scores of X
+    :param y: ``(n_seeds_y, n_episodes)`` scores of Y (the same episode columns)
+    :param higher_is_better: ``False`` for costs (collision, jerk): X is better when lower
+    :return: ``{"probability", "ci_low", "ci_high"}``
+    """
+    check_int("reps", reps)
+    metrics = _metrics()
+    x, y = _check_matrix("x", x), _check_matrix("y", y)
+    if x.shape[1] != y.shape[1]:
+        raise ValueError(f"x and y need the same episode columns, got {x.shape[1]} and {y.shape[1]}")
+    sign = 1.0 if higher_is_better else -1.0
+    x, y = sign * x, sign * y
+    rng = np.random.default_rng(seed)
+    boot_x, boot_y = stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)
+    values = np.array([metrics.probability_of_improvement(bx, by) for bx, by in zip(boot_x, boot_y, strict=True)])
+    low, high = _percentile_interval(values, confidence)
+    return {"probability": float(metrics.probability_of_improvement(x, y)), "ci_low": low, "ci_high": high}
+
+
+__all__ = [
+    "LOWER_IS_BETTER", "iqm", "iqm_with_ci", "probability_of_improvement", "score_matrix", "stratified_resamples",
+]
