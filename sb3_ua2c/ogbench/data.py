@@ -159,7 +159,7 @@ def _save_npz(path: Path, rows: dict[str, list]) -> None:
     for key, values in rows.items():
         dtype = bool if key == "terminals" else np.int64 if key == "button_states" else np.float32
         arrays[key] = np.asarray(values, dtype=dtype)
-    tmp = path.with_name(f".{path.stem}.tmp.npz")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")  # units may generate the same file at once
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)
 
@@ -219,8 +219,9 @@ def generate_play_dataset(
     finally:
         env.close()
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    _save_npz(path, splits[0])
+    # validation first: a training file on disk implies its validation file (see ensure_dataset)
     _save_npz(val_path(path), splits[1] or splits[0])  # a tiny dataset validates on its training data
+    _save_npz(path, splits[0])
     steps = len(splits[0]["actions"]) + len(splits[1]["actions"])
     return {
         "path": str(path), "steps": steps, "seconds": wall, "cpu_seconds": cpu,
