@@ -215,6 +215,8 @@ def test_env_passes_gymnasium_and_sb3_checks(ogb):
         env.close()
     with pytest.raises(TypeError, match="sparse must be a bool"):
         ogb.OGBenchSingleTask(TASK, sparse=1)
+    with pytest.raises(ValueError, match="max_episode_steps"):
+        ogb.OGBenchSingleTask(TASK, max_episode_steps=0)
 
 
 def test_env_reward_and_success_at_the_goal(ogb):
@@ -242,15 +244,16 @@ def test_env_reward_and_success_at_the_goal(ogb):
 def test_unit_runs_end_to_end(ogb, tmp_path):
     from sb3_ua2c.ogbench.unit import OGBenchBudget, run_ogbench_unit
 
-    budget = OGBenchBudget(dataset_episodes=2, episode_steps=30, pretrain_steps=4, finetune_steps=205,
-                           eval_episodes=1, curve_points=1, curve_episodes=1)
+    budget = OGBenchBudget(dataset_episodes=2, episode_steps=30, pretrain_steps=4, finetune_steps=25,
+                           eval_episodes=2, curve_points=1, curve_episodes=1, max_episode_steps=20)
     record = run_ogbench_unit("fixed", TASK, 0, budget, tmp_path / "unit", data_dir=tmp_path / "data")
     assert record["dataset"]["transitions"] == 58
     assert record["algo_kwargs"]["entropy_threshold"] == "inf" and record["algo_kwargs"]["chunk_size"] == 5
-    assert [p["step"] for p in record["curve"]] == [0, 102, 205]
-    assert record["curve"][0]["success"] == record["success_offline"] in (0.0, 1.0)
-    assert len(record["eval_online"]["successes"]) == 1
-    assert len(record["training_episodes"]) >= 1  # 205 steps > one 200-step episode
+    assert [p["step"] for p in record["curve"]] == [0, 12, 25]
+    assert record["curve"][0]["success"] == record["success_offline"] in (0.0, 0.5, 1.0)
+    assert len(record["eval_online"]["successes"]) == 2
+    assert all(n <= 20 for n in record["eval_offline"]["lengths"] + record["eval_online"]["lengths"])
+    assert len(record["training_episodes"]) >= 1  # 25 steps > one 20-step episode
     assert all(record["seconds"][f"{p}_cpu"] > 0 for p in ("pretrain", "finetune", "eval_offline", "eval_online"))
     on_disk = json.loads((tmp_path / "unit" / "record.json").read_text(), parse_constant=pytest.fail)
     assert on_disk["success_online"] == record["success_online"]

@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.ogbench.data import TaskName, sparse_reward
 
 ENV_ID = "OGBenchSingleTask-v0"
@@ -26,18 +27,27 @@ class OGBenchSingleTask(gym.Env):
 
     :param task: OGBench single-task name, e.g. ``cube-single-play-singletask-task2-v0``
     :param sparse: reward -1 unless the whole task is solved (Q-chunking's ``--sparse``)
+    :param max_episode_steps: time limit (default: OGBench's, 200 steps for ``cube-single``); a
+        shorter one is for quick checks only
     """
 
     metadata = {"render_modes": []}
 
-    def __init__(self, task: str = "cube-single-play-singletask-task2-v0", sparse: bool = False) -> None:
+    def __init__(
+        self, task: str = "cube-single-play-singletask-task2-v0", sparse: bool = False,
+        max_episode_steps: int | None = None,
+    ) -> None:
         import ogbench
 
         TaskName.parse(task)
         if not isinstance(sparse, bool):
             raise TypeError(f"sparse must be a bool, got {type(sparse).__name__}")
+        limit = {}
+        if max_episode_steps is not None:
+            check_int("max_episode_steps", max_episode_steps)
+            limit["max_episode_steps"] = max_episode_steps
         self.task, self.sparse = task, sparse
-        self._env = ogbench.make_env_and_datasets(task, env_only=True)
+        self._env = ogbench.make_env_and_datasets(task, env_only=True, **limit)
         inner = self._env.observation_space
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=inner.shape, dtype=np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self._env.action_space.shape, dtype=np.float32)

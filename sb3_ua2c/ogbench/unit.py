@@ -54,6 +54,8 @@ class OGBenchBudget:
     :param curve_points: evaluations during Phase 2 (evenly spaced; 0 = only before and after)
     :param curve_episodes: episodes of each of those evaluations
     :param sparse: Q-chunking's sparse reward (-1 until the whole task is solved)
+    :param max_episode_steps: time limit of the online and evaluation episodes (``None``: OGBench's);
+        shorter only for quick checks
     :param algo_kwargs: UA2C constructor arguments of every arm (not ``chunk_size`` / ``entropy_threshold``)
     """
 
@@ -67,6 +69,7 @@ class OGBenchBudget:
     curve_points: int = 4
     curve_episodes: int = 10
     sparse: bool = False
+    max_episode_steps: int | None = None
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -76,6 +79,8 @@ class OGBenchBudget:
         check_int("OGBenchBudget.episode_steps", self.episode_steps, low=2)
         check_int("OGBenchBudget.data_seed", self.data_seed, low=0)
         check_int("OGBenchBudget.curve_points", self.curve_points, low=0)
+        if self.max_episode_steps is not None:
+            check_int("OGBenchBudget.max_episode_steps", self.max_episode_steps)
         if not isinstance(self.sparse, bool):
             raise ValueError(f"OGBenchBudget.sparse must be a bool, got {self.sparse!r}")
         if not isinstance(self.algo_kwargs, Mapping):
@@ -111,14 +116,16 @@ def ensure_dataset(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike
     return path, generate_play_dataset(task, path, budget.dataset_episodes, budget.episode_steps, budget.data_seed)
 
 
-def offline_dataset(task: str, path: Path, sparse: bool) -> OfflineDataset:
-    """The generated data as the project's :class:`~sb3_ua2c.offline.OfflineDataset` (rewards by OGBench)."""
-    env, train, _ = load_singletask(task, path, sparse=sparse)
+def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> OfflineDataset:
+    """The generated data as the project's :class:`~sb3_ua2c.offline.OfflineDataset` (rewards by
+    OGBench); its metadata make :func:`sb3_ua2c.offline.make_env` build :class:`OGBenchSingleTask`
+    with ``env_kwargs`` (``sparse``, ``max_episode_steps``)."""
+    env, train, _ = load_singletask(task, path, sparse=bool(env_kwargs.get("sparse", False)))
     env.close()
-    probe = OGBenchSingleTask(task, sparse=sparse)
+    probe = OGBenchSingleTask(task, **env_kwargs)
     spaces = probe.observation_space, probe.action_space
     probe.close()
-    metadata = {"env_id": f"sb3_ua2c.ogbench:{ENV_ID}", "env_kwargs": {"task": task, "sparse": sparse},
+    metadata = {"env_id": f"sb3_ua2c.ogbench:{ENV_ID}", "env_kwargs": {"task": task, **env_kwargs},
                 "style_classifier": None, "behaviour": "ogbench-play-oracle"}
     return OfflineDataset(path, to_episodes(train), *spaces, metadata)
 
@@ -202,7 +209,8 @@ def run_ogbench_unit(
     th.set_num_threads(1)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     path, generation = ensure_dataset(task, budget, data_dir if data_dir is not None else out / "data")
-    ds = offline_dataset(task, path, budget.sparse)
+    env_kwargs = {"sparse": budget.sparse, "max_episode_steps": budget.max_episode_steps}
+    ds = offline_dataset(task, path, env_kwargs)
     times: dict[str, float] = {"data_wall": time.perf_counter() - wall0, "data_cpu": time.process_time() - cpu0}
     kwargs = {**budget.algo_kwargs, **ARMS[arm]}
     kwargs.setdefault("buffer_size", max(budget.finetune_steps, 1))
@@ -213,7 +221,7 @@ def run_ogbench_unit(
         times[f"{name}_wall"], times[f"{name}_cpu"] = time.perf_counter() - wall, time.process_time() - cpu
         return result
 
-    env = OGBenchSingleTask(task, sparse=budget.sparse)
+    env = OGBenchSingleTask(task, **env_kwargs)
     try:
         ckpt = phase("pretrain", lambda: pretrain(ds, out / "pretrained.zip", budget.pretrain_steps, seed=seed,
                                                   algo_kwargs=kwargs))
