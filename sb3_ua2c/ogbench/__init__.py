@@ -1,0 +1,12 @@
+"""OGBench single-task benchmark for UA2C: locally generated "play" data, an SB3 env, one run unit.
+
+Needs the optional ``ogbench`` extra (``pip install sb3-ua2c[ogbench]``). Importing this package
+registers ``OGBenchSingleTask-v0`` with Gymnasium.
+"""
+
+from sb3_ua2c.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
+from sb3_ua2c.ogbench.env import ENV_ID, OGBenchSingleTask, register
+
+register()
+
+__all__ = ["ENV_ID", "OGBenchSingleTask", "TaskName", "generate_play_dataset", "load_singletask", "to_episodes"]

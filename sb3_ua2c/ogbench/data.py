@@ -1,0 +1,293 @@
+"""OGBench "play" datasets generated locally with OGBench's scripted oracles, and their conversion.
+
+OGBench (PyPI ``ogbench``) ships the manipulation environments and the scripted oracles but not
+the datasets. :func:`generate_play_dataset` reproduces OGBench's own procedure
+(``data_gen_scripts/generate_manipspace.py --dataset_type=play``): the environment in
+``data_collection`` mode (random initial scene, no termination at the goal), one
+:class:`~ogbench.manipspace.oracles.plan.plan_oracle.PlanOracle` per subtask with action noise 0.1
+and noise smoothing 0.5, a new random target whenever the oracle finishes its plan (no stacking
+for ``cube-single``), episodes of 1001 steps, and a validation split of one tenth of the episodes.
+It writes OGBench's ``.npz`` format (``observations``, ``actions``, ``terminals``, ``qpos``,
+``qvel`` and, with buttons, ``button_states``), so ``ogbench.make_env_and_datasets(name,
+dataset_path=...)`` loads it and adds the single-task rewards and masks itself.
+
+The only departure from the script: it seeds NumPy's global generator (the oracles draw from it)
+and the environment, so the same arguments write the same file; the script leaves both unseeded.
+
+:func:`to_episodes` turns a loaded single-task dataset into :class:`~sb3_ua2c.offline.Episode`
+objects for UA2C's replay buffer: a trajectory is cut after every transition whose OGBench mask is
+0 (the task is solved in its state ``s``: no bootstrap, as the online environment terminates
+there), and the end of a trajectory (the 1001-step time limit) is a truncation.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import Episode
+
+#: OGBench's published "play" settings (``data_gen_scripts/commands.sh``).
+PLAY_EPISODE_STEPS = 1001
+PLAY_NOISE = 0.1
+PLAY_NOISE_SMOOTHING = 0.5
+
+MANIPSPACE_DOMAINS = ("cube", "scene", "puzzle")
+
+
+@dataclass(frozen=True)
+class TaskName:
+    """The parts of an OGBench single-task dataset name such as ``cube-single-play-singletask-task2-v0``.
+
+    :param dataset_name: the full name (what ``ogbench.make_env_and_datasets`` takes)
+    :param env_name: the goal-conditioned environment the data are collected in (``cube-single-v0``)
+    :param dataset_type: ``play`` (the only type generated here)
+    :param dataset_file: file name of the shared dataset, ``cube-single-play-v0.npz`` (all five
+        tasks of a domain use the same data; only the rewards differ)
+    """
+
+    dataset_name: str
+    env_name: str
+    dataset_type: str
+    dataset_file: str
+
+    @classmethod
+    def parse(cls, dataset_name: str) -> TaskName:
+        if not isinstance(dataset_name, str):
+            raise TypeError(f"task must be an OGBench dataset name (str), got {type(dataset_name).__name__}")
+        parts = dataset_name.split("-")
+        if "singletask" not in parts or parts.index("singletask") < 2 or not parts[-1].startswith("v"):
+            raise ValueError(
+                f"task must be an OGBench single-task dataset name like "
+                f"'cube-single-play-singletask-task2-v0', got {dataset_name!r}"
+            )
+        pos = parts.index("singletask")
+        dataset_type = parts[pos - 1]
+        if dataset_type != "play" or parts[0] not in MANIPSPACE_DOMAINS:
+            raise ValueError(
+                f"task {dataset_name!r}: only the 'play' datasets of the manipulation domains "
+                f"{MANIPSPACE_DOMAINS} can be generated here"
+            )
+        env_name = "-".join(parts[: pos - 1] + parts[-1:])
+        dataset_file = "-".join(parts[:pos] + parts[-1:]) + ".npz"
+        return cls(dataset_name, env_name, dataset_type, dataset_file)
+
+
+@contextmanager
+def _numpy_global_seed(seed: int):
+    """Seed NumPy's global generator inside the block (the oracles use it), restore it afterwards."""
+    state = np.random.get_state()  # noqa: NPY002  (the oracles draw from the global generator)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
+def _make_oracles(env: Any, env_name: str, noise: float, noise_smoothing: float) -> dict[str, Any]:
+    """The PlanOracles of ``generate_manipspace.py`` for the 'play' datasets, by subtask."""
+    from ogbench.manipspace.oracles.plan.button_plan import ButtonPlanOracle
+    from ogbench.manipspace.oracles.plan.cube_plan import CubePlanOracle
+    from ogbench.manipspace.oracles.plan.drawer_plan import DrawerPlanOracle
+    from ogbench.manipspace.oracles.plan.window_plan import WindowPlanOracle
+
+    kw = {"env": env, "noise": noise, "noise_smoothing": noise_smoothing}
+    if env_name.startswith("cube"):
+        return {"cube": CubePlanOracle(**kw)}
+    if env_name.startswith("scene"):
+        return {"cube": CubePlanOracle(**kw), "button": ButtonPlanOracle(**kw),
+                "drawer": DrawerPlanOracle(**kw), "window": WindowPlanOracle(**kw)}
+    return {"button": ButtonPlanOracle(**kw, gripper_always_closed=True)}
+
+
+def _stack_probability(env_name: str) -> float:
+    """``p_stack`` of an episode, as in ``generate_manipspace.py`` (drawn from NumPy's global generator)."""
+    for word, (low, high) in (("single", (0.0, 0.0)), ("double", (0.0, 0.25)), ("triple", (0.05, 0.35)),
+                              ("quadruple", (0.1, 0.5)), ("octuple", (0.0, 0.35))):
+        if word in env_name:
+            return 0.0 if high == 0.0 else float(np.random.uniform(low, high))  # noqa: NPY002  (as OGBench draws it)
+    return 0.5
+
+
+def _scene_episode_healthy(qpos: np.ndarray) -> bool:
+    """OGBench's health check of a ``scene`` episode: the cube stays visible unless in the drawer."""
+    block = qpos[:, 14:17]
+    too_far_right = (block[:, 1] >= 0.29).any()
+    too_far_left = ((block[:, 1] <= -0.3) & ((block[:, 2] < 0.06) | (block[:, 2] > 0.08))).any()
+    return not (too_far_right or too_far_left)
+
+
+def _collect_episode(env: Any, oracles: dict[str, Any], env_name: str, seed: int | None) -> dict[str, list]:
+    """One play episode (``generate_manipspace.py``'s inner loop), as lists of per-step rows."""
+    ob, info = env.reset(seed=seed)
+    p_stack = _stack_probability(env_name)
+    agent = oracles[info["privileged/target_task"]]
+    agent.reset(ob, info)
+    rows: dict[str, list] = defaultdict(list)
+    has_buttons = hasattr(env.unwrapped, "_cur_button_states")
+    done = False
+    while not done:
+        action = np.clip(np.asarray(agent.select_action(ob, info)), -1, 1)
+        next_ob, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        if agent.done:  # the oracle finished its plan: a new random target
+            agent_ob, agent_info = env.unwrapped.set_new_target(p_stack=p_stack)
+            agent = oracles[agent_info["privileged/target_task"]]
+            agent.reset(agent_ob, agent_info)
+        rows["observations"].append(ob)
+        rows["actions"].append(action)
+        rows["terminals"].append(done)
+        rows["qpos"].append(info["prev_qpos"])
+        rows["qvel"].append(info["prev_qvel"])
+        if has_buttons:
+            rows["button_states"].append(info["prev_button_states"])
+        ob = next_ob
+    return rows
+
+
+def _save_npz(path: Path, rows: dict[str, list]) -> None:
+    """Write OGBench's npz layout (dtypes as ``generate_manipspace.py``) through a temporary file."""
+    arrays = {}
+    for key, values in rows.items():
+        dtype = bool if key == "terminals" else np.int64 if key == "button_states" else np.float32
+        arrays[key] = np.asarray(values, dtype=dtype)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")  # units may generate the same file at once
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def val_path(path: str | os.PathLike) -> Path:
+    """The validation file OGBench reads next to ``path`` (``x.npz`` -> ``x-val.npz``)."""
+    return Path(str(path).replace(".npz", "-val.npz"))
+
+
+def generate_play_dataset(
+    task: str,
+    path: str | os.PathLike,
+    n_episodes: int,
+    episode_steps: int = PLAY_EPISODE_STEPS,
+    seed: int = 0,
+    noise: float = PLAY_NOISE,
+    noise_smoothing: float = PLAY_NOISE_SMOOTHING,
+) -> dict[str, Any]:
+    """Generate the 'play' dataset of ``task``'s domain with OGBench's oracles (see the module docstring).
+
+    :param task: an OGBench single-task name (``cube-single-play-singletask-task2-v0``) or its
+        domain's dataset name; the data are the same for the five tasks of a domain
+    :param path: the training file (``.npz``); the validation file (``n_episodes // 10`` more
+        episodes) goes to :func:`val_path`
+    :param n_episodes: training episodes (OGBench publishes 1000 of 1001 steps: 1M transitions)
+    :param episode_steps: steps per episode (1001 in OGBench: 1000 transitions once loaded)
+    :param seed: seed of NumPy's global generator (oracle noise) and of the first ``reset``
+    :return: ``{"steps", "seconds", "cpu_seconds", "steps_per_cpu_second", "bytes", "path"}``
+    """
+    import gymnasium as gym
+    import ogbench.manipspace  # noqa: F401  (registers the environments)
+
+    name = TaskName.parse(task)
+    check_int("n_episodes", n_episodes)
+    check_int("episode_steps", episode_steps, low=2)
+    for label, value in (("noise", noise), ("noise_smoothing", noise_smoothing)):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value < np.inf:
+            raise ValueError(f"{label} must be a finite number >= 0, got {value!r}")
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"path must end with .npz (OGBench's format), got {str(path)!r}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    env = gym.make(name.env_name, terminate_at_goal=False, mode="data_collection", max_episode_steps=episode_steps)
+    wall, cpu = time.perf_counter(), time.process_time()
+    try:
+        oracles = _make_oracles(env, name.env_name, noise, noise_smoothing)
+        splits: list[dict[str, list]] = [defaultdict(list), defaultdict(list)]
+        with _numpy_global_seed(seed):
+            for i in range(n_episodes + n_episodes // 10):
+                while True:
+                    rows = _collect_episode(env, oracles, name.env_name, seed if i == 0 else None)
+                    if not name.env_name.startswith("scene") or _scene_episode_healthy(np.asarray(rows["qpos"])):
+                        break
+                split = splits[0 if i < n_episodes else 1]
+                for key, values in rows.items():
+                    split[key].extend(values)
+    finally:
+        env.close()
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    # validation first: a training file on disk implies its validation file (see ensure_dataset)
+    _save_npz(val_path(path), splits[1] or splits[0])  # a tiny dataset validates on its training data
+    _save_npz(path, splits[0])
+    steps = len(splits[0]["actions"]) + len(splits[1]["actions"])
+    return {
+        "path": str(path), "steps": steps, "seconds": wall, "cpu_seconds": cpu,
+        "steps_per_cpu_second": steps / max(cpu, 1e-9), "bytes": path.stat().st_size + val_path(path).stat().st_size,
+    }
+
+
+def load_singletask(task: str, path: str | os.PathLike, sparse: bool = False) -> tuple[Any, dict, dict]:
+    """``ogbench.make_env_and_datasets(task, dataset_path=path)``: env, train and validation data.
+
+    OGBench adds ``rewards`` and ``masks`` for the task (``reward = #solved subtasks - #subtasks``
+    of the state ``s`` of a transition, ``mask = 0`` iff all are solved). With ``sparse=True`` the
+    reward becomes -1 unless the whole task is solved (Q-chunking's ``--sparse``, used for ``scene``
+    and ``puzzle``; ``cube-single`` has one subtask, so both are the same there).
+    """
+    import ogbench
+
+    TaskName.parse(task)
+    path = Path(path)
+    if not path.is_file() or not val_path(path).is_file():
+        raise FileNotFoundError(f"no OGBench dataset at {path} (and {val_path(path).name}): generate it first")
+    env, train, val = ogbench.make_env_and_datasets(task, dataset_path=str(path), compact_dataset=False)
+    if sparse:
+        for data in (train, val):
+            data["rewards"] = sparse_reward(data["rewards"])
+    return env, train, val
+
+
+def sparse_reward(rewards: np.ndarray) -> np.ndarray:
+    """Q-chunking's sparse reward: 0 when every subtask is solved (dense reward 0), else -1."""
+    return np.where(np.asarray(rewards) == 0.0, 0.0, -1.0).astype(np.float32)
+
+
+def to_episodes(dataset: dict[str, np.ndarray]) -> list[Episode]:
+    """Cut a loaded single-task dataset (``compact_dataset=False``) into UA2C offline episodes.
+
+    A segment ends after a transition with ``mask == 0`` (terminated: the task is solved in ``s``)
+    or with ``terminals == 1`` (the end of an OGBench trajectory, a time limit: truncated).
+    Observations of a segment are its ``observations`` plus the last ``next_observations``.
+
+    :param dataset: ``observations (N, obs_dim)``, ``next_observations (N, obs_dim)``,
+        ``actions (N, act_dim)``, ``rewards (N,)``, ``masks (N,)``, ``terminals (N,)``
+    """
+    required = ("observations", "next_observations", "actions", "rewards", "masks", "terminals")
+    missing = [k for k in required if k not in dataset]
+    if missing:
+        raise ValueError(f"dataset lacks {missing}: load it with compact_dataset=False through load_singletask")
+    solved = np.asarray(dataset["masks"]) == 0.0  # (N,)
+    ends = np.asarray(dataset["terminals"]) > 0.5  # (N,)
+    if len(ends) == 0 or not ends[-1]:
+        raise ValueError("dataset must end with a trajectory end (terminals[-1] == 1)")
+    cuts = np.flatnonzero(solved | ends)  # last index of every segment
+    episodes, start = [], 0
+    for stop in cuts + 1:
+        sl = slice(start, stop)
+        n = stop - start
+        terminated = np.zeros(n, dtype=bool)
+        truncated = np.zeros(n, dtype=bool)
+        terminated[-1] = solved[stop - 1]
+        truncated[-1] = not solved[stop - 1]
+        episodes.append(Episode(
+            observations=np.concatenate([dataset["observations"][sl], dataset["next_observations"][stop - 1:stop]]),
+            actions=np.asarray(dataset["actions"][sl]),
+            rewards=np.asarray(dataset["rewards"][sl], dtype=np.float64),
+            terminations=terminated,
+            truncations=truncated,
+        ))
+        start = stop
+    return episodes
