@@ -19,7 +19,7 @@ from sb3_ua2c.experiments.aggregation import aggregate, load_raw
 from sb3_ua2c.experiments.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
 from sb3_ua2c.experiments.manifest import RunPaths, read_manifest
 from sb3_ua2c.experiments.names import MAX_SEED, PAPER
-from sb3_ua2c.experiments.report import _pct, write_report
+from sb3_ua2c.experiments.report import format_pct, write_report
 from sb3_ua2c.experiments.units import SeedBusyError, measured_seconds, run_all
 
 
@@ -149,7 +149,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
         ("offline jerk", "offline_jerk_change_pct"),
         ("online reward", "online_reward_gain_pct"),
     ):
-        print(f"{label}: ours {_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
+        print(f"{label}: ours {format_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
     print(f"style macro accuracy: {summary['style_macro_accuracy']:.3f}")
     print("wrote " + ", ".join(str(f) for f in files))
     return 0

@@ -32,7 +32,7 @@ def _fmt(stat: Mapping[str, Any], digits: int = 2) -> str:
     return f"{mean:.{digits}f}" + ("" if not math.isfinite(half) else f" ± {half:.{digits}f}")
 
 
-def _pct(x: float) -> str:
+def format_pct(x: float) -> str:
     return "n/a" if not math.isfinite(x) else f"{x:+.2f}%"
 
 
@@ -80,7 +80,7 @@ def _header(summary: Mapping[str, Any], command: str, date: str) -> Lines:
         "",
         "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
         "the per-seed column is the mean ± 95% interval of the per-seed changes. Where a claim is short "
-        "of the paper, the README (section \"Reproducing the paper's Figure 2\") says what was tried. "
+        "of the paper, docs/research-log.md (\"What was tried\") says what was tried. "
         "Rows without a suffix act with fixed candidate noise (`predict(deterministic=True)`: the same "
         "history always gives the same plan); rows marked \"sampled\" evaluate the same checkpoints "
         "drawing fresh candidate noise at every replanning, as the rollouts of Phase 2 do (seeded per "
@@ -133,7 +133,7 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
         paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
-        lines.append(f"| {label} | {_pct(cmp['change_pct'])} | {per_seed} | {paper} | {verdict} |")
+        lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {paper} | {verdict} |")
     style = summary.get("style")
     if style:
         lines.append(
@@ -183,15 +183,15 @@ def _online_phases_table(summary: Mapping[str, Any]) -> Lines:
         "|---|---|---|---|---|",
     ]
     for row in op["per_phase"]:
-        sampled_change = _pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""
+        sampled_change = format_pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""
         lines.append(
             f"| {offset + row['phase']} | {_fmt(row['fixed'])} | {_fmt(row['adaptive'])} "
-            f"| {_pct(row['change']['change_pct'])} | {sampled_change} |"
+            f"| {format_pct(row['change']['change_pct'])} | {sampled_change} |"
         )
-    sampled_pooled = _pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""
+    sampled_pooled = format_pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""
     lines.append(
         f"| pooled ({op['runs']} runs) | {_fmt(op['fixed'])} | {_fmt(op['adaptive'])} "
-        f"| {_pct(c['online_reward']['change_pct'])} | {sampled_pooled} |"
+        f"| {format_pct(c['online_reward']['change_pct'])} | {sampled_pooled} |"
     )
     return lines
 
@@ -297,7 +297,7 @@ def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
         lines.append(
             f"| {row['flow_steps']} | {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} "
             f"| {_fmt(one['cumulative_jerk'], 1)} "
-            f"| {_fmt(ch['cumulative_jerk'], 1)} | {_pct(row['jerk_change']['change_pct'])} "
+            f"| {_fmt(ch['cumulative_jerk'], 1)} | {format_pct(row['jerk_change']['change_pct'])} "
             f"| {_fmt(ch['jerk_per_step'])} | {_fmt(ch['collision'])} |"
         )
     return lines
@@ -313,7 +313,7 @@ def _style_context_section(summary: Mapping[str, Any]) -> Lines:
         "## Style context c_t (Eq. 6) in the observation",
         "",
         f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
-        f"{_pct(cmp['change_pct'])} (per seed {per_seed}%).",
+        f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).",
     ]
 
 
@@ -385,7 +385,7 @@ def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[
             stats = {a: methods[a + suffix][metric] for a in arms}
             if paper_key == "online_reward_gain_pct" and len(op.get("phases", [0])) > 1:  # every pooled run
                 stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"
-            note = f"ours {_pct(ours)}, paper {PAPER[paper_key]:+.2f}%"
+            note = f"ours {format_pct(ours)}, paper {PAPER[paper_key]:+.2f}%"
             panels.append((name, title, ylabel, [(_SHORT_LABELS[a], stats[a]) for a in arms], note))
     return panels
 
