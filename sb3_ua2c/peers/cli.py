@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from sb3_ua2c.checks import check_int
@@ -104,6 +106,24 @@ def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command:
             "observation": observation_text(records), **summary}
 
 
+@contextmanager
+def _ray_session(address: str | None) -> Iterator[None]:
+    """One connection to the Ray cluster for the three stages (the executor connects per stage otherwise)."""
+    if address is None:
+        yield
+        return
+    try:
+        import ray
+    except ImportError as exc:
+        raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    ray.init(address=address, log_to_driver=False)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
 def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: PeersBudget, paths: PeersPaths) -> None:
     estimate = estimate_units(budget, arms, len(seeds))
     print(f"peers: seeds {seeds}, arms {arms}, {budget.online_steps} online env steps per arm", flush=True)
@@ -114,7 +134,8 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
                 paths.record(s, a).unlink(missing_ok=True)
     executor = make_executor(args.workers, args.ray_address, serial=args.workers == 1 and args.ray_address is None)
     t0 = time.perf_counter()
-    results = run_peers(seeds, arms, budget, paths, executor)
+    with _ray_session(args.ray_address):
+        results = run_peers(seeds, arms, budget, paths, executor)
     print(f"{sum(not r.skipped for r in results)} arm unit(s) run, {sum(r.skipped for r in results)} stored; "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
 
