@@ -48,8 +48,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-unit records (default: <out>/peers_raw)")
     parser.add_argument("--work", default=None, help="datasets, checkpoints, models (default: <out>/peers_work)")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="local processes at once (default: 2); 1 runs the units in this process")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local processes at once, each unit in a fresh process (default: 2; with --quick: 1); "
+                        "1 runs the units one after the other in this process")
     parser.add_argument("--ray-address", default=None, metavar="ADDRESS",
                         help="run the units on a Ray cluster (e.g. 127.0.0.1:6379 of `ray start --head`), one CPU "
                         "and a fresh process per unit")
@@ -145,6 +146,8 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
+        if args.workers is None:  # --quick: tiny units, where starting a process costs more than the unit
+            args.workers = 1 if args.quick else 2
         seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
         budget = _budget(args)
         if not args.report_only:
