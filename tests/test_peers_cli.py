@@ -163,3 +163,16 @@ def test_estimate_reproduces_the_measured_peer_units_and_fits_two_hours():
     assert stage_wall_seconds([3, 5], 4) == 5
     full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
     assert full["wall"] < 2 * 3600 and full["cpu"] > full["wall"]
+
+
+def test_headline_names_the_best_of_each_side():
+    from sb3_ua2c.peers.report import headline
+
+    records = {
+        "ua2c_adaptive": [_record("ua2c_adaptive", s, [1.0, 2.0], [(50, 1.0)]) for s in (0, 1)],
+        "ua2c_fixed": [_record("ua2c_fixed", s, [4.0, 4.0], [(50, 1.0)]) for s in (0, 1)],
+        "sac": [_record("sac", s, [3.0, 3.0], [(50, 1.0)]) for s in (0, 1)],
+    }
+    line = headline(aggregate(records, reps=50))
+    assert line == ("Best UA2C arm, UA2C fixed chunks (δ=inf) (IQM reward 4.00), is ahead of the best peer, "
+                    "SB3 SAC (online) (3.00), by 1.00; P(UA2C > peer) = 1.00.")

@@ -131,6 +131,22 @@ def verdicts(summary: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def headline(summary: Mapping[str, Any]) -> str:
+    """One sentence: the best UA2C arm against the best peer by IQM reward (who leads, by how much)."""
+    arms = summary["arms"]
+    reward = {a: arms[a]["metrics"]["reward"]["iqm"] for a in arms}
+    ours = [a for a in arms if a in UA2C_ARMS]
+    peers = [a for a in arms if a not in UA2C_ARMS]
+    if not ours or not peers:
+        return "Only one side was run: no head-to-head verdict."
+    o, p = max(ours, key=reward.get), max(peers, key=reward.get)
+    gap = reward[o] - reward[p]
+    side = "ahead of" if gap > 0 else "BEHIND" if gap < 0 else "level with"
+    return (f"Best UA2C arm, {ARM_LABELS.get(o, o)} (IQM reward {reward[o]:.2f}), is {side} the best peer, "
+            f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}), by {abs(gap):.2f}; P(UA2C > peer) = "
+            f"{summary['pairs'][f'{o}_vs_{p}']['reward']['probability']:.2f}.")
+
+
 def _cell(stat: Mapping[str, float] | None, digits: int = 2) -> str:
     if stat is None:
         return "–"
@@ -230,7 +246,7 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
         "δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the offline data "
         f"in the buffer and one gradient step per {b['chunk_size']} env steps (Figure 2's cadence), so they make "
-        "about a fifth of the SAC/TQC updates.",
+        f"about 1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step).",
         "- SAC and TQC: online from scratch, hyperparameters from `zoo_configs/sac.yml` / `zoo_configs/tqc.yml` "
         "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
                                             if summary["budget"]["sb3_hyperparams"] else "")
@@ -256,6 +272,8 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "",
         "## Verdict (IQM of the final evaluation reward)",
         "",
+        f"**{headline(summary)}**",
+        "",
         *(f"- {v}" for v in verdicts(summary)),
         "",
         "## Results (IQM [95 % CI] over seeds × evaluation episodes)",
@@ -275,6 +293,10 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "![online learning curves](peers_curves.png)",
         "",
         "![IQM bars](peers_iqm.png)",
+        "",
+        "## Short table (for the README)",
+        "",
+        *readme_table(summary),
         "",
     ]
     return "\n".join(lines)
