@@ -2,7 +2,8 @@
 
 Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
 ``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
-classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds). Each run writes into its own run directory
+classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds), ``peers`` (the
+head-to-head against SAC, TQC, RLPD-style SAC, IQL and Cal-QL, ``docs/peers.md``). Each run writes into its own run directory
 (``--run-dir``, default ``runs/<command>-<date>-<time>``).
 """
 
