@@ -15,6 +15,7 @@ from typing import Any
 
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg
+from sb3_ua2c.executor import UnitsFailedError
 from sb3_ua2c.experiments.aggregation import aggregate, load_raw
 from sb3_ua2c.experiments.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
 from sb3_ua2c.experiments.manifest import RunPaths, read_manifest
@@ -77,6 +78,13 @@ def build_parser(prog: str = "python benchmarks/fig2.py") -> argparse.ArgumentPa
     parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
     parser.add_argument("--workers", type=int, default=2, help="seeds run in parallel processes (default: 2)")
     parser.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="run the seeds as tasks on a Ray cluster (e.g. 127.0.0.1:6379 of `ray start --head`); the "
+        "directories must be on a filesystem every node shares",
+    )
+    parser.add_argument(
         "--report-only", action="store_true", help="only rebuild the report from the raw results"
     )
     return parser
@@ -121,7 +129,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
                 + " CPU-min)",
                 flush=True,
             )
-            executed = run_all(seeds, budget, paths, workers)
+            executed = run_all(seeds, budget, paths, workers, ray_address=args.ray_address)
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
         recorded: dict[str, Any] = {}
         if args.report_only:
@@ -143,6 +151,10 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
     except (ValueError, FileNotFoundError, SeedBusyError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except UnitsFailedError as exc:  # a seed in use by another process is a usage error (2), others fail (1)
+        print(f"error: {exc}", file=sys.stderr)
+        busy = all("SeedBusyError" in tb for tb in exc.failures.values())
+        return 2 if busy else 1
     files = write_report(summary, paths, command, date)
     for label, key in (
         ("offline reward", "offline_reward_gain_pct"),

@@ -414,38 +414,37 @@ def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
     return out
 
 
-def _run_seed_worker(args: tuple[int, dict[str, Any], RunPaths]) -> list[str]:
-    seed, budget, paths = args
+def run_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths) -> list[str]:
+    """:func:`run_seed` as an executor unit (plain arguments: it may run in another process or on a Ray node)."""
     return run_seed(seed, Fig2Budget.from_dict(budget), paths)
 
 
 def run_all(
-    seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print
+    seeds: Sequence[int],
+    budget: Fig2Budget,
+    paths: RunPaths,
+    workers: int = 1,
+    printer: Any = print,
+    ray_address: str | None = None,
 ) -> list[str]:
-    """Run (or resume) every seed, ``workers`` seeds at a time in separate processes (one SUMO
-    simulation per process); ``workers=1`` runs in this process.
+    """Run (or resume) every seed, one :mod:`sb3_ua2c.executor` unit per seed: ``workers`` seeds at a
+    time in separate processes (one SUMO simulation per process), in this process when
+    ``workers=1``, or as Ray tasks on the cluster at ``ray_address``. A seed resumes its own units
+    (they are files), so the seed units have no result file and always run.
 
     :return: the units executed, over all seeds
+    :raises UnitsFailedError: after every seed ran, naming the seeds that raised
     """
+    from sb3_ua2c.executor import Unit, make_executor, run_units
+
     check_int("Fig2Budget.workers", workers)
     check_manifest(paths, budget)
     write_manifest(paths, budget)
+    serial = ray_address is None and (workers == 1 or len(seeds) == 1)
+    executor = make_executor(min(workers, max(len(seeds), 1)), ray_address, serial=serial)
+    units = [Unit(f"seed{s}", run_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths}) for s in seeds]
     executed: list[str] = []
-    if workers == 1 or len(seeds) == 1:
-        for s in seeds:
-            t0 = time.perf_counter()
-            units = run_seed(s, budget, paths)
-            printer(f"seed {s}: {len(units)} unit(s) run in {time.perf_counter() - t0:.0f} s")
-            executed += units
-        return executed
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-        jobs = [(s, budget.to_dict(), paths) for s in seeds]
-        for s, units in zip(seeds, pool.map(_run_seed_worker, jobs), strict=True):
-            printer(f"seed {s}: {len(units)} unit(s) run")
-            executed += units
+    for s, result in zip(seeds, run_units(units, executor, printer=None), strict=True):
+        printer(f"seed {s}: {len(result.value)} unit(s) run in {result.wall_seconds:.0f} s")
+        executed += result.value
     return executed
-
-

@@ -6,7 +6,13 @@
   (RLPD's symmetric sampling);
 * :func:`~sb3_ua2c.peers.d3rlpy_arms.run_d3rlpy`: d3rlpy IQL / Cal-QL, offline then online
   (``pip install --no-deps d3rlpy==2.8.1 gym==0.26.2``, see :mod:`sb3_ua2c.peers.d3rlpy_arms`);
+* :func:`~sb3_ua2c.peers.ua2c_arms.run_ua2c_arm`: the UA2C arms of Figure 2 (adaptive, fixed, one-step),
+  offline checkpoint then online, with the same record;
 * :mod:`sb3_ua2c.peers.stats`: IQM, stratified bootstrap CIs and probability of improvement (rliable).
+
+The command ``python -m sb3_ua2c peers`` (:mod:`~sb3_ua2c.peers.cli`) runs every (arm, seed) as one
+unit (:mod:`~sb3_ua2c.peers.runner`, budget and estimate in :mod:`~sb3_ua2c.peers.budget`) and writes
+the report (:mod:`~sb3_ua2c.peers.report`); see ``docs/peers.md``.
 
 Every unit reads the seed's dataset (which defines the environment), trains for the same online
 step budget and evaluates on the same held-out scenarios as the UA2C arms, with
