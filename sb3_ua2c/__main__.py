@@ -2,7 +2,8 @@
 
 Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
 ``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
-classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds). Each run writes into its own run directory
+classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds),
+``ogbench`` (the OGBench single-task benchmark, see docs/ogbench.md). Each run writes into its own run directory
 (``--run-dir``, default ``runs/<command>-<date>-<time>``).
 """
 
@@ -246,6 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("fig2", help="reproduce the paper's Figure 2 over several seeds (see 'fig2 --help')",
                    add_help=False)
+    sub.add_parser("ogbench", help="OGBench single-task benchmark, offline then online (see 'ogbench --help')",
+                   add_help=False)
     return parser
 
 
@@ -267,6 +270,10 @@ def main(argv: list[str] | None = None) -> int:
         from sb3_ua2c.experiments import main as fig2_main
 
         return int(fig2_main(argv[1:], prog="python -m sb3_ua2c fig2") or 0)
+    if argv and argv[0] == "ogbench":
+        from sb3_ua2c.ogbench.cli import main as ogbench_main
+
+        return int(ogbench_main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
         _set_threads(args.threads)

@@ -85,7 +85,7 @@ def test_task_name_parts(ogb):
     assert (scene.env_name, scene.dataset_file) == ("scene-v0", "scene-play-v0.npz")
 
 
-@pytest.mark.parametrize("bad", ["cube-single-v0", "pointmaze-medium-navigate-singletask-v0",
+@pytest.mark.parametrize("bad", ["cube-single-v0", "antmaze-medium-navigate-singletask-v0",
                                  "cube-single-noisy-singletask-task2-v0", "singletask-v0"])
 def test_task_name_rejects_what_cannot_be_generated(ogb, bad):
     with pytest.raises(ValueError, match="task"):
