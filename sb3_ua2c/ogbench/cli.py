@@ -78,7 +78,8 @@ def _run(args: argparse.Namespace, command: str) -> int:
         with warnings.catch_warnings():  # OGBench's float32 Box bounds warn once per environment
             warnings.simplefilter("ignore", UserWarning)
             records = runner.run_benchmark(args.task, arms, seeds, budget, work, executor)
-    summary = report.write_report(records, out, command=command, estimate=est)
+    # the quick run's statistics mean nothing: fewer bootstrap replications keep it fast
+    summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000)
     for arm, s in summary["arms"].items():
         print(f"{arm:>9}: success offline {100 * s['offline']['mean']:.1f} %, online {100 * s['online']['mean']:.1f} %")
     print(f"ranking (fixed vs one-step, online): {summary['ranking']['ours_online']}; Q-chunking: "

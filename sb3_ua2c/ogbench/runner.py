@@ -26,7 +26,7 @@ from sb3_ua2c.ogbench.data import TaskName
 from sb3_ua2c.ogbench.unit import ARMS, OGBenchBudget, dataset_file, ensure_dataset, run_ogbench_unit
 
 #: The default task: see docs/ogbench.md ("Why these tasks") and the probes in docs/research-log.md.
-DEFAULT_TASK = "cube-single-play-singletask-task2-v0"
+DEFAULT_TASK = "pointmaze-medium-navigate-singletask-task1-v0"
 
 #: Budgets per task: ``full`` fits 3 arms x 5 seeds in 3 h wall on 2 cores (see :func:`estimate`),
 #: ``quick`` runs end to end in well under a minute (CI).
