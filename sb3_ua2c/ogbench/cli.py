@@ -58,6 +58,7 @@ def _run(args: argparse.Namespace, command: str) -> int:
     from sb3_ua2c.checks import check_int
     from sb3_ua2c.executor import make_executor
     from sb3_ua2c.ogbench import report, runner
+    from sb3_ua2c.ogbench.unit import dataset_file
 
     runner.check_task(args.task)
     arms = runner.check_arms(args.arms)
@@ -66,7 +67,7 @@ def _run(args: argparse.Namespace, command: str) -> int:
     budget = runner.default_budget(args.task, quick=args.quick)
     out = Path(args.out)
     work = Path(args.work) if args.work else out / "ogbench_work"
-    data_ready = (work / "data").exists() and any((work / "data").rglob("*.npz"))
+    data_ready = dataset_file(args.task, budget, work / "data").is_file()
     est = runner.estimate(args.task, arms, len(seeds), budget, args.workers, data_ready=data_ready)
     print(runner.format_estimate(args.task, arms, seeds, budget, args.workers, est), flush=True)
     if args.report_only:
