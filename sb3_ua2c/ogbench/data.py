@@ -11,8 +11,13 @@ It writes OGBench's ``.npz`` format (``observations``, ``actions``, ``terminals`
 ``qvel`` and, with buttons, ``button_states``), so ``ogbench.make_env_and_datasets(name,
 dataset_path=...)`` loads it and adds the single-task rewards and masks itself.
 
-The only departure from the script: it seeds NumPy's global generator (the oracles draw from it)
-and the environment, so the same arguments write the same file; the script leaves both unseeded.
+For ``pointmaze`` it writes the "navigate" dataset as ``generate_locomaze.py --dataset_type=navigate``
+does: from a random free cell, the point moves along the unit direction to the maze's oracle
+subgoal plus Gaussian noise 0.5, and a new random goal (a vertex cell) is set whenever it reaches
+one; episodes of 1001 steps.
+
+The only departure from the scripts: it seeds NumPy's global generator (the oracles draw from it)
+and the environment, so the same arguments write the same file; the scripts leave both unseeded.
 
 :func:`to_episodes` turns a loaded single-task dataset into :class:`~sb3_ua2c.offline.Episode`
 objects for UA2C's replay buffer: a trajectory is cut after every transition whose OGBench mask is
