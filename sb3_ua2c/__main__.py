@@ -3,7 +3,8 @@
 Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
 ``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
 classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds), ``peers`` (the
-head-to-head against SAC, TQC, RLPD-style SAC, IQL and Cal-QL, ``docs/peers.md``). Each run writes into its own run directory
+head-to-head against SAC, TQC, RLPD-style SAC, IQL and Cal-QL, ``docs/peers.md``), ``ogbench`` (the OGBench
+single-task benchmark, ``docs/ogbench.md``). Each run writes into its own run directory
 (``--run-dir``, default ``runs/<command>-<date>-<time>``).
 """
 
@@ -249,6 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("peers", help="head-to-head against SAC, TQC, SAC+offline, IQL, Cal-QL (see 'peers --help')",
                    add_help=False)
+    sub.add_parser("ogbench", help="OGBench single-task benchmark, offline then online (see 'ogbench --help')",
+                   add_help=False)
     return parser
 
 
@@ -274,6 +277,10 @@ def main(argv: list[str] | None = None) -> int:
         from sb3_ua2c.peers.cli import main as peers_main
 
         return int(peers_main(argv[1:]) or 0)
+    if argv and argv[0] == "ogbench":
+        from sb3_ua2c.ogbench.cli import main as ogbench_main
+
+        return int(ogbench_main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
         _set_threads(args.threads)

@@ -85,7 +85,7 @@ def test_task_name_parts(ogb):
     assert (scene.env_name, scene.dataset_file) == ("scene-v0", "scene-play-v0.npz")
 
 
-@pytest.mark.parametrize("bad", ["cube-single-v0", "pointmaze-medium-navigate-singletask-v0",
+@pytest.mark.parametrize("bad", ["cube-single-v0", "antmaze-medium-navigate-singletask-v0",
                                  "cube-single-noisy-singletask-task2-v0", "singletask-v0"])
 def test_task_name_rejects_what_cannot_be_generated(ogb, bad):
     with pytest.raises(ValueError, match="task"):
@@ -125,6 +125,30 @@ def test_generation_rejects_bad_arguments(ogb, tmp_path):
         ogb.generate_play_dataset(TASK, tmp_path / "x.npz", n_episodes=0)
     with pytest.raises(ValueError, match="noise"):
         ogb.generate_play_dataset(TASK, tmp_path / "x.npz", n_episodes=1, noise=-0.1)
+
+
+MAZE = "pointmaze-medium-navigate-singletask-task1-v0"
+
+
+def test_navigate_data_follow_the_oracle_direction(ogb, tmp_path):
+    """Without noise every pointmaze action is the unit vector to the oracle's subgoal (norm 1);
+    with OGBench's noise 0.5 it is not, and the file loads with OGBench's single-task rewards."""
+    exact = np.load(ogb.generate_play_dataset(MAZE, tmp_path / "a.npz", n_episodes=1, episode_steps=40, noise=0.0)["path"])
+    assert exact["actions"].shape == (40, 2) and exact["qpos"].shape == (40, 2)
+    np.testing.assert_allclose(np.linalg.norm(exact["actions"], axis=1), 1.0, atol=1e-4)
+    np.testing.assert_array_equal(exact["observations"], exact["qpos"])  # the point's xy is its observation
+    path = tmp_path / "pointmaze-medium-navigate-v0.npz"
+    noisy = np.load(ogb.generate_play_dataset(MAZE, path, n_episodes=2, episode_steps=40, seed=1)["path"])
+    assert np.abs(noisy["actions"]).max() <= 1.0 and np.std(np.linalg.norm(noisy["actions"], axis=1)) > 0.05
+    np.testing.assert_array_equal(np.flatnonzero(noisy["terminals"]), [39, 79])
+    env, train, _ = ogb.load_singletask(MAZE, path)
+    env.close()
+    assert set(np.unique(train["rewards"])) <= {-1.0, 0.0} and train["observations"].shape == (78, 2)
+    maze = ogb.OGBenchSingleTask(MAZE)  # the maze's reset info has no qpos: it is read from the simulator
+    obs, info = maze.reset(seed=0)
+    maze.close()
+    np.testing.assert_allclose(info["qpos"], obs, atol=1e-6)
+    assert maze.max_episode_steps == 1000 and info["success"] is False
 
 
 # ------------------------------------------------------------------------------------ loading

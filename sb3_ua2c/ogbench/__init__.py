@@ -1,4 +1,5 @@
-"""OGBench single-task benchmark for UA2C: locally generated "play" data, an SB3 env, one run unit.
+"""OGBench single-task benchmark for UA2C: locally generated "play" and "navigate" data, an SB3 env,
+one run unit, and the ``python -m sb3_ua2c ogbench`` command (:mod:`~sb3_ua2c.ogbench.cli`).
 
 Needs the optional ``ogbench`` extra (``pip install sb3-ua2c[ogbench]``). Importing this package
 registers ``OGBenchSingleTask-v0`` with Gymnasium.

@@ -11,8 +11,13 @@ It writes OGBench's ``.npz`` format (``observations``, ``actions``, ``terminals`
 ``qvel`` and, with buttons, ``button_states``), so ``ogbench.make_env_and_datasets(name,
 dataset_path=...)`` loads it and adds the single-task rewards and masks itself.
 
-The only departure from the script: it seeds NumPy's global generator (the oracles draw from it)
-and the environment, so the same arguments write the same file; the script leaves both unseeded.
+For ``pointmaze`` it writes the "navigate" dataset as ``generate_locomaze.py --dataset_type=navigate``
+does: from a random free cell, the point moves along the unit direction to the maze's oracle
+subgoal plus Gaussian noise 0.5, and a new random goal (a vertex cell) is set whenever it reaches
+one; episodes of 1001 steps.
+
+The only departure from the scripts: it seeds NumPy's global generator (the oracles draw from it)
+and the environment, so the same arguments write the same file; the scripts leave both unseeded.
 
 :func:`to_episodes` turns a loaded single-task dataset into :class:`~sb3_ua2c.offline.Episode`
 objects for UA2C's replay buffer: a trajectory is cut after every transition whose OGBench mask is
@@ -40,7 +45,13 @@ PLAY_EPISODE_STEPS = 1001
 PLAY_NOISE = 0.1
 PLAY_NOISE_SMOOTHING = 0.5
 
+#: OGBench's "navigate" setting for ``pointmaze`` (``commands.sh``: Gaussian noise 0.5 on the oracle's direction).
+NAVIGATE_NOISE = 0.5
+
 MANIPSPACE_DOMAINS = ("cube", "scene", "puzzle")
+#: Dataset types generated here, with the domains each covers (``antmaze``/``humanoidmaze`` need
+#: OGBench's trained low-level experts, which the package does not ship).
+GENERATED = {"play": MANIPSPACE_DOMAINS, "navigate": ("pointmaze",)}
 
 
 @dataclass(frozen=True)
@@ -71,10 +82,10 @@ class TaskName:
             )
         pos = parts.index("singletask")
         dataset_type = parts[pos - 1]
-        if dataset_type != "play" or parts[0] not in MANIPSPACE_DOMAINS:
+        if parts[0] not in GENERATED.get(dataset_type, ()):
             raise ValueError(
-                f"task {dataset_name!r}: only the 'play' datasets of the manipulation domains "
-                f"{MANIPSPACE_DOMAINS} can be generated here"
+                f"task {dataset_name!r}: only these datasets can be generated here: "
+                + ", ".join(f"'{kind}' of {domains}" for kind, domains in GENERATED.items())
             )
         env_name = "-".join(parts[: pos - 1] + parts[-1:])
         dataset_file = "-".join(parts[:pos] + parts[-1:]) + ".npz"
@@ -153,6 +164,48 @@ def _collect_episode(env: Any, oracles: dict[str, Any], env_name: str, seed: int
     return rows
 
 
+def _maze_cells(maze_map: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Free cells of a maze and its "vertex" cells (free cells that are not straight hallway
+    cells), from which ``generate_locomaze.py`` draws the navigation goals."""
+    free, vertex = [], []
+    for i, j in zip(*np.nonzero(maze_map == 0), strict=True):
+        free.append((int(i), int(j)))
+        vertical = maze_map[i - 1, j] == 0 and maze_map[i + 1, j] == 0 and maze_map[i, j - 1] == 1 and maze_map[i, j + 1] == 1
+        horizontal = maze_map[i, j - 1] == 0 and maze_map[i, j + 1] == 0 and maze_map[i - 1, j] == 1 and maze_map[i + 1, j] == 1
+        if not (vertical or horizontal):
+            vertex.append((int(i), int(j)))
+    return free, vertex
+
+
+def _collect_navigate_episode(env: Any, noise: float, seed: int | None) -> dict[str, list]:
+    """One ``navigate`` episode of ``pointmaze`` (``generate_locomaze.py``): the point moves along
+    the unit direction to the oracle's next subgoal plus Gaussian noise, and a new random goal
+    (a vertex cell) is set whenever the current one is reached."""
+    maze = env.unwrapped
+    free, vertex = _maze_cells(maze.maze_map)
+    init_ij = free[np.random.randint(len(free))]  # noqa: NPY002  (as OGBench draws it)
+    goal_ij = vertex[np.random.randint(len(vertex))]  # noqa: NPY002
+    ob, _ = env.reset(seed=seed, options={"task_info": {"init_ij": init_ij, "goal_ij": goal_ij}})
+    rows: dict[str, list] = defaultdict(list)
+    done = False
+    while not done:
+        subgoal_xy, _ = maze.get_oracle_subgoal(maze.get_xy(), maze.cur_goal_xy)
+        direction = subgoal_xy - maze.get_xy()
+        direction = direction / (np.linalg.norm(direction) + 1e-6)
+        action = np.clip(direction + np.random.normal(0, noise, direction.shape), -1, 1)  # noqa: NPY002
+        next_ob, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        if info["success"]:
+            maze.set_goal(vertex[np.random.randint(len(vertex))])  # noqa: NPY002
+        rows["observations"].append(ob)
+        rows["actions"].append(action)
+        rows["terminals"].append(done)
+        rows["qpos"].append(info["prev_qpos"])
+        rows["qvel"].append(info["prev_qvel"])
+        ob = next_ob
+    return rows
+
+
 def _save_npz(path: Path, rows: dict[str, list]) -> None:
     """Write OGBench's npz layout (dtypes as ``generate_manipspace.py``) through a temporary file."""
     arrays = {}
@@ -175,10 +228,11 @@ def generate_play_dataset(
     n_episodes: int,
     episode_steps: int = PLAY_EPISODE_STEPS,
     seed: int = 0,
-    noise: float = PLAY_NOISE,
+    noise: float | None = None,
     noise_smoothing: float = PLAY_NOISE_SMOOTHING,
 ) -> dict[str, Any]:
-    """Generate the 'play' dataset of ``task``'s domain with OGBench's oracles (see the module docstring).
+    """Generate the 'play' dataset of ``task``'s domain with OGBench's oracles (see the module
+    docstring), or the 'navigate' dataset of a ``pointmaze`` (``generate_locomaze.py``).
 
     :param task: an OGBench single-task name (``cube-single-play-singletask-task2-v0``) or its
         domain's dataset name; the data are the same for the five tasks of a domain
@@ -187,12 +241,18 @@ def generate_play_dataset(
     :param n_episodes: training episodes (OGBench publishes 1000 of 1001 steps: 1M transitions)
     :param episode_steps: steps per episode (1001 in OGBench: 1000 transitions once loaded)
     :param seed: seed of NumPy's global generator (oracle noise) and of the first ``reset``
+    :param noise: action noise (default OGBench's: :data:`PLAY_NOISE`, :data:`NAVIGATE_NOISE`)
+    :param noise_smoothing: noise smoothing of the 'play' oracles
     :return: ``{"steps", "seconds", "cpu_seconds", "steps_per_cpu_second", "bytes", "path"}``
     """
     import gymnasium as gym
-    import ogbench.manipspace  # noqa: F401  (registers the environments)
+    import ogbench.locomaze  # noqa: F401  (registers the environments)
+    import ogbench.manipspace  # noqa: F401
 
     name = TaskName.parse(task)
+    navigate = name.dataset_type == "navigate"
+    if noise is None:
+        noise = NAVIGATE_NOISE if navigate else PLAY_NOISE
     check_int("n_episodes", n_episodes)
     check_int("episode_steps", episode_steps, low=2)
     for label, value in (("noise", noise), ("noise_smoothing", noise_smoothing)):
@@ -202,15 +262,18 @@ def generate_play_dataset(
     if path.suffix != ".npz":
         raise ValueError(f"path must end with .npz (OGBench's format), got {str(path)!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    env = gym.make(name.env_name, terminate_at_goal=False, mode="data_collection", max_episode_steps=episode_steps)
+    mode = {} if navigate else {"mode": "data_collection"}
+    env = gym.make(name.env_name, terminate_at_goal=False, max_episode_steps=episode_steps, **mode)
     wall, cpu = time.perf_counter(), time.process_time()
     try:
-        oracles = _make_oracles(env, name.env_name, noise, noise_smoothing)
+        oracles = {} if navigate else _make_oracles(env, name.env_name, noise, noise_smoothing)
         splits: list[dict[str, list]] = [defaultdict(list), defaultdict(list)]
         with _numpy_global_seed(seed):
             for i in range(n_episodes + n_episodes // 10):
                 while True:
-                    rows = _collect_episode(env, oracles, name.env_name, seed if i == 0 else None)
+                    first = seed if i == 0 else None
+                    rows = (_collect_navigate_episode(env, noise, first) if navigate
+                            else _collect_episode(env, oracles, name.env_name, first))
                     if not name.env_name.startswith("scene") or _scene_episode_healthy(np.asarray(rows["qpos"])):
                         break
                 split = splits[0 if i < n_episodes else 1]

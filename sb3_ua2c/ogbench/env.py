@@ -65,10 +65,11 @@ class OGBenchSingleTask(gym.Env):
             reward = float(sparse_reward(np.asarray([reward]))[0])
         return obs.astype(np.float32), float(reward), bool(terminated), bool(truncated), self._info(info, success)
 
-    @staticmethod
-    def _info(info: dict[str, Any], success: bool) -> dict[str, Any]:
-        """Only what a learner reads: success and the physical state (the rest holds goal renders)."""
-        return {"success": success, "qpos": np.asarray(info["qpos"]).copy()}
+    def _info(self, info: dict[str, Any], success: bool) -> dict[str, Any]:
+        """Only what a learner reads: success and the physical state (the rest holds goal renders;
+        the mazes' reset info has no ``qpos``, so it is read from the simulator)."""
+        qpos = info["qpos"] if "qpos" in info else self._env.unwrapped.data.qpos
+        return {"success": success, "qpos": np.asarray(qpos).copy()}
 
     def close(self) -> None:
         self._env.close()
