@@ -667,7 +667,9 @@ class ChunkReplayBuffer(BaseBuffer):
             s.plans.reshape(-1, k, self.action_dim).take(rows, axis=0, out=out.chunks[sl])
         else:  # the next k executed actions, zeros after the episode end
             actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
-            np.copyto(out.chunks[sl], 0.0, where=(ahead >= s.horizon.reshape(-1).take(rows)[:, None])[..., None])
+            np.copyto(
+                out.chunks[sl], 0.0, where=(ahead >= s.horizon.reshape(-1).take(rows)[:, None])[..., None]
+            )
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
         raise NotImplementedError("use ChunkReplayBuffer.sample()")

@@ -12,8 +12,8 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_ua2c.buffers import check_online_targets
-from sb3_ua2c.chunking import check_critic_type, check_prefix_targets
 from sb3_ua2c.checks import check_bool, check_int
+from sb3_ua2c.chunking import check_critic_type, check_prefix_targets
 from sb3_ua2c.policies import UA2CPolicy
 
 

@@ -111,7 +111,9 @@ def euler_sample(
     if step_inputs is None:
         step_inputs = euler_times(n_steps, x0.dtype, x0.device)  # raises for n_steps < 1
     elif n_steps < 1 or step_inputs.shape[0] != n_steps:
-        raise ValueError(f"step_inputs must have {n_steps} rows (n_steps >= 1), got {tuple(step_inputs.shape)}")
+        raise ValueError(
+            f"step_inputs must have {n_steps} rows (n_steps >= 1), got {tuple(step_inputs.shape)}"
+        )
     x = x0
     dt = 1.0 / n_steps
     for i in range(n_steps):

@@ -22,10 +22,10 @@ from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ChunkExecutorState,
     PlanResult,
+    check_critic_type,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
-    check_critic_type,
     executable_prefix_length,
     pessimistic_q,
     q_at_length,
@@ -309,7 +309,9 @@ class ChunkCritics(nn.Module):
         self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
         # not in the state dict: chunk and prefix critics share their parameters (and checkpoints)
         self.register_buffer("attention_mask", causal_action_mask(chunk_size) if prefix else None, False)
-        self.register_buffer("readout_mask", prefix_readout_mask(chunk_size, embed_dim) if prefix else None, False)
+        self.register_buffer(
+            "readout_mask", prefix_readout_mask(chunk_size, embed_dim) if prefix else None, False
+        )
 
     def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
         """

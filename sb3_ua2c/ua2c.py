@@ -738,7 +738,9 @@ class UA2C(OffPolicyAlgorithm):
         target = prefix_bellman_targets(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
         return target, data.prefix_mask
 
-    def _actor_loss(self, data: ChunkReplaySamples, obs_flat: th.Tensor) -> tuple[th.Tensor, dict[str, float]]:
+    def _actor_loss(
+        self, data: ChunkReplaySamples, obs_flat: th.Tensor
+    ) -> tuple[th.Tensor, dict[str, float]]:
         """
         Eq. 2 on the batch: flow matching on the sampled chunks (padding after an episode end masked
         out) and the value of the terminal estimate x̂1, clamped to the action bounds [-1, 1] that the
@@ -748,7 +750,9 @@ class UA2C(OffPolicyAlgorithm):
         x0 = th.randn_like(x1)
         tau = th.rand(x1.shape[0], device=x1.device)
         x_tau = interpolate(x0, x1, tau)
-        cond = self.actor.condition(self.policy.flatten_history(data.observation_history, data.action_history))
+        cond = self.actor.condition(
+            self.policy.flatten_history(data.observation_history, data.action_history)
+        )
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
@@ -760,7 +764,14 @@ class UA2C(OffPolicyAlgorithm):
             q_pi = q_pi[..., -1]
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
         return actor_loss(
-            velocity, x0, x1, pessimistic_q(q_pi), self.q_weight, roughness, self.smooth_weight, data.chunk_mask
+            velocity,
+            x0,
+            x1,
+            pessimistic_q(q_pi),
+            self.q_weight,
+            roughness,
+            self.smooth_weight,
+            data.chunk_mask,
         )
 
     def learn(

@@ -20,7 +20,14 @@ def _seed_numpy():
 
 def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5, targets="prefix"):
     return ChunkReplayBuffer(
-        size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio,
+        size,
+        OBS,
+        ACT,
+        "cpu",
+        n_envs=n_envs,
+        chunk_size=k,
+        history_len=ell,
+        offline_ratio=ratio,
         online_targets=targets,
     )
 
@@ -68,9 +75,11 @@ def rows(samples):
     out = {}
     for i in range(samples.chunks.shape[0]):
         key = round(samples.chunks[i, -1, 0].item(), 4)
-        out[key] = {name: getattr(samples, name)[i].flatten().tolist()
-        for name in samples._fields
-        if getattr(samples, name) is not None}
+        out[key] = {
+            name: getattr(samples, name)[i].flatten().tolist()
+            for name in samples._fields
+            if getattr(samples, name) is not None
+        }
     return out
 
 
@@ -138,8 +147,8 @@ def by_start(samples):
     return {
         samples.observation_history[i, -1, 0].item(): {
             name: getattr(samples, name)[i].flatten().tolist()
-        for name in samples._fields
-        if getattr(samples, name) is not None
+            for name in samples._fields
+            if getattr(samples, name) is not None
         }
         for i in range(samples.chunks.shape[0])
     }
@@ -426,8 +435,14 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
     exactly the closed ones whose history a_{t-ℓ:t-1} has not been overwritten.
     """
     buf = ChunkReplayBuffer(
-        size, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=n_envs,
-        chunk_size=5, history_len=4, online_targets=targets,
+        size,
+        spaces.Box(-np.inf, np.inf, (3,), np.float32),
+        ACT2,
+        "cpu",
+        n_envs=n_envs,
+        chunk_size=5,
+        history_len=4,
+        online_targets=targets,
     )
     driver = RingDriver(buf, seed=size + n_envs)
     n_checked = 0
