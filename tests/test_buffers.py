@@ -20,14 +20,7 @@ def _seed_numpy():
 
 def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5, targets="prefix"):
     return ChunkReplayBuffer(
-        size,
-        OBS,
-        ACT,
-        "cpu",
-        n_envs=n_envs,
-        chunk_size=k,
-        history_len=ell,
-        offline_ratio=ratio,
+        size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio,
         online_targets=targets,
     )
 
@@ -435,14 +428,8 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
     exactly the closed ones whose history a_{t-ℓ:t-1} has not been overwritten.
     """
     buf = ChunkReplayBuffer(
-        size,
-        spaces.Box(-np.inf, np.inf, (3,), np.float32),
-        ACT2,
-        "cpu",
-        n_envs=n_envs,
-        chunk_size=5,
-        history_len=4,
-        online_targets=targets,
+        size, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=n_envs,
+        chunk_size=5, history_len=4, online_targets=targets,
     )
     driver = RingDriver(buf, seed=size + n_envs)
     n_checked = 0
