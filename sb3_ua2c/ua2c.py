@@ -117,16 +117,11 @@ class UA2C(OffPolicyAlgorithm):
         of its executed prefix ``L_t``; ``"window"`` (not in the paper): every executed step starts a
         k-step window of the actions executed next, across plan boundaries, with the target of
         Eq. 4, so that online samples mean what the offline windows mean
-    :param critic_type: ``"chunk"`` (default, Eq. 3): the critics value the whole chunk;
-        ``"prefix"`` (not in the paper): a causal Transformer critic reads out ``Q_u`` of every prefix
-        ``u = 1..k`` in one pass, each trained on its own n-step target
-        (:func:`~sb3_ua2c.chunking.prefix_bellman_targets`); replanning ranks the candidates by
-        ``Q`` at the executed length ``L_t`` and the actor's value term reads ``Q_k``. (Named
-        ``critic_type`` because ``model.critic`` is the critic network, as in SB3.)
-    :param prefix_targets: with ``critic_type="prefix"``: ``"all"`` (default) trains every prefix of
-        every sample (``k`` next-history values per sample: ``k`` times the target cost);
-        ``"sampled"`` one prefix per sample, uniform over ``1..k`` for windows and the executed
-        ``L_t`` for online plans (the chunk critic's cost)
+    :param critic_type: ``"chunk"`` (default, Eq. 3) or ``"prefix"`` (not in the paper): ``Q_u`` of every
+        prefix ``u = 1..k`` with its own n-step target (:func:`~sb3_ua2c.chunking.prefix_bellman_targets`);
+        replanning ranks candidates by ``Q_{L_t}``, the actor's value term reads ``Q_k``
+    :param prefix_targets: ``"all"`` (every prefix of every sample, ``k`` times the target cost) or
+        ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -267,7 +262,7 @@ class UA2C(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
-        # the attributes win over the config: ``UA2C.load(path, flow_steps=2)`` sets attributes only;
+        # the attributes win over the config (``UA2C.load(path, flow_steps=2)`` sets attributes only);
         # a model saved before an argument existed gets its default
         self.config = replace(
             self.config, **{f.name: getattr(self, f.name, f.default) for f in fields(UA2CConfig)}
