@@ -457,7 +457,6 @@ class UA2CPolicy(BasePolicy):
             n_heads=critic_n_heads,
             ff_dim=critic_ff_dim,
             activation_fn=activation_fn,
-            prefix=critic_type == "prefix",
         )
         self.critic_type = critic_type
         self.activation_fn = activation_fn
@@ -475,8 +474,9 @@ class UA2CPolicy(BasePolicy):
             history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn
         )
         critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
-        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
-        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
+        prefix = self.critic_type == "prefix"
+        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
+        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
