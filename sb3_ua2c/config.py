@@ -40,6 +40,7 @@ class UA2CConfig:
     :param critic_type: ``"chunk"`` (Eq. 3) or ``"prefix"`` (``Q_u`` of every prefix, not in the paper)
     :param prefix_targets: the prefix critic's targets: ``"all"`` (every prefix of every window) or
         ``"sampled"`` (one prefix per window: the chunk critic's cost)
+    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1] (not in the paper)
     """
 
     chunk_size: int = 5
@@ -57,6 +58,7 @@ class UA2CConfig:
     online_targets: str = "prefix"
     critic_type: str = "chunk"
     prefix_targets: str = "all"
+    clip_actor_chunk: bool = True
 
     def __post_init__(self) -> None:
         for name in (
@@ -86,6 +88,7 @@ class UA2CConfig:
         check_online_targets(self.online_targets)
         check_critic_type(self.critic_type)
         check_prefix_targets(self.prefix_targets)
+        check_bool("clip_actor_chunk", self.clip_actor_chunk)
 
 
 _POLICY_KWARGS_SET_BY_UA2C = {

@@ -122,6 +122,8 @@ class UA2C(OffPolicyAlgorithm):
         replanning ranks candidates by ``Q_{L_t}``, the actor's value term reads ``Q_k``
     :param prefix_targets: ``"all"`` (every prefix of every sample, ``k`` times the target cost) or
         ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
+    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1], the chunks the
+        critics are trained on (default ``True``; ``False`` = the paper's unclipped x̂1)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -168,6 +170,7 @@ class UA2C(OffPolicyAlgorithm):
         online_targets: str = "prefix",
         critic_type: str = "chunk",
         prefix_targets: str = "all",
+        clip_actor_chunk: bool = True,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -194,6 +197,7 @@ class UA2C(OffPolicyAlgorithm):
             online_targets=online_targets,
             critic_type=critic_type,
             prefix_targets=prefix_targets,
+            clip_actor_chunk=clip_actor_chunk,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
@@ -252,6 +256,7 @@ class UA2C(OffPolicyAlgorithm):
         self.online_targets = self.config.online_targets
         self.critic_type = self.config.critic_type
         self.prefix_targets = self.config.prefix_targets
+        self.clip_actor_chunk = self.config.clip_actor_chunk
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -268,6 +273,7 @@ class UA2C(OffPolicyAlgorithm):
             self.config, **{f.name: getattr(self, f.name, f.default) for f in fields(UA2CConfig)}
         )
         self.critic_type, self.prefix_targets = self.config.critic_type, self.config.prefix_targets
+        self.clip_actor_chunk = self.config.clip_actor_chunk
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -738,8 +744,8 @@ class UA2C(OffPolicyAlgorithm):
     ) -> tuple[th.Tensor, dict[str, float]]:
         """
         Eq. 2 on the batch: flow matching on the sampled chunks (padding after an episode end masked
-        out) and the value of the terminal estimate x̂1, clamped to the action bounds [-1, 1] that the
-        critics are trained on (entries outside get no value gradient); the prefix critic is read at ``k``.
+        out) and the value of the terminal estimate x̂1, with ``clip_actor_chunk`` clamped to the
+        action bounds the critics are trained on (entries outside get no value gradient).
         """
         x1 = data.chunks
         x0 = th.randn_like(x1)
@@ -752,22 +758,13 @@ class UA2C(OffPolicyAlgorithm):
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
         try:
-            q_pi = self.critic(obs_flat, x_hat.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B[, k])
+            scored = x_hat.clamp(-1.0, 1.0) if self.clip_actor_chunk else x_hat
+            q_pi = self.critic(obs_flat, scored.unsqueeze(1))[:, :, 0]  # (n, B[, k])
         finally:
             self.critic.requires_grad_(True)
-        if q_pi.ndim == 3:  # prefix critic: Q_k
-            q_pi = q_pi[..., -1]
+        q = pessimistic_q(q_pi[..., -1] if q_pi.ndim == 3 else q_pi)  # prefix critic: Q_k; (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        return actor_loss(
-            velocity,
-            x0,
-            x1,
-            pessimistic_q(q_pi),
-            self.q_weight,
-            roughness,
-            self.smooth_weight,
-            data.chunk_mask,
-        )
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, data.chunk_mask)
 
     def learn(
         self: SelfUA2C,

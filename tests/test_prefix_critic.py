@@ -258,10 +258,13 @@ def test_flow_loss_ignores_padding():
     assert flow_matching_loss(v, x, x, T([[1.0, 1.0, 1.0]])).item() == pytest.approx((1 + 4 + 25) / 3)
 
 
-def test_actor_value_term_sees_clamped_chunks():
+@pytest.mark.parametrize("clip", [True, False])
+def test_actor_value_term_sees_clamped_chunks(clip):
     """x̂1 of an untrained actor leaves [-1, 1]; the critics see it clamped, and the clamped entries
-    get no value gradient (the flow term still pulls them back)."""
-    model = UA2C("MlpPolicy", "Pendulum-v1", chunk_size=3, history_len=2, batch_size=64, seed=0)
+    get no value gradient (the flow term still pulls them back). ``clip_actor_chunk=False``: Eq. 2 as is."""
+    model = UA2C(
+        "MlpPolicy", "Pendulum-v1", chunk_size=3, history_len=2, batch_size=64, seed=0, clip_actor_chunk=clip
+    )
     seen = []
     model.critic.register_forward_pre_hook(lambda _, args: seen.append(args[1].detach().clone()))
     b = 64
@@ -270,7 +273,7 @@ def test_actor_value_term_sees_clamped_chunks():
     )
     th.manual_seed(0)
     model._actor_loss(data, th.zeros(b, 6))
-    assert seen[0].abs().max().item() <= 1.0
+    assert (seen[0].abs().max().item() <= 1.0) == clip
     x = T([[[2.2], [0.3], [-1.5]]], requires_grad=True)
     y = x.clamp(-1.0, 1.0)  # what _actor_loss does
     y.sum().backward()
@@ -279,7 +282,12 @@ def test_actor_value_term_sees_clamped_chunks():
 
 # ---------------------------------------------------------------------------------------- algorithm
 @pytest.mark.parametrize(
-    ("name", "kwargs"), [("critic_type", {"critic_type": "value"}), ("prefix_targets", {"prefix_targets": 3})]
+    ("name", "kwargs"),
+    [
+        ("critic_type", {"critic_type": "value"}),
+        ("prefix_targets", {"prefix_targets": 3}),
+        ("clip_actor_chunk", {"clip_actor_chunk": "yes"}),
+    ],
 )
 def test_bad_arguments_raise(name, kwargs):
     with pytest.raises(ValueError, match=name):
