@@ -58,7 +58,7 @@ class UA2CConfig:
     online_targets: str = "prefix"
     critic_type: str = "chunk"
     prefix_targets: str = "all"
-    clip_actor_chunk: bool = True
+    clip_actor_chunk: bool = False
 
     def __post_init__(self) -> None:
         for name in (

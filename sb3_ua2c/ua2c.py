@@ -123,7 +123,7 @@ class UA2C(OffPolicyAlgorithm):
     :param prefix_targets: ``"all"`` (every prefix of every sample, ``k`` times the target cost) or
         ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
     :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1], the chunks the
-        critics are trained on (default ``True``; ``False`` = the paper's unclipped x̂1)
+        critics are trained on (not in the paper; default ``False``: the unclipped x̂1 of Eq. 2)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -170,7 +170,7 @@ class UA2C(OffPolicyAlgorithm):
         online_targets: str = "prefix",
         critic_type: str = "chunk",
         prefix_targets: str = "all",
-        clip_actor_chunk: bool = True,
+        clip_actor_chunk: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
