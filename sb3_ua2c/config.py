@@ -13,6 +13,7 @@ from gymnasium import spaces
 
 from sb3_ua2c.buffers import check_online_targets
 from sb3_ua2c.checks import check_bool, check_int
+from sb3_ua2c.chunking import check_critic_type, check_prefix_targets
 from sb3_ua2c.policies import UA2CPolicy
 
 
@@ -36,6 +37,10 @@ class UA2CConfig:
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
     :param online_targets: ``"prefix"`` (Eq. 8) or ``"window"`` (Eq. 4 on executed actions), see
         :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
+    :param critic_type: ``"chunk"`` (Eq. 3) or ``"prefix"`` (``Q_u`` of every prefix, not in the paper)
+    :param prefix_targets: the prefix critic's targets: ``"all"`` (every prefix of every window) or
+        ``"sampled"`` (one prefix per window: the chunk critic's cost)
+    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1] (not in the paper)
     """
 
     chunk_size: int = 5
@@ -51,6 +56,9 @@ class UA2CConfig:
     commit_discrete: bool = False
     offline_ratio: float = 0.5
     online_targets: str = "prefix"
+    critic_type: str = "chunk"
+    prefix_targets: str = "all"
+    clip_actor_chunk: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -78,6 +86,9 @@ class UA2CConfig:
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
         check_online_targets(self.online_targets)
+        check_critic_type(self.critic_type)
+        check_prefix_targets(self.prefix_targets)
+        check_bool("clip_actor_chunk", self.clip_actor_chunk)
 
 
 _POLICY_KWARGS_SET_BY_UA2C = {
@@ -89,6 +100,7 @@ _POLICY_KWARGS_SET_BY_UA2C = {
     "discrete_dims",
     "discrete_entropy",
     "commit_discrete",
+    "critic_type",
 }
 
 

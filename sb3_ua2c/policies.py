@@ -22,11 +22,13 @@ from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ChunkExecutorState,
     PlanResult,
+    check_critic_type,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
     executable_prefix_length,
     pessimistic_q,
+    q_at_length,
     select_chunk,
 )
 from sb3_ua2c.flow import euler_sample, euler_times
@@ -190,7 +192,13 @@ class _EnsembleBlock(nn.Module):
         self.act = activation_fn()
         self.ff2 = _EnsembleLinear(n, ff_dim, dim)
 
-    def forward(self, x: th.Tensor) -> th.Tensor:
+    def forward(self, x: th.Tensor, mask: th.Tensor | None = None) -> th.Tensor:
+        """
+        :param x: tokens, shape ``(n, B, T, d)``
+        :param mask: additive attention mask (0 = may attend, ``-inf`` = may not), shape ``(T, T)``,
+            row = query token; ``None`` = full attention
+        :return: shape ``(n, B, T, d)``
+        """
         n, b, t, d = x.shape
         h = d // self.n_heads
         flat = x.reshape(n, b * t, d)  # (n, B, T, d) -> (n, B*T, d)
@@ -205,6 +213,8 @@ class _EnsembleBlock(nn.Module):
                 .reshape(3, n * b, self.n_heads, t, h)
             )
         scores = th.matmul(q, k.transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, [heads,] T, T)
+        if mask is not None:
+            scores = scores + mask  # masked keys get exp(-inf) = 0 weight, exactly
         att = th.matmul(_softmax(scores), v)
         if self.n_heads == 1:
             att = att.reshape(n, b * t, d)
@@ -213,6 +223,35 @@ class _EnsembleBlock(nn.Module):
         flat = flat + self.out(att)
         flat = flat + self.ff2(self.act(self.ff1(self.norm2(flat))))
         return flat.reshape(n, b, t, d)
+
+
+def causal_action_mask(chunk_size: int) -> th.Tensor:
+    """
+    Additive attention mask of the prefix critic over the tokens ``[history, a_1, ..., a_k]``: token
+    ``i`` may attend to token ``j`` iff ``j <= max(i, 1)`` (the history token sees ``a_1``, which every
+    prefix ``u >= 1`` contains). Empty (all zeros) for ``k = 1``.
+
+    :param chunk_size: ``k``
+    :return: 0 where allowed, ``-inf`` elsewhere, shape ``(1+k, 1+k)`` (row = query token)
+    """
+    i = th.arange(chunk_size + 1)
+    allowed = i.unsqueeze(0) <= i.clamp(min=1).unsqueeze(1)  # (query, key)
+    return th.zeros(chunk_size + 1, chunk_size + 1).masked_fill(~allowed, -math.inf)
+
+
+def prefix_readout_mask(chunk_size: int, embed_dim: int) -> th.Tensor:
+    """
+    Mask of the prefix critic's read-out weight: ``Q_u`` reads the output tokens ``0..u`` (history
+    and ``a_1..a_u``) with the chunk critic's linear weight; column ``u - 1`` keeps the rows of the
+    tokens ``0..u``. All ones for ``k = 1``.
+
+    :param chunk_size: ``k``
+    :param embed_dim: token width ``d``
+    :return: 0/1 mask, shape ``((1+k)*d, k)``
+    """
+    token = th.arange(chunk_size + 1).repeat_interleave(embed_dim)  # ((1+k)*d,) token of each row
+    u = th.arange(1, chunk_size + 1)
+    return (token.unsqueeze(1) <= u.unsqueeze(0)).float()  # ((1+k)*d, k)
 
 
 class ChunkCritics(nn.Module):
@@ -225,6 +264,14 @@ class ChunkCritics(nn.Module):
     embedding; the value is a learned linear read-out of all ``1 + k`` output tokens, so that every
     action position keeps its own non-linear path (a chunk return is a sum over its steps).
 
+    ``prefix=True`` (the prefix critic, not in the paper) reads out ``Q_u(h, a_{t:t+u-1})`` for every
+    prefix ``u = 1..k`` in the same pass: a causal mask lets action token ``u`` attend to the history
+    token and the action tokens ``<= u`` only (the history token attends to itself and to the first
+    action token, which every prefix contains), and ``Q_u`` is the same linear read-out restricted
+    to the tokens ``0..u`` (:func:`prefix_readout_mask`). So ``Q_u`` does not depend on the actions
+    after ``u``, the parameters are those of the chunk critic, and at ``k = 1`` both critics compute
+    the same function (the mask is empty and ``Q_1`` is the whole read-out).
+
     :param obs_history_dim: ``ℓ * obs_dim``
     :param chunk_size: ``k``
     :param action_dim: action size
@@ -234,6 +281,7 @@ class ChunkCritics(nn.Module):
     :param n_heads: attention heads (must divide ``embed_dim``)
     :param ff_dim: hidden width of the feed-forward sublayer
     :param activation_fn: activation class
+    :param prefix: read out every prefix value ``Q_1..Q_k`` (``False``: the whole-chunk value, Eq. 3)
     """
 
     def __init__(
@@ -247,9 +295,10 @@ class ChunkCritics(nn.Module):
         n_heads: int = 1,
         ff_dim: int = 128,
         activation_fn: type[nn.Module] = nn.SiLU,
+        prefix: bool = False,
     ) -> None:
         super().__init__()
-        self.n_critics, self.embed_dim = n_critics, embed_dim
+        self.n_critics, self.embed_dim, self.prefix = n_critics, embed_dim, prefix
         self.obs_token = _EnsembleLinear(n_critics, obs_history_dim, embed_dim)
         self.action_token = _EnsembleLinear(n_critics, action_dim, embed_dim)
         self.position = nn.Parameter(th.randn(n_critics, 1, chunk_size + 1, embed_dim) * 0.02)
@@ -258,12 +307,18 @@ class ChunkCritics(nn.Module):
         )
         self.norm = _EnsembleRMSNorm(n_critics, embed_dim)
         self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
+        # not in the state dict: chunk and prefix critics share their parameters (and checkpoints)
+        self.register_buffer("attention_mask", causal_action_mask(chunk_size) if prefix else None, False)
+        self.register_buffer(
+            "readout_mask", prefix_readout_mask(chunk_size, embed_dim) if prefix else None, False
+        )
 
     def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
         """
         :param obs_history: flattened observation histories, shape ``(B, ℓ*obs_dim)``
         :param chunks: ``C`` candidate chunks per history, shape ``(B, C, k, action_dim)``
-        :return: Q-values, shape ``(n_critics, B, C)``
+        :return: Q-values, shape ``(n_critics, B, C)``; with ``prefix``, ``Q_u`` for ``u = 1..k``,
+            shape ``(n_critics, B, C, k)``
         """
         b, c, k, a = chunks.shape
         n, d = self.n_critics, self.embed_dim
@@ -272,9 +327,13 @@ class ChunkCritics(nn.Module):
         act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b, c, k, d)
         x = th.cat([obs_tok, act_tok], dim=3).reshape(n, b * c, k + 1, d) + self.position  # (n, B*C, 1+k, d)
         for block in self.blocks:
-            x = block(x)
+            x = block(x, self.attention_mask)
         x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, (k + 1) * d)  # (n, B*C, (1+k)*d)
-        return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
+        if not self.prefix:
+            return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
+        # column u-1 of the weight keeps the blocks of tokens 0..u: ((1+k)*d, 1) -> ((1+k)*d, k)
+        weight = self.head.weight * self.readout_mask  # (n, (1+k)*d, k)
+        return th.baddbmm(self.head.bias, x, weight).reshape(n, b, c, k)  # (n, B*C, k) -> (n, B, C, k)
 
 
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
@@ -307,6 +366,9 @@ class UA2CPolicy(BasePolicy):
     :param critic_n_heads: attention heads
     :param critic_ff_dim: feed-forward width
     :param n_critics: number of critics
+    :param critic_type: ``"chunk"`` (Eq. 3, the value of the whole chunk) or ``"prefix"`` (``Q_u`` of
+        every prefix ``u = 1..k``, not in the paper; see :class:`ChunkCritics`): a replanning then
+        ranks its candidates by ``Q`` at the length ``L_t`` it will execute
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
@@ -334,6 +396,7 @@ class UA2CPolicy(BasePolicy):
         critic_n_heads: int = 1,
         critic_ff_dim: int = 64,
         n_critics: int = 2,
+        critic_type: str = "chunk",
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
@@ -374,6 +437,7 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(
                 f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
             )
+        check_critic_type(critic_type)
         if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
             raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
         self.chunk_size, self.history_len = chunk_size, history_len
@@ -394,6 +458,7 @@ class UA2CPolicy(BasePolicy):
             ff_dim=critic_ff_dim,
             activation_fn=activation_fn,
         )
+        self.critic_type = critic_type
         self.activation_fn = activation_fn
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
@@ -409,8 +474,9 @@ class UA2CPolicy(BasePolicy):
             history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn
         )
         critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
-        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
-        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
+        prefix = self.critic_type == "prefix"
+        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
+        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
@@ -440,6 +506,7 @@ class UA2CPolicy(BasePolicy):
             critic_n_heads=self.critic_kwargs["n_heads"],
             critic_ff_dim=self.critic_kwargs["ff_dim"],
             n_critics=self.critic_kwargs["n_critics"],
+            critic_type=self.critic_type,
             activation_fn=self.activation_fn,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
@@ -498,9 +565,10 @@ class UA2CPolicy(BasePolicy):
         shared_noise: bool = False,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
-        One replanning (Eq. 7): sample S chunks, keep the one with the highest ``min_j Q_j``, measure
-        the per-position entropy of the S samples and the executable prefix length (extended through
-        the first categorical switch with ``commit_discrete``).
+        One replanning (Eq. 7): sample S chunks, measure the per-position entropy of the S samples and
+        the executable prefix length ``L_t``, keep the chunk with the highest ``min_j Q_j`` (with the
+        prefix critic, ``Q`` of the prefix ``L_t`` of Eq. 7) and extend ``L_t`` through the first
+        categorical switch with ``commit_discrete``.
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
@@ -515,7 +583,10 @@ class UA2CPolicy(BasePolicy):
         entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
-        q = pessimistic_q(self.critic(obs_history.reshape(m, -1), clipped))  # (n, m, S) -> (m, S)
+        q = self.critic(obs_history.reshape(m, -1), clipped)  # (n, m, S) or, prefix critic, (n, m, S, k)
+        if self.critic_type == "prefix":
+            q = q_at_length(q, lengths.unsqueeze(-1))  # Q_{L_t}: (n, m, S, k) -> (n, m, S)
+        q = pessimistic_q(q)  # (n, m, S) -> (m, S)
         chunks = select_chunk(clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)

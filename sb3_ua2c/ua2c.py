@@ -44,6 +44,8 @@ from sb3_ua2c.chunking import (
     chunk_target,
     normalize_discrete_dims,
     pessimistic_q,
+    prefix_bellman_targets,
+    q_at_length,
 )
 from sb3_ua2c.config import UA2CConfig, check_policy_kwargs, check_spaces
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
@@ -115,6 +117,13 @@ class UA2C(OffPolicyAlgorithm):
         of its executed prefix ``L_t``; ``"window"`` (not in the paper): every executed step starts a
         k-step window of the actions executed next, across plan boundaries, with the target of
         Eq. 4, so that online samples mean what the offline windows mean
+    :param critic_type: ``"chunk"`` (default, Eq. 3) or ``"prefix"`` (not in the paper): ``Q_u`` of every
+        prefix ``u = 1..k`` with its own n-step target (:func:`~sb3_ua2c.chunking.prefix_bellman_targets`);
+        replanning ranks candidates by ``Q_{L_t}``, the actor's value term reads ``Q_k``
+    :param prefix_targets: ``"all"`` (every prefix of every sample, ``k`` times the target cost) or
+        ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
+    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1], the chunks the
+        critics are trained on (not in the paper; default ``False``: the unclipped x̂1 of Eq. 2)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -159,6 +168,9 @@ class UA2C(OffPolicyAlgorithm):
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         online_targets: str = "prefix",
+        critic_type: str = "chunk",
+        prefix_targets: str = "all",
+        clip_actor_chunk: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -183,6 +195,9 @@ class UA2C(OffPolicyAlgorithm):
             commit_discrete=commit_discrete,
             offline_ratio=offline_ratio,
             online_targets=online_targets,
+            critic_type=critic_type,
+            prefix_targets=prefix_targets,
+            clip_actor_chunk=clip_actor_chunk,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
@@ -239,6 +254,9 @@ class UA2C(OffPolicyAlgorithm):
         self.commit_discrete = bool(self.config.commit_discrete)
         self.offline_ratio = float(self.config.offline_ratio)
         self.online_targets = self.config.online_targets
+        self.critic_type = self.config.critic_type
+        self.prefix_targets = self.config.prefix_targets
+        self.clip_actor_chunk = self.config.clip_actor_chunk
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -249,8 +267,13 @@ class UA2C(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
-        # the attributes win over the config: ``UA2C.load(path, flow_steps=2)`` sets attributes only
-        self.config = replace(self.config, **{f.name: getattr(self, f.name) for f in fields(UA2CConfig)})
+        # the attributes win over the config (``UA2C.load(path, flow_steps=2)`` sets attributes only);
+        # a model saved before an argument existed gets its default
+        self.config = replace(
+            self.config, **{f.name: getattr(self, f.name, f.default) for f in fields(UA2CConfig)}
+        )
+        self.critic_type, self.prefix_targets = self.config.critic_type, self.config.prefix_targets
+        self.clip_actor_chunk = self.config.clip_actor_chunk
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -267,6 +290,7 @@ class UA2C(OffPolicyAlgorithm):
                 history_len=self.history_len,
                 offline_ratio=self.offline_ratio,
                 online_targets=self.online_targets,
+                prefix_targets=self.prefix_targets if self.critic_type == "prefix" else None,
                 **self.replay_buffer_kwargs,
             )
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -281,6 +305,7 @@ class UA2C(OffPolicyAlgorithm):
             discrete_dims=discrete_dims,
             discrete_entropy=self.discrete_entropy,
             commit_discrete=self.commit_discrete,
+            critic_type=self.critic_type,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
@@ -658,40 +683,17 @@ class UA2C(OffPolicyAlgorithm):
 
     def _gradient_step(self, data: ChunkReplaySamples) -> dict[str, float]:
         """One update of the critics (Eq. 3 with the target of Eq. 4 / 8), the actor (Eq. 2) and the targets."""
-        policy = self.policy
-        b = data.chunks.shape[0]
-        obs_flat = data.observation_history.reshape(b, -1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
+        obs_flat = data.observation_history.flatten(1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
         with th.no_grad():
-            next_cond = self.actor.condition(
-                policy.flatten_history(data.next_observation_history, data.next_action_history)
-            )
-            candidates = policy.sample_chunks(next_cond, self.n_target_candidates, self.target_flow_steps)
-            next_q = self.critic_target(
-                data.next_observation_history.reshape(b, -1), candidates.clamp(-1.0, 1.0)
-            )
-            next_value = bootstrap_value(next_q)  # (n, B, Q) -> (B,)
-            target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
-        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(-1)  # (n, B, 1) -> (n, B)
-        critic_loss = chunk_critic_loss(q, target)
+            target, mask = self._critic_targets(data)  # (B,) or (B, k)
+        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(2)  # (n, B, 1[, k]) -> (n, B[, k])
+        if data.prefix_lengths is not None:  # prefix_targets="sampled": Q_u of the sampled u
+            q = q_at_length(q, data.prefix_lengths.long())  # (n, B, k) -> (n, B)
+        critic_loss = chunk_critic_loss(q, target, mask)
         self.critic.optimizer.zero_grad()
         critic_loss.backward()
         self.critic.optimizer.step()
-
-        x1 = data.chunks
-        x0 = th.randn_like(x1)
-        tau = th.rand(b, device=x1.device)
-        x_tau = interpolate(x0, x1, tau)
-        cond = self.actor.condition(policy.flatten_history(data.observation_history, data.action_history))
-        velocity = self.actor(x_tau, tau, cond)
-        x_hat = estimate_terminal(x_tau, tau, velocity)
-        self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
-        try:
-            # (n, B, 1) -> (B,)
-            q_pi = pessimistic_q(self.critic(obs_flat, x_hat.unsqueeze(1))).squeeze(-1)
-        finally:
-            self.critic.requires_grad_(True)
-        roughness = chunk_roughness(x_hat, policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        loss, info = actor_loss(velocity, x0, x1, q_pi, self.q_weight, roughness, self.smooth_weight)
+        loss, info = self._actor_loss(data, obs_flat)
         self.actor.optimizer.zero_grad()
         loss.backward()
         self.actor.optimizer.step()
@@ -702,6 +704,67 @@ class UA2C(OffPolicyAlgorithm):
             "q_mean": q.mean().item(),
             **info,
         }
+
+    def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+        """
+        ``V(h) = max_q min_j Q̄_j(h, â^(q))`` (:func:`~sb3_ua2c.chunking.bootstrap_value`) over
+        ``n_target_candidates`` chunks of the current actor; the prefix critic is read at ``k``.
+
+        :param obs_history: ``(M, ℓ, obs_dim)``
+        :param action_history: ``(M, ℓ, action_dim)``
+        :return: shape ``(M,)``
+        """
+        m = obs_history.shape[0]
+        cond = self.actor.condition(self.policy.flatten_history(obs_history, action_history))
+        candidates = self.policy.sample_chunks(cond, self.n_target_candidates, self.target_flow_steps)
+        next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))
+        if next_q.ndim == 4:  # prefix critic: Q_k, (n, M, Q, k) -> (n, M, Q)
+            next_q = next_q[..., -1]
+        return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
+
+    def _critic_targets(self, data: ChunkReplaySamples) -> tuple[th.Tensor, th.Tensor | None]:
+        """
+        Targets of the critic loss and which of them count: ``y`` of Eq. 4 / 8 ``(B,)`` (also the
+        sampled prefix of ``prefix_targets="sampled"``), or ``y_u`` of every prefix ``(B, k)`` and
+        their mask with ``prefix_targets="all"``.
+        """
+        if data.prefix_mask is None:
+            next_value = self._next_values(data.next_observation_history, data.next_action_history)
+            return chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma), None
+        b, k = data.prefix_mask.shape
+        # the k next histories h_{t+min(u, L)}: (B, k, ℓ, dim) -> (B*k, ℓ, dim)
+        next_value = self._next_values(
+            data.prefix_observation_history.flatten(0, 1), data.prefix_action_history.flatten(0, 1)
+        ).reshape(b, k)
+        target = prefix_bellman_targets(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
+        return target, data.prefix_mask
+
+    def _actor_loss(
+        self, data: ChunkReplaySamples, obs_flat: th.Tensor
+    ) -> tuple[th.Tensor, dict[str, float]]:
+        """
+        Eq. 2 on the batch: flow matching on the sampled chunks (padding after an episode end masked
+        out) and the value of the terminal estimate x̂1, with ``clip_actor_chunk`` clamped to the
+        action bounds the critics are trained on (entries outside get no value gradient).
+        """
+        x1 = data.chunks
+        x0 = th.randn_like(x1)
+        tau = th.rand(x1.shape[0], device=x1.device)
+        x_tau = interpolate(x0, x1, tau)
+        cond = self.actor.condition(
+            self.policy.flatten_history(data.observation_history, data.action_history)
+        )
+        velocity = self.actor(x_tau, tau, cond)
+        x_hat = estimate_terminal(x_tau, tau, velocity)
+        self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
+        try:
+            scored = x_hat.clamp(-1.0, 1.0) if self.clip_actor_chunk else x_hat
+            q_pi = self.critic(obs_flat, scored.unsqueeze(1))[:, :, 0]  # (n, B[, k])
+        finally:
+            self.critic.requires_grad_(True)
+        q = pessimistic_q(q_pi[..., -1] if q_pi.ndim == 3 else q_pi)  # prefix critic: Q_k; (B,)
+        roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, data.chunk_mask)
 
     def learn(
         self: SelfUA2C,

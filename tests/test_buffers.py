@@ -68,7 +68,11 @@ def rows(samples):
     out = {}
     for i in range(samples.chunks.shape[0]):
         key = round(samples.chunks[i, -1, 0].item(), 4)
-        out[key] = {name: getattr(samples, name)[i].flatten().tolist() for name in samples._fields}
+        out[key] = {
+            name: getattr(samples, name)[i].flatten().tolist()
+            for name in samples._fields
+            if getattr(samples, name) is not None
+        }
     return out
 
 
@@ -135,7 +139,9 @@ def by_start(samples):
     """Unique samples keyed by their start observation o_t, as plain lists."""
     return {
         samples.observation_history[i, -1, 0].item(): {
-            name: getattr(samples, name)[i].flatten().tolist() for name in samples._fields
+            name: getattr(samples, name)[i].flatten().tolist()
+            for name in samples._fields
+            if getattr(samples, name) is not None
         }
         for i in range(samples.chunks.shape[0])
     }
@@ -408,7 +414,9 @@ def expected_batch(driver, identities):
             history[-1] = [e, j, end - 0.5]  # the next observation of the episode's last step
         out["next_observation_history"].append(history)
         out["next_action_history"].append([a(end - ell + i) for i in range(ell)])
-    return {name: np.array(v, np.float32) for name, v in out.items()}
+        # windows pad with zeros after an episode end; plans hold their unexecuted tail
+        out["chunk_mask"].append([1.0 if u < horizon or not driver.window else 0.0 for u in range(k)])
+    return {name: np.array(v, np.float32) for name, v in out.items() if v}
 
 
 @pytest.mark.parametrize("targets", ["prefix", "window"])
@@ -437,6 +445,9 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
         identities = [tuple(int(x) for x in row) for row in samples.observation_history[:, -1].numpy()]
         want = expected_batch(driver, identities)
         for name in ChunkReplaySamples._fields:
+            if name not in want:  # the prefix critic's fields
+                assert getattr(samples, name) is None, name
+                continue
             np.testing.assert_array_equal(getattr(samples, name).numpy(), want[name], err_msg=name)
         n_checked += 64
     assert n_checked >= 2000
@@ -501,7 +512,7 @@ def test_pickled_buffer_keeps_its_starts():
     np.random.seed(3)  # noqa: NPY002
     b = copy.sample(32)
     for x, y in zip(a, b, strict=True):
-        assert th.equal(x, y)
+        assert (x is None and y is None) or th.equal(x, y)
     # a buffer pickled before the index existed, whose plans held the selected plans: on loading it
     # gets the index and its chunks (the executed actions, then the plan's tail)
     state = dict(pickle.loads(pickle.dumps(buf)).__dict__)
@@ -518,7 +529,7 @@ def test_pickled_buffer_keeps_its_starts():
     a = copy.sample(64)
     np.random.seed(3)  # noqa: NPY002
     for x, y in zip(old.sample(64), a, strict=True):
-        assert th.equal(x, y)
+        assert (x is None and y is None) or th.equal(x, y)
 
 
 def test_start_index_is_a_set():
