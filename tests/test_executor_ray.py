@@ -20,6 +20,7 @@ from pathlib import Path
 
 import executor_helpers as helpers
 import pytest
+from extras import require
 
 from sb3_ua2c.executor import SerialExecutor, run_units
 from sb3_ua2c.offline import collect_dataset
@@ -103,7 +104,7 @@ def _arm_numbers(report: Path) -> dict:
 
 def test_peers_quick_on_a_ray_head_gives_the_local_numbers(tmp_path):
     _ray_or_skip()
-    pytest.importorskip("d3rlpy")
+    require("d3rlpy")
     from sb3_ua2c.peers import cli
 
     quick = ["--quick", "--seeds", "0", "--arms", "ua2c_adaptive", "sac", "iql"]  # UA2C, SB3 and d3rlpy units

@@ -13,6 +13,7 @@ import shutil
 
 import numpy as np
 import pytest
+from extras import require
 from test_ogbench import _require_ogbench
 
 from sb3_ua2c.ogbench.unit import OGBenchBudget
@@ -149,7 +150,7 @@ def hand_records():
 
 
 def test_summary_statistics_on_hand_made_records(hand_records):
-    pytest.importorskip("rliable")
+    require("rliable")
     from sb3_ua2c.ogbench.report import summarize
 
     summary = summarize(hand_records, reps=200)
@@ -180,7 +181,7 @@ def test_ranking_against_qc():
 
 
 def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
-    pytest.importorskip("rliable")
+    require("rliable")
     from sb3_ua2c.ogbench.report import format_markdown, return_curve, summarize, write_report
 
     summary = write_report(hand_records, tmp_path, command="python -m sb3_ua2c ogbench", reps=200)
@@ -200,7 +201,7 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
 
 
 def test_report_rejects_mixed_tasks_and_ragged_episodes(hand_records):
-    pytest.importorskip("rliable")
+    require("rliable")
     from sb3_ua2c.ogbench.report import success_matrix, summarize
 
     other = {**hand_records[0], "task": "scene-play-singletask-task1-v0"}

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch as th
+from extras import require
 from gymnasium import spaces
 
 from sb3_ua2c.offline import Episode, collect_dataset
@@ -83,7 +84,7 @@ def test_offline_mix_buffer_draws_half_of_each_batch_offline():
 
 
 def test_d3rlpy_episodes_keep_every_transition():
-    pytest.importorskip("d3rlpy")
+    require("d3rlpy")
     from d3rlpy.dataset import BasicTransitionPicker
 
     from sb3_ua2c.peers.d3rlpy_arms import d3rlpy_episodes
@@ -189,7 +190,7 @@ def test_sb3_offline_mix_unit_is_reproducible(tiny_dataset, tmp_path):
 
 @pytest.mark.parametrize("algo", ["iql", "calql"])
 def test_d3rlpy_unit_offline_then_online(tiny_dataset, tmp_path, monkeypatch, algo):
-    pytest.importorskip("d3rlpy")
+    require("d3rlpy")
     monkeypatch.chdir(tmp_path)
     record = run_d3rlpy(tmp_path / "unit", tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,),
                         eval_episodes=2, algo=algo, offline_steps=5, batch_size=8)

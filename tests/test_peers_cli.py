@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from extras import require
 
 from sb3_ua2c.experiments.names import DATASET_SEED_BASE
 from sb3_ua2c.peers import cli
@@ -28,7 +29,7 @@ OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql"}
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
-    pytest.importorskip("d3rlpy")
+    require("d3rlpy")
     out = tmp_path_factory.mktemp("peers")
     assert cli.main(["--quick", "--seeds", "0", "1", "--workers", "1", "--out", str(out)]) == 0
     return out

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from extras import require
 
-pytest.importorskip("rliable")
+require("rliable")
 
 from sb3_ua2c.peers.stats import (  # noqa: E402
     iqm,
