@@ -41,6 +41,8 @@ class UA2CConfig:
     :param prefix_targets: the prefix critic's targets: ``"all"`` (every prefix of every window) or
         ``"sampled"`` (one prefix per window: the chunk critic's cost)
     :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1] (not in the paper)
+    :param mask_flow_padding: the flow term of Eq. 2 ignores the zeros that pad windows cut by an
+        episode end (not in the paper)
     """
 
     chunk_size: int = 5
@@ -59,6 +61,7 @@ class UA2CConfig:
     critic_type: str = "chunk"
     prefix_targets: str = "all"
     clip_actor_chunk: bool = False
+    mask_flow_padding: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -89,6 +92,7 @@ class UA2CConfig:
         check_critic_type(self.critic_type)
         check_prefix_targets(self.prefix_targets)
         check_bool("clip_actor_chunk", self.clip_actor_chunk)
+        check_bool("mask_flow_padding", self.mask_flow_padding)
 
 
 _POLICY_KWARGS_SET_BY_UA2C = {

@@ -124,6 +124,8 @@ class UA2C(OffPolicyAlgorithm):
         ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
     :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1], the chunks the
         critics are trained on (not in the paper; default ``False``: the unclipped x̂1 of Eq. 2)
+    :param mask_flow_padding: the flow term of Eq. 2 ignores the zeros that pad offline windows cut
+        by an episode end (not in the paper; default ``False``: those zeros are imitated)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -171,6 +173,7 @@ class UA2C(OffPolicyAlgorithm):
         critic_type: str = "chunk",
         prefix_targets: str = "all",
         clip_actor_chunk: bool = False,
+        mask_flow_padding: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -198,6 +201,7 @@ class UA2C(OffPolicyAlgorithm):
             critic_type=critic_type,
             prefix_targets=prefix_targets,
             clip_actor_chunk=clip_actor_chunk,
+            mask_flow_padding=mask_flow_padding,
         )
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
@@ -257,6 +261,7 @@ class UA2C(OffPolicyAlgorithm):
         self.critic_type = self.config.critic_type
         self.prefix_targets = self.config.prefix_targets
         self.clip_actor_chunk = self.config.clip_actor_chunk
+        self.mask_flow_padding = self.config.mask_flow_padding
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -274,6 +279,7 @@ class UA2C(OffPolicyAlgorithm):
         )
         self.critic_type, self.prefix_targets = self.config.critic_type, self.config.prefix_targets
         self.clip_actor_chunk = self.config.clip_actor_chunk
+        self.mask_flow_padding = self.config.mask_flow_padding
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -743,8 +749,8 @@ class UA2C(OffPolicyAlgorithm):
         self, data: ChunkReplaySamples, obs_flat: th.Tensor
     ) -> tuple[th.Tensor, dict[str, float]]:
         """
-        Eq. 2 on the batch: flow matching on the sampled chunks (padding after an episode end masked
-        out) and the value of the terminal estimate x̂1, with ``clip_actor_chunk`` clamped to the
+        Eq. 2 on the batch: flow matching on the sampled chunks (with ``mask_flow_padding``, the padding
+        after an episode end left out) and the value of the terminal estimate x̂1, with ``clip_actor_chunk`` clamped to the
         action bounds the critics are trained on (entries outside get no value gradient).
         """
         x1 = data.chunks
@@ -764,7 +770,8 @@ class UA2C(OffPolicyAlgorithm):
             self.critic.requires_grad_(True)
         q = pessimistic_q(q_pi[..., -1] if q_pi.ndim == 3 else q_pi)  # prefix critic: Q_k; (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, data.chunk_mask)
+        mask = data.chunk_mask if self.mask_flow_padding else None
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, mask)
 
     def learn(
         self: SelfUA2C,

@@ -287,6 +287,7 @@ def test_actor_value_term_sees_clamped_chunks(clip):
         ("critic_type", {"critic_type": "value"}),
         ("prefix_targets", {"prefix_targets": 3}),
         ("clip_actor_chunk", {"clip_actor_chunk": "yes"}),
+        ("mask_flow_padding", {"mask_flow_padding": 1}),
     ],
 )
 def test_bad_arguments_raise(name, kwargs):
@@ -329,10 +330,11 @@ def test_save_load_gives_identical_actions(tmp_path):
     np.testing.assert_array_equal(a, b)
 
 
-def test_actor_loss_gets_the_padding_mask(monkeypatch):
+@pytest.mark.parametrize("masked", [True, False])
+def test_actor_loss_gets_the_padding_mask(monkeypatch, masked):
     import sb3_ua2c.ua2c as ua2c_module
 
-    model = UA2C("MlpPolicy", "Pendulum-v1", chunk_size=3, history_len=2, seed=0)
+    model = UA2C("MlpPolicy", "Pendulum-v1", chunk_size=3, history_len=2, seed=0, mask_flow_padding=masked)
     data = offline_buffer(None).sample(32)
     data = data._replace(observation_history=th.zeros(32, 2, 3))
     got, original = {}, ua2c_module.actor_loss
@@ -343,5 +345,5 @@ def test_actor_loss_gets_the_padding_mask(monkeypatch):
 
     monkeypatch.setattr(ua2c_module, "actor_loss", spy)
     model._actor_loss(data, th.zeros(32, 6))
-    assert th.equal(got["mask"], data.chunk_mask)
+    assert th.equal(got["mask"], data.chunk_mask) if masked else got["mask"] is None
     assert (data.chunk_mask == 0).any()  # windows cut by the episode end are in the batch
