@@ -7,6 +7,7 @@ executors and returns one :class:`UnitResult` per unit, in the order given:
 * :class:`SerialExecutor`: one after the other in this process (debugging, tests);
 * :class:`ProcessExecutor`: ``workers`` processes, each unit in a fresh ``spawn``-ed process
   (libsumo holds one simulation per process, and nothing leaks from one unit into the next);
+  a unit owns one CPU: torch runs one intra-op thread in it;
 * :class:`RayExecutor`: each unit a Ray task with one CPU and its own worker process
   (``num_cpus=1, max_calls=1``) on the cluster at ``address`` (``pip install "sb3-ua2c[peers]"``).
 
@@ -110,6 +111,19 @@ def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
         return False, traceback.format_exc(), 0.0, 0.0
 
 
+def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
+    """:func:`_call_unit_safely` in a worker process that owns one CPU: torch's intra-op pool is cut
+    to one thread first (two units of two threads each on two cores oversubscribe them, and torch's
+    threads then spin waiting for each other: the same work took several times the CPU seconds)."""
+    try:
+        import torch
+    except ImportError:  # a unit that does not use torch
+        pass
+    else:
+        torch.set_num_threads(1)
+    return _call_unit_safely(unit)
+
+
 class SerialExecutor:
     """Run units one after the other in this process."""
 
@@ -135,7 +149,7 @@ class ProcessExecutor:
         # one process per unit (Python >= 3.11; before, a worker runs several units one after another)
         fresh = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"), **fresh) as pool:
-            futures = {pool.submit(_call_unit_safely, unit): i for i, unit in enumerate(units)}
+            futures = {pool.submit(_call_unit_on_one_cpu, unit): i for i, unit in enumerate(units)}
             for future in as_completed(futures):
                 try:
                     outcome = future.result()
@@ -169,7 +183,7 @@ class RayExecutor:
             os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
             ray.init(address=self.address, runtime_env=self.runtime_env, log_to_driver=False)
         try:
-            task = ray.remote(num_cpus=1, max_calls=1)(_call_unit_safely)
+            task = ray.remote(num_cpus=1, max_calls=1)(_call_unit_on_one_cpu)
             refs = {task.remote(unit): i for i, unit in enumerate(units)}
             pending = list(refs)
             while pending:

@@ -59,3 +59,10 @@ def run_demo_on_ray(address: str, dataset: str, out: str, out_file: str) -> None
     results = run_units(demo_units(dataset, out), RayExecutor(address), printer=None)
     with open(out_file, "w") as f:
         json.dump({r.name: r.value for r in results}, f)
+
+
+def torch_threads() -> int:
+    """torch's intra-op threads in the process that runs the unit."""
+    import torch
+
+    return torch.get_num_threads()

@@ -94,3 +94,11 @@ def test_make_executor():
     assert isinstance(make_executor(serial=True), SerialExecutor)
     ray = make_executor(ray_address="127.0.0.1:6379")
     assert isinstance(ray, RayExecutor) and ray.address == "127.0.0.1:6379"
+
+
+def test_a_unit_in_a_worker_process_runs_one_torch_thread():
+    """Two units of several torch threads each on two cores oversubscribe them: a unit owns one CPU."""
+    from sb3_ua2c.executor import ProcessExecutor
+
+    [result] = run_units([Unit("threads", helpers.torch_threads)], ProcessExecutor(1))
+    assert result.value == 1

@@ -40,8 +40,11 @@ def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwarg
 def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrain_steps: int, seed: int,
                      algo_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage 2 of a seed: pre-train UA2C offline on the seed's dataset into ``out`` (Figure 2's Phase 1)."""
+    import torch as th
+
     from sb3_ua2c.pipeline import pretrain
 
+    th.set_num_threads(1)
     clock = PhaseClock()
     with clock.phase("offline"):
         path = pretrain(dataset, out, pretrain_steps, seed=seed, algo_kwargs=dict(algo_kwargs))
