@@ -22,6 +22,7 @@ import json
 import time
 import warnings
 
+from sb3_ua2c.ogbench.runner import DEFAULT_TASK
 from sb3_ua2c.ogbench.unit import ARMS, OGBenchBudget, ensure_dataset, run_ogbench_unit
 
 
@@ -46,7 +47,7 @@ def unit_estimate(rates: dict[str, float], pretrain: int, finetune: int, eval_ep
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--task", default="cube-single-play-singletask-task2-v0")
+    parser.add_argument("--task", default=DEFAULT_TASK, help=f"OGBench single-task name (default: {DEFAULT_TASK})")
     parser.add_argument("--data-dir", required=True)
     parser.add_argument("--out", default=None, help="unit directories (default: <data-dir>/units)")
     parser.add_argument("--dataset-episodes", type=int, default=100)

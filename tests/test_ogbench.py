@@ -9,10 +9,10 @@ from __future__ import annotations
 import importlib
 import json
 import math
-import os
 
 import numpy as np
 import pytest
+from extras import require
 
 TASK = "cube-single-play-singletask-task2-v0"
 GOAL = np.array([0.50, 0.0, 0.02])  # cube-single task 2's target (ogbench CubeEnv.set_tasks)
@@ -21,20 +21,6 @@ CUBE_QPOS = slice(14, 17)  # the cube's xyz in qpos, after the arm's and gripper
 # ogbench builds float32 Boxes from float64 bounds; our env's infinite observation bounds are OGBench's
 pytestmark = pytest.mark.filterwarnings("ignore:.*precision lowered:UserWarning",
                                         "ignore:.*Box observation space m:UserWarning")
-
-
-def _in_ci() -> bool:
-    return os.environ.get("CI", "").strip().lower() in {"1", "true", "yes"}
-
-
-def _require_ogbench() -> None:
-    """Fail under CI (which installs the extra), skip elsewhere, when ``ogbench`` is missing."""
-    try:
-        importlib.import_module("ogbench")
-    except ImportError as error:
-        if _in_ci():
-            pytest.fail(f"CI needs the ogbench extra (pip install -e '.[ogbench]'): {error}")
-        pytest.skip(f"ogbench is not installed (pip install -e '.[ogbench]'): {error}")
 
 
 @pytest.fixture
@@ -51,19 +37,19 @@ def no_ogbench(monkeypatch):
 
 def test_missing_ogbench_fails_under_ci(monkeypatch, no_ogbench):
     monkeypatch.setenv("CI", "true")
-    with pytest.raises(pytest.fail.Exception, match="CI needs the ogbench extra"):
-        _require_ogbench()
+    with pytest.raises(pytest.fail.Exception, match="CI must run this test: ogbench is missing"):
+        require("ogbench")
 
 
 def test_missing_ogbench_skips_on_a_developer_machine(monkeypatch, no_ogbench):
     monkeypatch.delenv("CI", raising=False)
-    with pytest.raises(pytest.skip.Exception, match="ogbench is not installed"):
-        _require_ogbench()
+    with pytest.raises(pytest.skip.Exception, match=r"ogbench is missing: pip install -e '\.\[ogbench\]'"):
+        require("ogbench")
 
 
 @pytest.fixture(scope="module")
 def ogb():
-    _require_ogbench()
+    require("ogbench")
     import sb3_ua2c.ogbench as ogb
 
     return ogb

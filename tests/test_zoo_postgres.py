@@ -13,6 +13,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+from extras import unavailable
 from postgres_server import PostgresServer, PostgresUnavailable
 
 from sb3_ua2c.zoo import UA2CSearchSpace, convert_ua2c_params
@@ -22,18 +23,12 @@ N_WORKERS = 2
 TRIALS_PER_WORKER = 2
 
 
-def _in_ci() -> bool:
-    return os.environ.get("CI", "").strip().lower() in {"1", "true", "yes"}
-
-
 def _server_or_fail() -> PostgresServer:
     """The server object, or a test failure under CI (which installs PostgreSQL), or a skip elsewhere."""
     try:
         return PostgresServer()
     except PostgresUnavailable as error:
-        if _in_ci():
-            pytest.fail(f"CI needs a PostgreSQL server for the sweep test: {error}")
-        pytest.skip(f"no PostgreSQL server binaries on this machine: {error}")
+        unavailable(f"the sweep test needs a PostgreSQL server: {error}")
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +53,7 @@ def test_missing_server_fails_under_ci(monkeypatch, no_server_binaries):
 
 def test_missing_server_skips_on_a_developer_machine(monkeypatch, no_server_binaries):
     monkeypatch.delenv("CI", raising=False)
-    with pytest.raises(pytest.skip.Exception, match="no PostgreSQL server binaries"):
+    with pytest.raises(pytest.skip.Exception, match="the sweep test needs a PostgreSQL server: .*apt-get install -y postgresql"):
         _server_or_fail()
 
 
