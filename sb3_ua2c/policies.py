@@ -372,6 +372,9 @@ class UA2CPolicy(BasePolicy):
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
+    :param torch_compile: ``torch.compile`` the critics and the target critics (the first call with
+        each input shape compiles, for seconds to a minute; results agree with eager mode to rounding,
+        not bit for bit; see :meth:`compile_networks`)
     :param normalize_images: must be ``False``: observations are flattened as they are (SB3's
         argument, kept so that ``UA2CPolicy.load`` rebuilds the policy like SB3's policies)
     """
@@ -401,6 +404,7 @@ class UA2CPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
+        torch_compile: bool = False,
     ) -> None:
         if normalize_images is not False:
             raise ValueError(
@@ -466,7 +470,11 @@ class UA2CPolicy(BasePolicy):
         #: ``L_t`` and ``H_u`` of the last replanning done by ``predict`` (one row per env)
         self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
         self.last_plan_entropy: np.ndarray = np.zeros((0, chunk_size), dtype=np.float32)
+        check_bool("torch_compile", torch_compile)
+        self.torch_compile = bool(torch_compile)
         self._build(lr_schedule)
+        if self.torch_compile:
+            self.compile_networks()
 
     def _build(self, lr_schedule: Schedule) -> None:
         history_dim = self.history_len * (self.obs_dim + self.action_dim)
@@ -510,8 +518,24 @@ class UA2CPolicy(BasePolicy):
             activation_fn=self.activation_fn,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
+            torch_compile=self.torch_compile,
         )
         return data
+
+    def compile_networks(self) -> None:
+        """
+        ``torch.compile`` (Inductor) the forward of the critics and of the target critics in place:
+        parameters, state-dict keys and optimizers stay as they are. The critics are most of the cost
+        of an update and of a replanning, in many small element-wise kernels that Inductor fuses; the
+        flow sampler gains nothing measurable and is left in eager mode (see docs/benchmarks.md).
+
+        The graphs are static: each input shape (the batch of the critic update, of the targets, of a
+        replanning of ``m`` envs) and grad mode compiles once, for seconds to a minute. Past
+        ``torch._dynamo.config.recompile_limit`` variants, torch runs new shapes eagerly. Fused kernels
+        change the order of floating-point operations: the numbers agree with eager mode to rounding.
+        """
+        self.critic.compile(dynamic=False)
+        self.critic_target.compile(dynamic=False)
 
     def set_n_elite(self, n_elite: int) -> None:
         """Validate and set how many best candidates a replanning averages (1 = best-of-S)."""

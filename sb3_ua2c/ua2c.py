@@ -130,7 +130,7 @@ class UA2C(OffPolicyAlgorithm):
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
         ``critic_n_layers``, ``critic_n_heads``, ``critic_ff_dim``, ``n_critics``, ``activation_fn``,
-        ``optimizer_class``, ``optimizer_kwargs``)
+        ``optimizer_class``, ``optimizer_kwargs``, ``torch_compile``: see :class:`UA2CPolicy`)
     :param verbose: verbosity level: 0 no output, 1 info, 2 debug
     :param seed: seed for the pseudo random generators
     :param device: device (cpu, cuda, ...) on which the code should be run
