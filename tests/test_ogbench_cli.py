@@ -14,7 +14,6 @@ import shutil
 import numpy as np
 import pytest
 from extras import require
-from test_ogbench import _require_ogbench
 
 from sb3_ua2c.ogbench.unit import OGBenchBudget
 
@@ -25,7 +24,7 @@ pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     """``ogbench --quick`` once (3 arms x 2 seeds in this process), then a rerun of the stored run."""
-    _require_ogbench()
+    require("ogbench")
     from sb3_ua2c.ogbench.cli import main
 
     out = tmp_path_factory.mktemp("ogbench_quick")
@@ -106,7 +105,7 @@ def test_work_directory_of_another_budget_is_refused(quick_run):
     (["--workers", "0"], "--workers"),
 ])
 def test_bad_input_is_a_clear_error(argv, message, capsys):
-    _require_ogbench()
+    require("ogbench")
     from sb3_ua2c.__main__ import main
 
     assert main(["ogbench", "--quick", "--out", "unused", *argv]) == 2
@@ -116,7 +115,7 @@ def test_bad_input_is_a_clear_error(argv, message, capsys):
 
 # ------------------------------------------------------------------------------------ estimate
 def test_estimate_from_the_cost_table():
-    _require_ogbench()
+    require("ogbench")
     from sb3_ua2c.ogbench.runner import estimate
 
     budget = OGBenchBudget(dataset_episodes=10, episode_steps=30, pretrain_steps=1000, finetune_steps=1000,
