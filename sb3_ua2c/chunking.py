@@ -180,9 +180,9 @@ def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -
 
 #: values of ``execution`` (:class:`~sb3_ua2c.policies.UA2CPolicy`, ``UA2C``): how a replanning sets ``L_t``
 EXECUTION_RULES = ("entropy", "value", "fixed")
-#: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``; the same
-#: window as the ``rollout/executed_length`` log, so the logged mean ``L_t`` is comparable to the target
-AUTO_THRESHOLD_WINDOW = 1000
+#: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
+#: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
+AUTO_THRESHOLD_WINDOW = 50
 
 
 def check_execution(execution: object, critic_type: str) -> None:

@@ -216,7 +216,7 @@ def test_auto_threshold_in_training_and_save_load(tmp_path):
     n_plans = len(model._plan_lengths)  # the policy's plans after the warm-up, one row each
     assert int(window.count) == n_plans > 0
     # the δ now in force gives the window's plans a mean L_t of at least 2.5, and just below it less
-    rows = window.rows[:n_plans]
+    rows = window.rows[: min(n_plans, AUTO_THRESHOLD_WINDOW)]
     delta = model.policy.current_entropy_threshold().item()
     assert executable_prefix_length(rows, delta).float().mean().item() >= 2.5
     below = np.nextafter(np.float32(delta), np.float32(-np.inf)).item()
