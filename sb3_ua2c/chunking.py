@@ -164,18 +164,137 @@ def select_chunk(
     return chunks
 
 
-def executable_prefix_length(entropy: th.Tensor, threshold: float) -> th.Tensor:
+def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -> th.Tensor:
     """
     Executable prefix length of Eq. 7: the largest ``u`` such that ``H_1..H_u <= delta``, at least 1.
 
     ``threshold = inf`` executes the whole chunk (fixed chunking); a NaN entropy counts as unreliable.
 
     :param entropy: per-position entropy, shape ``(*batch, k)``
-    :param threshold: entropy threshold ``delta``
+    :param threshold: entropy threshold ``delta``, a number or a tensor broadcastable to ``(*batch, 1)``
     :return: long tensor ``L_t`` in ``[1, k]``, shape ``(*batch,)``
     """
     ok = (entropy <= threshold).long()
     return th.cumprod(ok, dim=-1).sum(dim=-1).clamp_(min=1)
+
+
+#: values of ``execution`` (:class:`~sb3_ua2c.policies.UA2CPolicy`, ``UA2C``): how a replanning sets ``L_t``
+EXECUTION_RULES = ("entropy", "value", "fixed")
+#: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
+#: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
+AUTO_THRESHOLD_WINDOW = 50
+
+
+def check_execution(execution: object, critic_type: str) -> None:
+    """Raise ``ValueError`` naming ``execution`` unless it is one of :data:`EXECUTION_RULES`, and naming
+    ``execution`` and ``critic_type`` for ``"value"`` without the prefix critic (it reads ``Q_u``)."""
+    if not isinstance(execution, str) or execution not in EXECUTION_RULES:
+        raise ValueError(f"execution must be one of {list(EXECUTION_RULES)}, got {execution!r}")
+    if execution == "value" and critic_type != "prefix":
+        raise ValueError(
+            f'execution="value" chooses L_t by the prefix values Q_u: it needs critic_type="prefix", got {critic_type!r}'
+        )
+
+
+def check_entropy_threshold(
+    entropy_threshold: object, target_plan_length: object, chunk_size: int
+) -> tuple[float | str, float | None]:
+    """
+    Validate δ of Eq. 7 and ``target_plan_length`` together; a bad value raises ``ValueError`` naming it.
+
+    :param entropy_threshold: a number (``inf`` = the whole chunk; not NaN, not ``-inf``) or ``"auto"``
+    :param target_plan_length: ``None``, or with ``"auto"`` only, the target mean ``L_t`` in ``[1, k]``
+    :param chunk_size: ``k``
+    :return: ``(delta, target)``: ``delta`` as a ``float`` or ``"auto"``, ``target`` as a ``float`` or ``None``
+    """
+
+    def is_number(value: object) -> bool:
+        return not isinstance(value, bool) and isinstance(value, int | float | np.number) and not math.isnan(value)
+
+    if isinstance(entropy_threshold, str):
+        if entropy_threshold != "auto":
+            raise ValueError(f"entropy_threshold must be a number or 'auto', got {entropy_threshold!r}")
+    elif not is_number(entropy_threshold):
+        raise ValueError(f"entropy_threshold must be a number or 'auto', got {entropy_threshold!r}")
+    elif entropy_threshold == -math.inf:
+        raise ValueError(
+            "entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)"
+        )
+    if target_plan_length is None:
+        return (entropy_threshold if isinstance(entropy_threshold, str) else float(entropy_threshold)), None
+    if entropy_threshold != "auto":
+        raise ValueError(
+            f"target_plan_length applies to entropy_threshold='auto' only, got it with "
+            f"entropy_threshold={entropy_threshold!r} (pass target_plan_length=None)"
+        )
+    if not is_number(target_plan_length) or not 1 <= target_plan_length <= chunk_size:
+        raise ValueError(f"target_plan_length must be a number in [1, chunk_size={chunk_size}], got {target_plan_length!r}")
+    return "auto", float(target_plan_length)
+
+
+def default_target_plan_length(chunk_size: int) -> float:
+    """``target_plan_length`` of ``entropy_threshold="auto"`` when not given: ``(k + 1) / 2``, halfway between
+    one action per plan (the one-step baseline) and the whole chunk (fixed execution)."""
+    return (chunk_size + 1) / 2
+
+
+def auto_entropy_threshold(entropy: th.Tensor, target: float) -> th.Tensor:
+    """
+    The δ of Eq. 7 under which the mean ``L_t`` over ``n`` replannings reaches ``target``
+    (``entropy_threshold="auto"``).
+
+    With the running maxima ``M_u = max(H_1..H_u)``, ``L_t(δ) = max(1, #{u : M_u <= δ}) = 1 + #{u >= 2 :
+    M_u <= δ}``, so ``n * (mean L_t(δ) - 1)`` counts the pooled ``M_u``, ``u >= 2``, that are ``<= δ``. The
+    ``c``-th smallest of them, ``c = ceil(n (target - 1))``, is the smallest δ whose mean ``L_t`` is at
+    least ``target``: exactly ``target`` when ``n (target - 1)`` is an integer and no two maxima tie, else
+    the next mean above it. ``target = 1`` gives ``-inf`` (one action per plan). A NaN entropy counts as
+    unreliable (``+inf``), as in :func:`executable_prefix_length`.
+
+    :param entropy: per-position entropies ``H_u`` of ``n >= 1`` replannings, shape ``(*batch, n, k)``
+        (a leading batch dim gives one δ per group, e.g. ``(m, 1, k)`` one per row)
+    :param target: target mean ``L_t`` in ``[1, k]``
+    :return: δ, shape ``(*batch,)``
+    """
+    n, k = entropy.shape[-2:]
+    count = math.ceil(n * (target - 1.0) - 1e-9)  # the maxima that must be <= δ
+    if count <= 0:
+        return th.full(entropy.shape[:-2], -math.inf, dtype=entropy.dtype, device=entropy.device)
+    maxima = th.cummax(entropy.nan_to_num(nan=math.inf), dim=-1).values[..., 1:]  # (*batch, n, k-1)
+    return maxima.flatten(-2).kthvalue(min(count, n * (k - 1)), dim=-1).values  # (*batch, n*(k-1)) -> (*batch)
+
+
+class EntropyWindow(th.nn.Module):
+    """
+    The entropies ``H_u`` of the last ``size`` replannings, one row per env (a ring), from which
+    ``entropy_threshold="auto"`` sets δ (:func:`auto_entropy_threshold`). The rows and their count are
+    buffers, so that ``save``/``load`` reproduce the δ of the saved model.
+
+    :param chunk_size: ``k``
+    :param size: rows kept (:data:`AUTO_THRESHOLD_WINDOW`)
+    """
+
+    def __init__(self, chunk_size: int, size: int = AUTO_THRESHOLD_WINDOW) -> None:
+        super().__init__()
+        self.register_buffer("rows", th.zeros(size, chunk_size))  # (size, k)
+        self.register_buffer("count", th.zeros((), dtype=th.long))  # rows added so far
+
+    def threshold(self, target: float, entropy: th.Tensor) -> th.Tensor:
+        """
+        δ for a replanning with entropies ``entropy`` ``(m, k)``: from the window, shape ``()``; while the
+        window is empty, each row's own δ, shape ``(m, 1)`` (the shortest ``L_t >= target`` its entropies allow).
+        """
+        rows = self.rows[: min(int(self.count), self.rows.shape[0])]  # (n, k)
+        if rows.shape[0]:
+            return auto_entropy_threshold(rows, target)
+        return auto_entropy_threshold(entropy.unsqueeze(-2), target).unsqueeze(-1)  # (m, 1, k) -> (m, 1)
+
+    def add(self, entropy: th.Tensor) -> None:
+        """Append the rows ``(m, k)`` of a replanning (the oldest rows are dropped past ``size``)."""
+        size = self.rows.shape[0]
+        new = entropy[-size:]  # (min(m, size), k)
+        start = int(self.count) + entropy.shape[0] - new.shape[0]
+        self.rows[(start + th.arange(new.shape[0], device=self.rows.device)) % size] = new.to(self.rows.dtype)
+        self.count += entropy.shape[0]
 
 
 def commit_through_switch(
@@ -266,6 +385,18 @@ def q_at_length(q_prefixes: th.Tensor, lengths: th.Tensor) -> th.Tensor:
     index = (lengths - 1).expand(q_prefixes.shape[1:-1]).unsqueeze(-1)  # (*batch, 1)
     index = index.unsqueeze(0).expand(q_prefixes.shape[0], *index.shape)  # (n, *batch, 1)
     return q_prefixes.gather(-1, index).squeeze(-1)
+
+
+def max_prefix_value(q_prefixes: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """
+    Value of a chunk under ``execution="value"`` (as ACSAC: the prefix length chosen by Q):
+    ``max_u min_j Q_{j,u}(h, a_{t:t+u-1})``, and the ``u`` that attains it (the shortest on ties).
+
+    :param q_prefixes: the prefix critics' ``Q_1..Q_k``, shape ``(n_critics, *batch, k)``
+    :return: values, shape ``(*batch,)``, and lengths ``u`` in ``[1, k]`` (long), shape ``(*batch,)``
+    """
+    best = pessimistic_q(q_prefixes).max(dim=-1)  # (n, *batch, k) -> (*batch, k) -> (*batch,)
+    return best.values, best.indices + 1
 
 
 def prefix_bellman_targets(

@@ -13,14 +13,20 @@ from gymnasium import spaces
 
 from sb3_ua2c.buffers import check_online_targets
 from sb3_ua2c.checks import check_bool, check_int
-from sb3_ua2c.chunking import check_critic_type, check_prefix_targets
+from sb3_ua2c.chunking import (
+    check_critic_type,
+    check_entropy_threshold,
+    check_execution,
+    check_prefix_targets,
+)
 from sb3_ua2c.policies import UA2CPolicy
 
 
 @dataclass(frozen=True)
 class UA2CConfig:
     """
-    Chunking hyperparameters of UA2C (validated; a bad value raises ``ValueError`` naming it).
+    Chunking hyperparameters of UA2C (validated; a bad value raises ``ValueError`` naming it; numbers are
+    stored as ``float``).
 
     :param chunk_size: chunk length ``k`` (1 = one-step baseline)
     :param history_len: history length ``ℓ``
@@ -28,7 +34,12 @@ class UA2CConfig:
     :param target_flow_steps: Euler steps for the target candidates of Eq. 4 / 8
     :param n_candidates: chunks ``S`` sampled per replanning (Eq. 7)
     :param n_target_candidates: candidates ``Q`` for the target max (Eq. 4 / 8)
-    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
+    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = the whole chunk), or ``"auto"`` (δ set from
+        recent replannings for a mean ``L_t`` of ``target_plan_length``)
+    :param execution: ``"entropy"`` (Eq. 7), ``"value"`` (the prefix with the highest ``min_j Q_u``;
+        ``critic_type="prefix"`` only) or ``"fixed"`` (``L_t = k``)
+    :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in ``[1, k]``
+        (``None`` = ``(k + 1) / 2``)
     :param q_weight: ``lambda`` of Eq. 2
     :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical action dims
@@ -51,7 +62,9 @@ class UA2CConfig:
     target_flow_steps: int = 2
     n_candidates: int = 32
     n_target_candidates: int = 2
-    entropy_threshold: float = 0.0
+    entropy_threshold: float | str = 0.0
+    execution: str = "entropy"
+    target_plan_length: float | None = None
     q_weight: float = 1.0
     smooth_weight: float = 0.0
     discrete_entropy: bool = True
@@ -73,26 +86,26 @@ class UA2CConfig:
             "n_target_candidates",
         ):
             check_int(name, getattr(self, name))
-        for name in ("entropy_threshold", "q_weight", "smooth_weight", "offline_ratio"):
+        for name in ("q_weight", "smooth_weight", "offline_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
                 raise ValueError(f"{name} must be a number, got {value!r}")
-        if math.isinf(self.entropy_threshold) and self.entropy_threshold < 0:
-            raise ValueError(
-                "entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)"
-            )
+            object.__setattr__(self, name, float(value))
+        delta, target = check_entropy_threshold(self.entropy_threshold, self.target_plan_length, self.chunk_size)
+        object.__setattr__(self, "entropy_threshold", delta)
+        object.__setattr__(self, "target_plan_length", target)
         for name in ("q_weight", "smooth_weight"):
             if not 0.0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        check_bool("discrete_entropy", self.discrete_entropy)
-        check_bool("commit_discrete", self.commit_discrete)
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
         check_online_targets(self.online_targets)
         check_critic_type(self.critic_type)
+        check_execution(self.execution, self.critic_type)
         check_prefix_targets(self.prefix_targets)
-        check_bool("clip_actor_chunk", self.clip_actor_chunk)
-        check_bool("mask_flow_padding", self.mask_flow_padding)
+        for name in ("discrete_entropy", "commit_discrete", "clip_actor_chunk", "mask_flow_padding"):
+            check_bool(name, getattr(self, name))
+            object.__setattr__(self, name, bool(getattr(self, name)))
 
 
 _POLICY_KWARGS_SET_BY_UA2C = {
@@ -101,6 +114,8 @@ _POLICY_KWARGS_SET_BY_UA2C = {
     "flow_steps",
     "n_candidates",
     "entropy_threshold",
+    "execution",
+    "target_plan_length",
     "discrete_dims",
     "discrete_entropy",
     "commit_discrete",

@@ -21,12 +21,17 @@ from sb3_ua2c.checks import check_bool, check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ChunkExecutorState,
+    EntropyWindow,
     PlanResult,
     check_critic_type,
+    check_entropy_threshold,
+    check_execution,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
+    default_target_plan_length,
     executable_prefix_length,
+    max_prefix_value,
     pessimistic_q,
     q_at_length,
     select_chunk,
@@ -352,7 +357,13 @@ class UA2CPolicy(BasePolicy):
     :param history_len: ``ℓ``
     :param flow_steps: Euler steps ``N`` when acting
     :param n_candidates: chunks ``S`` sampled per replanning
-    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution)
+    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution), or ``"auto"``: δ set
+        from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
+    :param execution: how a replanning sets ``L_t``: ``"entropy"`` (Eq. 7 with δ), ``"value"`` (the prefix
+        with the highest ``min_j Q_u``, prefix critic only; :func:`~sb3_ua2c.chunking.max_prefix_value`)
+        or ``"fixed"`` (``L_t = k``); δ matters for ``"entropy"`` only
+    :param target_plan_length: with ``entropy_threshold="auto"``, the mean ``L_t`` over the window that δ
+        is set for, in ``[1, k]`` (``None`` = ``(k + 1) / 2``)
     :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
         continuous dims alone; see :func:`~sb3_ua2c.chunking.chunk_entropy`)
@@ -388,7 +399,7 @@ class UA2CPolicy(BasePolicy):
         history_len: int = 4,
         flow_steps: int = 10,
         n_candidates: int = 32,
-        entropy_threshold: float = 0.0,
+        entropy_threshold: float | str = 0.0,
         discrete_dims: dict[int, int] | None = None,
         discrete_entropy: bool = True,
         n_elite: int = 1,
@@ -400,6 +411,8 @@ class UA2CPolicy(BasePolicy):
         critic_ff_dim: int = 64,
         n_critics: int = 2,
         critic_type: str = "chunk",
+        execution: str = "entropy",
+        target_plan_length: float | None = None,
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
@@ -446,7 +459,6 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
         self.chunk_size, self.history_len = chunk_size, history_len
         self.flow_steps, self.n_candidates = flow_steps, n_candidates
-        self.entropy_threshold = float(entropy_threshold)
         self.discrete_dims = dict(discrete_dims or {})
         check_bool("discrete_entropy", discrete_entropy)
         self.discrete_entropy = bool(discrete_entropy)
@@ -463,6 +475,8 @@ class UA2CPolicy(BasePolicy):
             activation_fn=activation_fn,
         )
         self.critic_type = critic_type
+        self.entropy_window: EntropyWindow | None = None  # the rows that set δ under "auto"
+        self.set_execution_rule(execution, entropy_threshold, target_plan_length)
         self.activation_fn = activation_fn
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
@@ -515,6 +529,8 @@ class UA2CPolicy(BasePolicy):
             critic_ff_dim=self.critic_kwargs["ff_dim"],
             n_critics=self.critic_kwargs["n_critics"],
             critic_type=self.critic_type,
+            execution=self.execution,
+            target_plan_length=self.target_plan_length,
             activation_fn=self.activation_fn,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
@@ -543,6 +559,42 @@ class UA2CPolicy(BasePolicy):
         if n_elite > self.n_candidates:
             raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
         self.n_elite = int(n_elite)
+
+    def set_execution_rule(
+        self, execution: str, entropy_threshold: float | str, target_plan_length: float | None = None
+    ) -> None:
+        """
+        Validate and set how a replanning chooses ``L_t`` (execution only: the losses do not read it).
+        ``entropy_threshold="auto"`` keeps the current window, or starts an empty one; a number drops it.
+        """
+        check_execution(execution, self.critic_type)
+        delta, target = check_entropy_threshold(entropy_threshold, target_plan_length, self.chunk_size)
+        self.execution, self.entropy_threshold, self.target_plan_length = execution, delta, target
+        if delta != "auto":
+            self.entropy_window = None
+        elif self.entropy_window is None:
+            self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
+
+    def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
+        """
+        δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
+        :attr:`entropy_window` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
+        While the window is empty, each row of the replanning's entropies ``entropy`` ``(m, k)`` gets its
+        own δ ``(m, 1)``, and without them the answer is ``nan``.
+        """
+        if self.entropy_window is None:
+            return float(self.entropy_threshold)
+        if entropy is None and int(self.entropy_window.count) == 0:
+            return math.nan
+        target = self.target_plan_length or default_target_plan_length(self.chunk_size)
+        return self.entropy_window.threshold(target, entropy)
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """``nn.Module.load_state_dict``; ``entropy_window.*`` follows this policy's δ: a checkpoint without a
+        window (numeric δ, or older) loads into an ``"auto"`` policy with an empty one; a numeric δ ignores it."""
+        own = {k: v for k, v in self.state_dict().items() if k.startswith("entropy_window.")}
+        state_dict = {k: v for k, v in state_dict.items() if not k.startswith("entropy_window.") or k in own}
+        return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)
@@ -587,17 +639,21 @@ class UA2CPolicy(BasePolicy):
         action_history: th.Tensor,
         generator: th.Generator | None = None,
         shared_noise: bool = False,
+        record_entropy: bool = False,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
-        One replanning (Eq. 7): sample S chunks, measure the per-position entropy of the S samples and
-        the executable prefix length ``L_t``, keep the chunk with the highest ``min_j Q_j`` (with the
-        prefix critic, ``Q`` of the prefix ``L_t`` of Eq. 7) and extend ``L_t`` through the first
-        categorical switch with ``commit_discrete``.
+        One replanning: sample S chunks, measure the per-position entropy of the S samples, keep the
+        chunk with the highest ``min_j Q_j`` and set the executed length ``L_t`` by the ``execution`` rule:
+        Eq. 7 (``"entropy"``; with the prefix critic the candidates are ranked by ``Q_{L_t}``), ``k``
+        (``"fixed"``), or the best prefix of the selected chunk (``"value"``, :meth:`_select_by_value`).
+        ``commit_discrete`` then extends ``L_t`` through the first categorical switch.
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
         :param generator: optional random generator for the noise
         :param shared_noise: the same S noises for every history (see :meth:`sample_chunks`)
+        :param record_entropy: add the entropies to :attr:`entropy_window` (``entropy_threshold="auto"``
+            with ``execution="entropy"``; training rollouts)
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
@@ -605,19 +661,53 @@ class UA2CPolicy(BasePolicy):
         s, n_steps = self.n_candidates, self.flow_steps
         samples = self.sample_chunks(cond, s, n_steps, generator, shared_noise)  # (m, S, k, A)
         entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
-        lengths = executable_prefix_length(entropy, self.entropy_threshold)
         clipped = samples.clamp(-1.0, 1.0)
-        q = self.critic(obs_history.reshape(m, -1), clipped)  # (n, m, S) or, prefix critic, (n, m, S, k)
-        if self.critic_type == "prefix":
-            q = q_at_length(q, lengths.unsqueeze(-1))  # Q_{L_t}: (n, m, S, k) -> (n, m, S)
-        q = pessimistic_q(q)  # (n, m, S) -> (m, S)
-        chunks = select_chunk(clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
+        obs_flat = obs_history.reshape(m, -1)
+        q = self.critic(obs_flat, clipped)  # (n, m, S) or, prefix critic, (n, m, S, k)
+        if self.execution == "value":
+            chunks, lengths = self._select_by_value(obs_flat, clipped, q)
+        else:
+            if self.execution == "fixed":
+                lengths = th.full((m,), self.chunk_size, dtype=th.long, device=entropy.device)
+            else:
+                lengths = executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
+            if self.critic_type == "prefix":
+                q = q_at_length(q, lengths.unsqueeze(-1))  # Q_{L_t}: (n, m, S, k) -> (n, m, S)
+            chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+            if record_entropy and self.entropy_window is not None and self.execution == "entropy":
+                self.entropy_window.add(entropy)
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
         return chunks, lengths, entropy
 
+    def _select_by_value(
+        self, obs_flat: th.Tensor, candidates: th.Tensor, q_prefixes: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """
+        ``execution="value"``: every candidate is worth ``max_u min_j Q_{j,u}``
+        (:func:`~sb3_ua2c.chunking.max_prefix_value`), the chunk is selected on that worth
+        (:func:`~sb3_ua2c.chunking.select_chunk`), and ``L_t`` is the ``u`` that attains it for the
+        selected chunk; an elite mean (``n_elite > 1``) is not one of the candidates, so the critics
+        score it once more and ``L_t`` is its own best prefix.
+
+        :param obs_flat: ``(m, ℓ*obs_dim)``
+        :param candidates: clipped candidates, ``(m, S, k, A)``
+        :param q_prefixes: their ``Q_1..Q_k``, ``(n, m, S, k)``
+        :return: chunks ``(m, k, A)`` and lengths ``(m,)``
+        """
+        values, best_u = max_prefix_value(q_prefixes)  # (m, S), (m, S)
+        chunks = select_chunk(candidates, values, self.n_elite, self.discrete_dims)  # (m, k, A)
+        if self.n_elite == 1:
+            return chunks, best_u.gather(1, values.argmax(dim=1, keepdim=True)).squeeze(1)
+        _, lengths = max_prefix_value(self.critic(obs_flat, chunks.unsqueeze(1)))  # (n, m, 1, k) -> (m, 1)
+        return chunks, lengths.squeeze(1)
+
     def plan(
-        self, obs_history: np.ndarray, action_history: np.ndarray, deterministic: bool = False
+        self,
+        obs_history: np.ndarray,
+        action_history: np.ndarray,
+        deterministic: bool = False,
+        record_entropy: bool = False,
     ) -> PlanResult:
         """
         NumPy front end of :meth:`plan_tensors` (a :data:`~sb3_ua2c.chunking.Planner`).
@@ -627,12 +717,13 @@ class UA2CPolicy(BasePolicy):
         history, whatever the batch it is planned in and its position there (up to the last-bit
         rounding of batched matrix products, which depends on the batch size as in any SB3 policy);
         the selection and prefix rules are unchanged. ``False``: fresh noise for every history.
+        ``record_entropy``: see :meth:`plan_tensors` (``predict`` never records: it does not change δ).
         """
         generator = deterministic_generator(self.device) if deterministic else None
         with th.inference_mode():
             obs_t = th.as_tensor(obs_history, device=self.device, dtype=th.float32)
             act_t = th.as_tensor(action_history, device=self.device, dtype=th.float32)
-            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator, shared_noise=deterministic)
+            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator, deterministic, record_entropy)
         return PlanResult(chunks.cpu().numpy(), lengths.cpu().numpy(), entropy.cpu().numpy())
 
     # ------------------------------------------------------------------ SB3 interface

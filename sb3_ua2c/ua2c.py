@@ -12,7 +12,7 @@ import math
 import pathlib
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import fields, replace
+from dataclasses import asdict, fields, replace
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -97,7 +97,14 @@ class UA2C(OffPolicyAlgorithm):
     :param target_flow_steps: Euler steps for the target candidates (cheaper than acting)
     :param n_candidates: chunks ``S`` sampled per replanning
     :param n_target_candidates: candidate chunks ``Q`` in the target max (Eq. 4 / 8)
-    :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = fixed chunk execution)
+    :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = the whole chunk), or ``"auto"``: δ set
+        after each training replanning from the entropies of the last ones, for a mean ``L_t`` of
+        ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`)
+    :param execution: how a replanning sets ``L_t``: ``"entropy"`` (default, Eq. 7 with δ), ``"value"``
+        (the prefix with the highest ``min_j Q_u``, as ACSAC; needs ``critic_type="prefix"``) or
+        ``"fixed"`` (``L_t = k``, δ ignored)
+    :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in
+        ``[1, k]`` (``None`` = ``(k + 1) / 2``)
     :param q_weight: ``lambda``, weight of the value term in Eq. 2
     :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
         paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
@@ -162,7 +169,9 @@ class UA2C(OffPolicyAlgorithm):
         target_flow_steps: int = 2,
         n_candidates: int = 32,
         n_target_candidates: int = 2,
-        entropy_threshold: float = 0.0,
+        entropy_threshold: float | str = 0.0,
+        execution: str = "entropy",
+        target_plan_length: float | None = None,
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
         discrete_entropy: bool = True,
@@ -182,27 +191,8 @@ class UA2C(OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        self.config = UA2CConfig(
-            chunk_size=chunk_size,
-            history_len=history_len,
-            flow_steps=flow_steps,
-            target_flow_steps=target_flow_steps,
-            n_candidates=n_candidates,
-            n_target_candidates=n_target_candidates,
-            entropy_threshold=float(entropy_threshold)
-            if isinstance(entropy_threshold, int | np.integer)
-            else entropy_threshold,
-            q_weight=q_weight,
-            smooth_weight=smooth_weight,
-            discrete_entropy=discrete_entropy,
-            commit_discrete=commit_discrete,
-            offline_ratio=offline_ratio,
-            online_targets=online_targets,
-            critic_type=critic_type,
-            prefix_targets=prefix_targets,
-            clip_actor_chunk=clip_actor_chunk,
-            mask_flow_padding=mask_flow_padding,
-        )
+        arguments = locals()  # the chunking hyperparameters, validated together
+        self.config = UA2CConfig(**{f.name: arguments[f.name] for f in fields(UA2CConfig)})
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
                 f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}"
@@ -245,23 +235,7 @@ class UA2C(OffPolicyAlgorithm):
             supported_action_spaces=None,
             support_multi_env=True,
         )
-        self.chunk_size = self.config.chunk_size
-        self.history_len = self.config.history_len
-        self.flow_steps = self.config.flow_steps
-        self.target_flow_steps = self.config.target_flow_steps
-        self.n_candidates = self.config.n_candidates
-        self.n_target_candidates = self.config.n_target_candidates
-        self.entropy_threshold = float(self.config.entropy_threshold)
-        self.q_weight = float(self.config.q_weight)
-        self.smooth_weight = float(self.config.smooth_weight)
-        self.discrete_entropy = bool(self.config.discrete_entropy)
-        self.commit_discrete = bool(self.config.commit_discrete)
-        self.offline_ratio = float(self.config.offline_ratio)
-        self.online_targets = self.config.online_targets
-        self.critic_type = self.config.critic_type
-        self.prefix_targets = self.config.prefix_targets
-        self.clip_actor_chunk = self.config.clip_actor_chunk
-        self.mask_flow_padding = self.config.mask_flow_padding
+        self.__dict__.update(asdict(self.config))  # chunk_size, ..., execution: see UA2CConfig
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -277,9 +251,7 @@ class UA2C(OffPolicyAlgorithm):
         self.config = replace(
             self.config, **{f.name: getattr(self, f.name, f.default) for f in fields(UA2CConfig)}
         )
-        self.critic_type, self.prefix_targets = self.config.critic_type, self.config.prefix_targets
-        self.clip_actor_chunk = self.config.clip_actor_chunk
-        self.mask_flow_padding = self.config.mask_flow_padding
+        self.__dict__.update(asdict(self.config))
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -308,6 +280,8 @@ class UA2C(OffPolicyAlgorithm):
             flow_steps=self.flow_steps,
             n_candidates=self.n_candidates,
             entropy_threshold=self.entropy_threshold,
+            execution=self.execution,
+            target_plan_length=self.target_plan_length,
             discrete_dims=discrete_dims,
             discrete_entropy=self.discrete_entropy,
             commit_discrete=self.commit_discrete,
@@ -523,7 +497,7 @@ class UA2C(OffPolicyAlgorithm):
         n_envs = env.num_envs
 
         def policy_plan(obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
-            return self.policy.plan(obs_h, act_h, deterministic=False)
+            return self.policy.plan(obs_h, act_h, deterministic=False, record_entropy=True)
 
         callback.on_rollout_start()
         continue_training = True
@@ -627,17 +601,40 @@ class UA2C(OffPolicyAlgorithm):
             self.logger.record("rollout/entropy_mean", float(np.mean(entropy)))
             self.logger.record("rollout/entropy_first", float(np.mean(entropy[:, 0])))
             self.logger.record("rollout/entropy_last", float(np.mean(entropy[:, -1])))
+        if self.policy.entropy_window is not None:
+            self.logger.record("rollout/entropy_threshold", float(self.policy.current_entropy_threshold()))
         super().dump_logs()
 
-    def set_entropy_threshold(self, entropy_threshold: float) -> None:
+    def set_entropy_threshold(
+        self, entropy_threshold: float | str, target_plan_length: float | None = None
+    ) -> None:
         """
         Change δ of Eq. 7 (execution only; the losses do not depend on it), e.g. to evaluate one
-        checkpoint with fixed (``inf``) and adaptive execution.
+        checkpoint with fixed (``inf``) and adaptive execution; ``"auto"`` with ``target_plan_length``
+        keeps the model's entropy window (or starts an empty one). Kept by :meth:`save`.
 
         :param entropy_threshold: the new threshold (validated like the constructor argument)
+        :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
         """
-        self.config = replace(self.config, entropy_threshold=float(entropy_threshold))
-        self.entropy_threshold = self.policy.entropy_threshold = float(self.config.entropy_threshold)
+        self.set_execution(self.execution, entropy_threshold, target_plan_length)
+
+    def set_execution(
+        self, execution: str, entropy_threshold: float | str | None = None, target_plan_length: float | None = None
+    ) -> None:
+        """
+        Change how a replanning sets ``L_t`` (``"entropy"``, ``"value"``, ``"fixed"``; execution only, kept
+        by :meth:`save`), and δ with it unless ``entropy_threshold`` is ``None`` (the model's δ and target).
+        """
+        if entropy_threshold is None:
+            entropy_threshold, target_plan_length = self.entropy_threshold, self.target_plan_length
+        self.config = replace(
+            self.config,
+            execution=execution,
+            entropy_threshold=entropy_threshold,
+            target_plan_length=target_plan_length,
+        )
+        self.__dict__.update(asdict(self.config))
+        self.policy.set_execution_rule(self.execution, self.entropy_threshold, self.target_plan_length)
 
     def set_n_elite(self, n_elite: int) -> None:
         """

@@ -1,0 +1,354 @@
+"""Execution rules side by side: ``execution="entropy"`` (Eq. 7), ``"value"`` (the prefix of highest
+``min_j Q_u``), ``"fixed"``, and ``entropy_threshold="auto"`` (δ set for a target mean ``L_t``)."""
+
+import json
+import math
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from torch import nn
+from ua2c_helpers import FAST
+
+from sb3_ua2c import UA2C
+from sb3_ua2c.chunking import (
+    AUTO_THRESHOLD_WINDOW,
+    EntropyWindow,
+    auto_entropy_threshold,
+    chunk_entropy,
+    executable_prefix_length,
+    max_prefix_value,
+)
+from sb3_ua2c.config import UA2CConfig
+from sb3_ua2c.policies import UA2CPolicy
+
+OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
+ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
+T = th.tensor
+
+
+# ------------------------------------------------------------------------------ "value": max_u min_j Q_u
+def test_max_prefix_value_hand_computed():
+    # 2 critics, 1 history, 2 candidates, k = 3
+    q = T([[[[1.0, 5.0, 2.0], [4.0, 3.0, 0.0]]], [[[2.0, 4.0, 3.0], [3.0, 6.0, 1.0]]]])
+    values, lengths = max_prefix_value(q)
+    # min over critics: candidate 0 [1, 4, 2] -> 4 at u = 2; candidate 1 [3, 3, 0] -> 3 at u = 1 (tie: shortest)
+    assert values.tolist() == [[4.0, 3.0]]
+    assert lengths.tolist() == [[2, 1]]
+
+
+# ------------------------------------------------------------------------------ "auto": δ from a window
+# running maxima M_u = max(H_1..H_u): row 1 [0.1, 0.3, 0.35], row 2 [-0.5, 0.4, 0.6], row 3 [0, 0, 0.7];
+# the pooled M_u, u >= 2, sorted: [0.0, 0.3, 0.35, 0.4, 0.6, 0.7]; mean L_t(δ) = 1 + #{M_u <= δ} / 3
+WINDOW = T([[0.1, 0.3, 0.35], [-0.5, 0.4, 0.6], [0.0, -1.0, 0.7]])
+
+
+@pytest.mark.parametrize(
+    ("target", "delta", "lengths"),
+    [
+        (1.0, -math.inf, [1, 1, 1]),  # one action per plan
+        (4 / 3, 0.0, [1, 1, 2]),  # c = 1: the smallest maximum
+        (5 / 3, 0.3, [2, 1, 2]),  # c = 2
+        (2.0, 0.35, [3, 1, 2]),  # c = 3
+        (2.1, 0.4, [3, 2, 2]),  # c = ceil(3.3) = 4: the first mean >= 2.1 is 7/3
+        (7 / 3, 0.4, [3, 2, 2]),  # c = 4
+        (3.0, 0.7, [3, 3, 3]),  # c = 6: the largest maximum
+    ],
+)
+def test_auto_entropy_threshold_hand_computed(target, delta, lengths):
+    got = auto_entropy_threshold(WINDOW, target)
+    assert got.shape == () and got.item() == pytest.approx(delta)
+    assert executable_prefix_length(WINDOW, got.item()).tolist() == lengths
+    # it is the smallest such δ: just below it, the mean L_t falls under the target
+    if math.isfinite(delta):
+        below = np.nextafter(np.float32(got.item()), np.float32(-np.inf)).item()
+        assert executable_prefix_length(WINDOW, below).float().mean().item() < target
+
+
+def test_auto_entropy_threshold_ties_and_nan():
+    # running maxima [-1, 0, 0] and [0.5, 0.5, 0.5]: pooled u >= 2 sorted [0, 0, 0.5, 0.5]
+    rows = T([[-1.0, 0.0, -2.0], [0.5, -3.0, -3.0]])
+    assert auto_entropy_threshold(rows, 2.0).item() == 0.0  # mean L_t = (3 + 1) / 2 = 2
+    assert auto_entropy_threshold(rows, 1.5).item() == 0.0  # c = 1, but the tie gives mean 2 >= 1.5
+    # a NaN entropy is unreliable (+inf): L_t = k needs δ = inf, and even then the NaN stops the prefix
+    nan_rows = T([[0.0, math.nan, -1.0], [0.0, 0.0, 0.0]])
+    assert auto_entropy_threshold(nan_rows, 2.0).item() == 0.0
+    assert auto_entropy_threshold(nan_rows, 3.0).item() == math.inf
+    # a leading batch dim: one δ per group, here per row (row 2 alone: c = 1 -> M_2 = 0.5)
+    per_row = auto_entropy_threshold(rows.unsqueeze(1), 2.0)
+    assert per_row.tolist() == [0.0, 0.5]
+
+
+def test_entropy_window_is_a_ring_of_the_last_rows():
+    window = EntropyWindow(chunk_size=2, size=3)
+    window.add(T([[1.0, 1.0], [2.0, 2.0]]))
+    assert int(window.count) == 2 and window.rows[:2].tolist() == [[1.0, 1.0], [2.0, 2.0]]
+    window.add(T([[3.0, 3.0], [4.0, 4.0]]))  # 4 overwrites the oldest row
+    assert int(window.count) == 4 and window.rows.tolist() == [[4.0, 4.0], [2.0, 2.0], [3.0, 3.0]]
+    window.add(T([[5.0, 5.0], [6.0, 6.0], [7.0, 7.0], [8.0, 8.0]]))  # more rows than the ring holds
+    assert int(window.count) == 8 and sorted(window.rows[:, 0].tolist()) == [6.0, 7.0, 8.0]
+    assert set(window.state_dict()) == {"rows", "count"}
+
+
+# ------------------------------------------------------------------------------ the rules in a replanning
+# S = 3 fixed candidates, k = 3, one action dim; the fake prefix critics give Q_u = sum_{i<u} a_i (and
+# that + 1, so min_j Q_u = the cumulative sum):
+#   c0 [0.5, -0.2, 0.4]  -> [0.5, 0.3, 0.7]   best 0.7 at u = 3
+#   c1 [0.9, -0.3, 0.0]  -> [0.9, 0.6, 0.6]   best 0.9 at u = 1
+#   c2 [0.0, 0.6, 0.25]  -> [0.0, 0.6, 0.85]  best 0.85 at u = 3
+# the elite mean of c1 and c2 is [0.45, 0.15, 0.125] -> [0.45, 0.6, 0.725]: best at u = 3
+CANDIDATES = T([[0.5, -0.2, 0.4], [0.9, -0.3, 0.0], [0.0, 0.6, 0.25]]).reshape(1, 3, 3, 1)
+
+
+class _CumulativeCritic(nn.Module):
+    def forward(self, obs_history, chunks):  # (m, C, k, 1) -> (2, m, C, k)
+        q = chunks[..., 0].cumsum(dim=-1)
+        return th.stack([q, q + 1.0])
+
+
+def fixed_policy(**kwargs):
+    policy = UA2CPolicy(OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, n_candidates=3, **kwargs)
+    policy.sample_chunks = lambda *args, **kw: CANDIDATES.clone()
+    if policy.critic_type == "prefix":
+        policy.critic = _CumulativeCritic()
+    return policy
+
+
+def replan(policy, record=False):
+    with th.no_grad():
+        chunks, lengths, entropy = policy.plan_tensors(th.zeros(1, 2, 1), th.zeros(1, 2, 1), record_entropy=record)
+    return chunks[0, :, 0], lengths.item(), entropy
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "chunk", "length"),
+    [
+        # "value": best-of-S by max_u min_j Q_u = c1, executed up to its best prefix u = 1
+        (dict(execution="value"), [0.9, -0.3, 0.0], 1),
+        # the elite mean of c1, c2 is re-scored: its own best prefix is u = 3 (c1's would be 1)
+        (dict(execution="value", n_elite=2), [0.45, 0.15, 0.125], 3),
+        # "fixed": L_t = k whatever δ (δ = -10 gives L_t = 1 under Eq. 7), ranked by Q_k: c2
+        (dict(execution="fixed", entropy_threshold=-10.0), [0.0, 0.6, 0.25], 3),
+        # "entropy" with δ = -10: L_t = 1, ranked by Q_1: c1
+        (dict(execution="entropy", entropy_threshold=-10.0), [0.9, -0.3, 0.0], 1),
+    ],
+)
+def test_each_rule_sets_the_length_of_the_selected_chunk(kwargs, chunk, length):
+    chunks, lengths, _ = replan(fixed_policy(critic_type="prefix", **kwargs))
+    assert chunks.tolist() == pytest.approx(chunk)
+    assert lengths == length
+
+
+def test_entropy_rule_is_eq7_on_the_candidates_entropies():
+    entropy = chunk_entropy(CANDIDATES)[0]  # (k,)
+    # unbiased variances 0.2033, 0.2433, 0.0408 -> H_u = ½ log(2πe σ²) = 0.6225, 0.7122, -0.1802;
+    # running maxima 0.6225, 0.7122, 0.7122: L_t = 1 below 0.7122, 3 from it on
+    assert entropy.tolist() == pytest.approx([0.6225, 0.7122, -0.1802], abs=1e-4)
+    for delta, length in [(0.5, 1), (0.65, 1), (0.7, 1), (0.72, 3), (math.inf, 3)]:
+        assert replan(fixed_policy(entropy_threshold=delta))[1] == length
+
+
+def test_value_rule_needs_the_prefix_critic():
+    with pytest.raises(ValueError, match=r"execution=\"value\".*critic_type=\"prefix\".*'chunk'"):
+        UA2CPolicy(OBS, ACT, lambda _: 1e-3, execution="value")
+    with pytest.raises(ValueError, match="execution.*critic_type"):
+        UA2C("MlpPolicy", "Pendulum-v1", execution="value")
+
+
+# ------------------------------------------------------------------------------ "auto" in a replanning
+def test_auto_threshold_reads_and_records_the_window():
+    policy = fixed_policy(entropy_threshold="auto", target_plan_length=2.0)
+    h = chunk_entropy(CANDIDATES)[0]  # [0.623, 0.712, -0.198]: running maxima [0.623, 0.712, 0.712]
+    # empty window: the plan gets its own δ, the shortest L_t >= 2 its entropies allow (M_2 = M_3: 3)
+    assert math.isnan(policy.current_entropy_threshold())
+    assert replan(policy)[1] == 3
+    assert int(policy.entropy_window.count) == 0  # not recorded without record_entropy
+    policy.entropy_window.add(WINDOW)  # δ = 0.35 for a mean of 2 (see above)
+    assert policy.current_entropy_threshold().item() == pytest.approx(0.35)
+    assert replan(policy, record=True)[1] == 1  # H_1 = 0.623 > 0.35
+    assert int(policy.entropy_window.count) == 4
+    assert th.equal(policy.entropy_window.rows[3], h)
+    # the new row's maxima [0.712, 0.712] join the pool: [0, 0.3, 0.35, 0.4, 0.6, 0.7, 0.712, 0.712]
+    # c = ceil(4 * (2 - 1)) = 4 -> δ = 0.4
+    assert policy.current_entropy_threshold().item() == pytest.approx(0.4)
+
+
+def test_target_plan_length_defaults_to_the_middle_of_1_and_k():
+    policy = fixed_policy(entropy_threshold="auto")
+    assert policy.target_plan_length is None
+    policy.entropy_window.add(WINDOW)
+    assert policy.current_entropy_threshold().item() == pytest.approx(0.35)  # target (3 + 1) / 2 = 2
+
+
+# ------------------------------------------------------------------------------ with UA2C
+def weights(model):
+    return {k: v.clone() for k, v in model.policy.state_dict().items()}
+
+
+def rollout_actions(model, n=12, deterministic=True):
+    env = gym.make("Pendulum-v1")
+    obs, _ = env.reset(seed=3)
+    state, start, out = None, np.array([True]), []
+    for _ in range(n):
+        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+        out.append(action)
+        obs, *_ = env.step(action)
+        start = np.array([False])
+    return np.array(out)
+
+
+def test_fixed_execution_is_delta_inf_bit_for_bit():
+    fixed = UA2C("MlpPolicy", "Pendulum-v1", seed=2, execution="fixed", entropy_threshold=-3.0, **FAST).learn(150)
+    inf = UA2C("MlpPolicy", "Pendulum-v1", seed=2, entropy_threshold=math.inf, **FAST).learn(150)
+    assert set(fixed._plan_lengths) == {5.0}
+    for key, value in weights(inf).items():
+        assert th.equal(value, fixed.policy.state_dict()[key]), key
+    np.testing.assert_array_equal(rollout_actions(fixed), rollout_actions(inf))
+
+
+def test_auto_threshold_in_training_and_save_load(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, entropy_threshold="auto", target_plan_length=2.5, **FAST)
+    model.learn(200)
+    window = model.policy.entropy_window
+    n_plans = len(model._plan_lengths)  # the policy's plans after the warm-up, one row each
+    assert int(window.count) == n_plans > 0
+    # the δ now in force gives the window's plans a mean L_t of at least 2.5, and just below it less
+    rows = window.rows[: min(n_plans, AUTO_THRESHOLD_WINDOW)]
+    delta = model.policy.current_entropy_threshold().item()
+    assert executable_prefix_length(rows, delta).float().mean().item() >= 2.5
+    below = np.nextafter(np.float32(delta), np.float32(-np.inf)).item()
+    assert executable_prefix_length(rows, below).float().mean().item() < 2.5
+    # predict, deterministic or not, reads δ and never changes the window
+    before = rollout_actions(model)
+    rollout_actions(model, deterministic=False)
+    assert int(window.count) == n_plans
+    np.testing.assert_array_equal(rollout_actions(model), before)
+    model.save(tmp_path / "auto.zip")
+    loaded = UA2C.load(tmp_path / "auto.zip")
+    assert (loaded.entropy_threshold, loaded.target_plan_length) == ("auto", 2.5)
+    assert th.equal(loaded.policy.entropy_window.rows, window.rows)
+    assert loaded.policy.current_entropy_threshold().item() == delta
+    np.testing.assert_array_equal(rollout_actions(loaded), before)
+    # the policy alone keeps the window too
+    model.policy.save(tmp_path / "policy.pt")
+    policy = UA2CPolicy.load(tmp_path / "policy.pt")
+    assert policy.current_entropy_threshold().item() == delta
+    np.testing.assert_array_equal(rollout_actions(policy), before)
+    # a numeric δ at load time drops the window (a target without "auto" is refused)
+    with pytest.raises(ValueError, match="target_plan_length"):
+        UA2C.load(tmp_path / "auto.zip", entropy_threshold=0.0)
+    plain = UA2C.load(tmp_path / "auto.zip", entropy_threshold=0.0, target_plan_length=None)
+    assert plain.policy.entropy_window is None and "entropy_window.rows" not in plain.policy.state_dict()
+
+
+def test_auto_threshold_runs_are_bit_identical():
+    runs = [
+        UA2C("MlpPolicy", "Pendulum-v1", seed=4, entropy_threshold="auto", **FAST).learn(150) for _ in range(2)
+    ]
+    for key, value in weights(runs[0]).items():
+        assert th.equal(value, runs[1].policy.state_dict()[key]), key
+    assert int(runs[0].policy.entropy_window.count) > 0
+
+
+def test_value_execution_save_load_and_load_override(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, critic_type="prefix", execution="value", **FAST)
+    model.learn(120)
+    assert model.policy.execution == "value"
+    before = rollout_actions(model)
+    model.save(tmp_path / "value.zip")
+    loaded = UA2C.load(tmp_path / "value.zip")
+    assert loaded.execution == loaded.config.execution == loaded.policy.execution == "value"
+    np.testing.assert_array_equal(rollout_actions(loaded), before)
+    # overrides at load time reach the config and the policy
+    fixed = UA2C.load(tmp_path / "value.zip", execution="fixed")
+    assert fixed.config.execution == fixed.policy.execution == "fixed"
+    assert UA2C.load(tmp_path / "value.zip", execution="entropy").policy.execution == "entropy"
+    with pytest.raises(ValueError, match="execution"):
+        UA2C.load(tmp_path / "value.zip", execution="greedy")
+    # set_execution changes a trained model's rule and is kept by save
+    model.set_execution("fixed")
+    assert model.policy.execution == model.config.execution == "fixed"
+    model.save(tmp_path / "fixed.zip")
+    assert UA2C.load(tmp_path / "fixed.zip").policy.execution == "fixed"
+
+
+def test_value_execution_override_needs_the_prefix_critic(tmp_path):
+    UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).save(tmp_path / "chunk.zip")
+    with pytest.raises(ValueError, match="execution.*critic_type"):
+        UA2C.load(tmp_path / "chunk.zip", execution="value")
+
+
+def strip_new_keys(path, out):
+    """A copy of a saved model as the code before ``execution`` wrote it: no such attributes."""
+    with zipfile.ZipFile(path) as src, zipfile.ZipFile(out, "w") as dst:
+        for item in src.infolist():
+            content = src.read(item.filename)
+            if item.filename == "data":
+                data = json.loads(content)
+                for key in ("execution", "target_plan_length", "config"):
+                    data.pop(key, None)
+                content = json.dumps(data).encode()
+            dst.writestr(item, content)
+
+
+def test_checkpoints_without_the_new_arguments_load(tmp_path):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, entropy_threshold=-0.5, **FAST)
+    model.save(tmp_path / "new.zip")
+    strip_new_keys(tmp_path / "new.zip", tmp_path / "old.zip")
+    old = UA2C.load(tmp_path / "old.zip")
+    assert (old.execution, old.entropy_threshold, old.target_plan_length) == ("entropy", -0.5, None)
+    np.testing.assert_array_equal(rollout_actions(old), rollout_actions(model))
+    # an "auto" override starts with an empty window: each plan's own δ until training fills it
+    auto = UA2C.load(tmp_path / "old.zip", entropy_threshold="auto", target_plan_length=1.0)
+    assert int(auto.policy.entropy_window.count) == 0
+    assert math.isnan(auto.policy.current_entropy_threshold())
+    auto.predict(np.zeros(3, np.float32), deterministic=True)
+    assert auto.policy.last_plan_lengths.tolist() == [1]  # target 1: one action per plan
+    assert int(auto.policy.entropy_window.count) == 0
+
+
+def test_set_entropy_threshold_to_auto_and_back():
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    model.set_entropy_threshold("auto", target_plan_length=4)
+    assert (model.entropy_threshold, model.target_plan_length) == ("auto", 4.0)
+    assert model.policy.entropy_window.rows.shape == (AUTO_THRESHOLD_WINDOW, 5)
+    model.set_entropy_threshold(math.inf)
+    assert model.policy.entropy_window is None and model.policy.entropy_threshold == math.inf
+    with pytest.raises(ValueError, match="target_plan_length"):
+        model.set_entropy_threshold(0.0, target_plan_length=2)
+
+
+# ------------------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(execution="greedy"), "execution must be one of"),
+        (dict(execution=None), "execution must be one of"),
+        (dict(entropy_threshold="Auto"), "entropy_threshold must be a number or 'auto'"),
+        (dict(entropy_threshold=None), "entropy_threshold must be a number or 'auto'"),
+        (dict(entropy_threshold=True), "entropy_threshold must be a number or 'auto'"),
+        (dict(entropy_threshold="auto", target_plan_length=0.5), r"target_plan_length must be a number in \[1, "),
+        (dict(entropy_threshold="auto", target_plan_length=6), r"target_plan_length must be a number in \[1, "),
+        (dict(entropy_threshold="auto", target_plan_length="3"), "target_plan_length must be a number"),
+        (dict(entropy_threshold="auto", target_plan_length=math.nan), "target_plan_length must be a number"),
+        (dict(target_plan_length=3.0), "target_plan_length applies to entropy_threshold='auto' only"),
+        (dict(entropy_threshold=math.inf, target_plan_length=3.0), "target_plan_length applies"),
+    ],
+)
+def test_bad_execution_arguments_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        UA2CConfig(**kwargs)
+    with pytest.raises(ValueError, match=match):
+        UA2C("MlpPolicy", "Pendulum-v1", **kwargs)
+    with pytest.raises(ValueError, match=match):
+        UA2CPolicy(OBS, ACT, lambda _: 1e-3, **kwargs)
+
+
+def test_config_normalises_the_execution_arguments():
+    config = UA2CConfig(entropy_threshold="auto", target_plan_length=3, chunk_size=5)
+    assert config.target_plan_length == 3.0 and isinstance(config.target_plan_length, float)
+    assert UA2CConfig(entropy_threshold=1).entropy_threshold == 1.0
+    assert UA2CConfig(chunk_size=1, entropy_threshold="auto", target_plan_length=1).target_plan_length == 1.0
