@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sb3_ua2c.cli_args import float_arg, json_object_arg
+from sb3_ua2c.cli_args import json_object_arg, threshold_arg
 
 DEFAULT_RUNS = Path("runs")
 
@@ -222,7 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/finetuned.zip)")
     p.add_argument("--timesteps", type=int, default=50_000)
     p.add_argument("--offline-ratio", type=float, default=None)
-    p.add_argument("--entropy-threshold", type=float_arg, default=None, help="δ of Eq. 7; 'inf' = fixed chunks")
+    p.add_argument("--entropy-threshold", type=threshold_arg, default=None,
+                   help="δ of Eq. 7; 'inf' = fixed chunks; 'auto' = set from recent plans")
     p.set_defaults(func=cmd_finetune)
 
     p = sub.add_parser("evaluate", help="evaluate checkpoints: reward, jerk, collisions, merges, mean L_t")
@@ -232,7 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", default=None, help="take the env configuration from this dataset")
     p.add_argument("--episodes", type=int, default=10, help="episodes per seed")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--entropy-threshold", type=float_arg, default=None)
+    p.add_argument("--entropy-threshold", type=threshold_arg, default=None,
+                   help="δ of Eq. 7 to act with; 'inf' = fixed chunks; 'auto' = the checkpoint's window")
     p.add_argument("--stochastic", action="store_true", help="fresh candidate noise at every plan")
     p.add_argument("--json", default=None, help="results file (default: <run-dir>/evaluation.json)")
     p.set_defaults(func=cmd_evaluate)

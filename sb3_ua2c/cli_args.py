@@ -25,3 +25,8 @@ def float_arg(text: str) -> float:
     if math.isnan(value):
         raise argparse.ArgumentTypeError("NaN is not a valid value")
     return value
+
+
+def threshold_arg(text: str) -> float | str:
+    """argparse type of δ (Eq. 7): ``"auto"`` or a float other than NaN (``"inf"`` = fixed chunks)."""
+    return "auto" if text == "auto" else float_arg(text)

@@ -779,6 +779,18 @@ def test_cli_argument_types() -> None:
         float_arg("x")
 
 
+
+def test_entropy_threshold_argument_takes_auto() -> None:
+    from sb3_ua2c.__main__ import build_parser
+
+    parser = build_parser()
+    for command in (["finetune", "--checkpoint", "c.zip"], ["evaluate", "--checkpoint", "c.zip"]):
+        assert parser.parse_args([*command, "--entropy-threshold", "auto"]).entropy_threshold == "auto"
+        assert parser.parse_args([*command, "--entropy-threshold", "inf"]).entropy_threshold == math.inf
+        with pytest.raises(SystemExit):
+            parser.parse_args([*command, "--entropy-threshold", "Auto"])
+
+
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         experiments.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])
