@@ -1,29 +1,16 @@
 """The ``torch_compile`` policy option: a constructor parameter that keeps the parameters and
 checkpoints of eager mode, and compiled critics that compute the eager numbers to rounding."""
 
-import numpy as np
 import pytest
 import torch as th
-from gymnasium import spaces
+from ua2c_helpers import tiny_policy
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.policies import UA2CPolicy
 
 
 def make_policy(**kwargs) -> UA2CPolicy:
-    return UA2CPolicy(
-        spaces.Box(-5.0, 5.0, (3,), dtype=np.float32),
-        spaces.Box(-1.0, 1.0, (2,), dtype=np.float32),
-        lambda _: 1e-3,
-        chunk_size=3,
-        history_len=2,
-        n_candidates=4,
-        flow_steps=2,
-        net_arch=[16],
-        critic_embed_dim=8,
-        critic_ff_dim=16,
-        **kwargs,
-    )
+    return tiny_policy(n_candidates=4, **kwargs)
 
 
 @pytest.mark.parametrize("bad", [1, "yes", None])

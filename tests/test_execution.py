@@ -5,13 +5,12 @@ import json
 import math
 import zipfile
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 from torch import nn
-from ua2c_helpers import FAST
+from ua2c_helpers import FAST, rollout_actions
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import (
@@ -187,17 +186,6 @@ def test_target_plan_length_defaults_to_the_middle_of_1_and_k():
 def weights(model):
     return {k: v.clone() for k, v in model.policy.state_dict().items()}
 
-
-def rollout_actions(model, n=12, deterministic=True):
-    env = gym.make("Pendulum-v1")
-    obs, _ = env.reset(seed=3)
-    state, start, out = None, np.array([True]), []
-    for _ in range(n):
-        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
-        out.append(action)
-        obs, *_ = env.step(action)
-        start = np.array([False])
-    return np.array(out)
 
 
 def test_fixed_execution_is_delta_inf_bit_for_bit():

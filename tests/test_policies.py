@@ -8,26 +8,14 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv
-from ua2c_helpers import FAST
+from ua2c_helpers import FAST, tiny_policy
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.policies import UA2CPolicy
 
 
 def make_policy(**kwargs) -> UA2CPolicy:
-    return UA2CPolicy(
-        spaces.Box(-5.0, 5.0, (3,), dtype=np.float32),
-        spaces.Box(-1.0, 1.0, (2,), dtype=np.float32),
-        lambda _: 1e-3,
-        chunk_size=3,
-        history_len=2,
-        n_candidates=6,
-        flow_steps=2,
-        net_arch=[16],
-        critic_embed_dim=8,
-        critic_ff_dim=16,
-        **kwargs,
-    )
+    return tiny_policy(**kwargs)
 
 
 def candidates_and_values(policy: UA2CPolicy, obs_h: th.Tensor, act_h: th.Tensor, seed: int):

@@ -8,7 +8,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.evaluation import evaluate_policy
-from ua2c_helpers import FAST
+from ua2c_helpers import FAST, rollout_actions
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.buffers import ChunkReplayBuffer
@@ -17,18 +17,6 @@ from sb3_ua2c.buffers import ChunkReplayBuffer
 def params(model: UA2C) -> dict[str, th.Tensor]:
     return {k: v.clone() for k, v in model.policy.state_dict().items()}
 
-
-def rollout_actions(model: UA2C, n: int = 12) -> np.ndarray:
-    """Deterministic actions of ``n`` consecutive steps carrying the executor state."""
-    env = gym.make("Pendulum-v1")
-    obs, _ = env.reset(seed=3)
-    state, start, out = None, np.array([True]), []
-    for _ in range(n):
-        action, state = model.predict(obs, state=state, episode_start=start, deterministic=True)
-        out.append(action)
-        obs, *_ = env.step(action)
-        start = np.array([False])
-    return np.array(out)
 
 
 def test_save_load_same_actions_and_hyperparameters(tmp_path):

@@ -1,5 +1,11 @@
 """Small UA2C settings shared by the algorithm tests (seconds per test on one core)."""
 
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sb3_ua2c.policies import UA2CPolicy
+
 #: tiny networks
 TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
 #: tiny networks, short warm-up, few candidates
@@ -12,3 +18,33 @@ FAST = dict(
     n_candidates=4,
     n_target_candidates=2,
 )
+
+
+def tiny_policy(n_candidates: int = 6, **kwargs) -> UA2CPolicy:
+    """A policy with 3-dim observations, 2-dim actions in [-1, 1], k = 3, ℓ = 2 and tiny networks."""
+    return UA2CPolicy(
+        spaces.Box(-5.0, 5.0, (3,), dtype=np.float32),
+        spaces.Box(-1.0, 1.0, (2,), dtype=np.float32),
+        lambda _: 1e-3,
+        chunk_size=3,
+        history_len=2,
+        n_candidates=n_candidates,
+        flow_steps=2,
+        net_arch=[16],
+        critic_embed_dim=8,
+        critic_ff_dim=16,
+        **kwargs,
+    )
+
+
+def rollout_actions(model, n: int = 12, deterministic: bool = True) -> np.ndarray:
+    """The actions of ``n`` consecutive Pendulum-v1 steps (reset seed 3) carrying the executor state."""
+    env = gym.make("Pendulum-v1")
+    obs, _ = env.reset(seed=3)
+    state, start, out = None, np.array([True]), []
+    for _ in range(n):
+        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+        out.append(action)
+        obs, *_ = env.step(action)
+        start = np.array([False])
+    return np.array(out)
