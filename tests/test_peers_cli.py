@@ -22,7 +22,7 @@ from sb3_ua2c.peers.budget import (
     peer_unit_seconds,
     stage_wall_seconds,
 )
-from sb3_ua2c.peers.report import aggregate, arm_summary, binned_curve, readme_table, results_table, verdicts
+from sb3_ua2c.peers.report import aggregate, arm_summary, binned_curve, means_table, readme_table, results_table, verdicts
 
 OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql"}
 
@@ -146,7 +146,13 @@ def test_report_builders_on_hand_made_records():
     (line,) = verdicts(summary)
     assert "UA2C adaptive chunks LOSES to SB3 SAC (online): IQM reward 2.50 vs 6.50 (-4.00, -61.5 % of |peer|)" in line
     assert "| UA2C adaptive chunks | 2.50 [" in results_table(summary)[2]
-    assert readme_table(summary)[3].startswith("| SB3 SAC (online) | 6.50 [")
+    row = readme_table(summary)[3]
+    assert row.startswith("| SB3 SAC (online) | 6.50 [") and row.endswith("] | 6.50 | 0.50 | 1.00 |")
+    # means over seeds x episodes: reward (1 + 2 + 3 + 4) / 4, one collision per seed in two episodes
+    assert adaptive["means"]["reward"]["mean"] == pytest.approx(2.5)
+    assert adaptive["means"]["collision"]["mean"] == pytest.approx(0.5)
+    assert adaptive["means"]["cumulative_jerk"]["mean"] == pytest.approx(25.0)
+    assert means_table(summary)[2].startswith("| UA2C adaptive chunks | 2.50 [")
 
 
 def test_binned_curve_carries_the_last_return_forward():
@@ -176,4 +182,5 @@ def test_headline_names_the_best_of_each_side():
     }
     line = headline(aggregate(records, reps=50))
     assert line == ("Best UA2C arm, UA2C fixed chunks (δ=inf) (IQM reward 4.00), is ahead of the best peer, "
-                    "SB3 SAC (online) (3.00), by 1.00; P(UA2C > peer) = 1.00.")
+                    "SB3 SAC (online) (3.00), by 1.00; P(UA2C > peer) = 1.00. By the mean reward: 4.00 vs 3.00 "
+                    "(+1.00); collision rate 0.50 vs 0.50.")

@@ -11,6 +11,7 @@ require("rliable")
 from sb3_ua2c.peers.stats import (  # noqa: E402
     iqm,
     iqm_with_ci,
+    mean_with_ci,
     probability_of_improvement,
     score_matrix,
     stratified_resamples,
@@ -31,6 +32,18 @@ def test_iqm_interval_contains_the_point_and_is_reproducible():
     assert a["iqm"] == pytest.approx(iqm(scores["a"]))
     assert a["ci_low"] < a["iqm"] < a["ci_high"] and a["ci_high"] - a["ci_low"] < 1.0
     assert iqm_with_ci(scores, reps=500)["a"] == a  # seeded bootstrap
+
+
+def test_mean_of_a_rare_event_is_its_rate_where_the_iqm_reads_zero():
+    # 2 collisions in 10 episodes (5 seeds x 2): rate 0.2, but both 1s sit in the trimmed top quarter
+    collisions = np.array([[0, 0], [0, 1], [0, 0], [1, 0], [0, 0]], dtype=float)
+    assert iqm(collisions) == 0.0
+    out = mean_with_ci({"x": collisions}, reps=500)["x"]
+    assert out["mean"] == pytest.approx(0.2)
+    assert 0.0 <= out["ci_low"] < 0.2 < out["ci_high"] <= 1.0
+    assert mean_with_ci({"x": collisions}, reps=500)["x"] == out  # seeded bootstrap
+    with pytest.raises(ValueError, match="reps"):
+        mean_with_ci({"x": collisions}, reps=0)
 
 
 def test_probability_of_improvement_by_hand():

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from sb3_ua2c.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
-from sb3_ua2c.peers.stats import LOWER_IS_BETTER, iqm_with_ci, probability_of_improvement, score_matrix
+from sb3_ua2c.peers.stats import LOWER_IS_BETTER, iqm_with_ci, mean_with_ci, probability_of_improvement, score_matrix
 
 #: Evaluation metrics reported per arm (keys of the evaluation episodes).
 METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step")
@@ -64,9 +64,10 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
 
 
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
-    """IQM with CI of every metric, offline score, learning curve and times of one arm's records."""
+    """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
     metrics = {m: iqm_with_ci({"x": score_matrix(records, m)}, reps=reps)["x"] for m in METRICS}
+    means = {m: mean_with_ci({"x": score_matrix(records, m)}, reps=reps)["x"] for m in METRICS}
     offline = None
     if all(r.get("offline_evaluation") for r in records):
         off = _offline_score_records(records)
@@ -85,6 +86,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "online_steps": online_steps,
         "offline_steps": int(first["offline_steps"]),
         "metrics": metrics,
+        "means": means,
         "offline_metrics": offline,
         "curve": {"env_steps": steps, **band},
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
@@ -132,7 +134,7 @@ def verdicts(summary: Mapping[str, Any]) -> list[str]:
 
 
 def headline(summary: Mapping[str, Any]) -> str:
-    """One sentence: the best UA2C arm against the best peer by IQM reward (who leads, by how much)."""
+    """The best UA2C arm against the best peer by IQM reward (who leads, by how much), then their means."""
     arms = summary["arms"]
     reward = {a: arms[a]["metrics"]["reward"]["iqm"] for a in arms}
     ours = [a for a in arms if a in UA2C_ARMS]
@@ -144,13 +146,20 @@ def headline(summary: Mapping[str, Any]) -> str:
     side = "ahead of" if gap > 0 else "BEHIND" if gap < 0 else "level with"
     return (f"Best UA2C arm, {ARM_LABELS.get(o, o)} (IQM reward {reward[o]:.2f}), is {side} the best peer, "
             f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}), by {abs(gap):.2f}; P(UA2C > peer) = "
-            f"{summary['pairs'][f'{o}_vs_{p}']['reward']['probability']:.2f}.")
+            f"{summary['pairs'][f'{o}_vs_{p}']['reward']['probability']:.2f}. By the mean reward: "
+            f"{_mean(arms[o], 'reward'):.2f} vs {_mean(arms[p], 'reward'):.2f} "
+            f"({_mean(arms[o], 'reward') - _mean(arms[p], 'reward'):+.2f}); collision rate "
+            f"{_mean(arms[o], 'collision'):.2f} vs {_mean(arms[p], 'collision'):.2f}.")
 
 
-def _cell(stat: Mapping[str, float] | None, digits: int = 2) -> str:
+def _mean(arm: Mapping[str, Any], metric: str) -> float:
+    return arm["means"][metric]["mean"]
+
+
+def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
     if stat is None:
         return "–"
-    return f"{stat['iqm']:.{digits}f} [{stat['ci_low']:.{digits}f}, {stat['ci_high']:.{digits}f}]"
+    return f"{stat[key]:.{digits}f} [{stat['ci_low']:.{digits}f}, {stat['ci_high']:.{digits}f}]"
 
 
 def results_table(summary: Mapping[str, Any]) -> list[str]:
@@ -166,13 +175,24 @@ def results_table(summary: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def readme_table(summary: Mapping[str, Any]) -> list[str]:
-    """The short table for the README: IQM reward, collision and merge success per arm."""
-    lines = ["| arm | reward (IQM [95 % CI]) | collision | merge success |", "|---|---|---|---|"]
+def means_table(summary: Mapping[str, Any]) -> list[str]:
+    """The per-arm means [95 % CI] in Markdown: collision and merge success as rates."""
+    lines = ["| arm | reward | collision rate | merge rate | cum. jerk | jerk/step |", "|---|---|---|---|---|---|"]
     for arm in summary["arms"].values():
-        m = arm["metrics"]
-        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {m['collision']['iqm']:.2f} | "
-                     f"{m['merge_success']['iqm']:.2f} |")
+        m = arm["means"]
+        lines.append(f"| {arm['label']} | {_cell(m['reward'], key='mean')} | {_cell(m['collision'], key='mean')} "
+                     f"| {_cell(m['merge_success'], key='mean')} | {_cell(m['cumulative_jerk'], 1, 'mean')} "
+                     f"| {_cell(m['jerk_per_step'], key='mean')} |")
+    return lines
+
+
+def readme_table(summary: Mapping[str, Any]) -> list[str]:
+    """The short table for the README: IQM and mean reward, collision and merge rates per arm."""
+    lines = ["| arm | reward (IQM [95 % CI]) | mean reward | collision rate | merge rate |", "|---|---|---|---|---|"]
+    for arm in summary["arms"].values():
+        m, mean = arm["metrics"], arm["means"]
+        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {mean['reward']['mean']:.2f} | "
+                     f"{mean['collision']['mean']:.2f} | {mean['merge_success']['mean']:.2f} |")
     return lines
 
 
@@ -245,8 +265,9 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         "thresholds) for every arm.",
         f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
         "δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the offline data "
-        f"in the buffer and one gradient step per {b['chunk_size']} env steps (Figure 2's cadence), so they make "
-        f"about 1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step).",
+        "in the buffer and one gradient step per k env steps (Figure 2's cadence): the chunk arms make about "
+        f"1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step), the one-step arm "
+        "as many.",
         "- SAC and TQC: online from scratch, hyperparameters from `zoo_configs/sac.yml` / `zoo_configs/tqc.yml` "
         "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
                                             if summary["budget"]["sb3_hyperparams"] else "")
@@ -283,6 +304,13 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with an "
         "offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared offline "
         "checkpoint.",
+        "",
+        "For the 0/1 metrics (collision, merge success) the IQM trims the quarter of episodes at each end, so a "
+        "collision rate under 25 % reads 0: the rates are in the next table.",
+        "",
+        "## Means (95 % CI) over seeds × evaluation episodes",
+        "",
+        *means_table(summary),
         "",
         "## Probability of improvement of each UA2C arm over each peer",
         "",

@@ -120,6 +120,19 @@ def iqm(scores: np.ndarray) -> float:
     return float(_metrics().aggregate_iqm(_check_matrix("scores", scores)))
 
 
+def _aggregate_with_ci(
+    scores: Mapping[str, np.ndarray], point: Any, of_resamples: Any, confidence: float, reps: int, seed: int
+) -> dict[str, dict[str, float]]:
+    check_int("reps", reps)
+    out = {}
+    for name, matrix in scores.items():
+        matrix = _check_matrix(f"scores[{name!r}]", matrix)
+        boot = stratified_resamples(matrix, reps, np.random.default_rng(seed))  # (reps, n, m)
+        low, high = _percentile_interval(of_resamples(boot), confidence)
+        out[name] = {"value": float(point(matrix)), "ci_low": low, "ci_high": high}
+    return out
+
+
 def iqm_with_ci(
     scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
 ) -> dict[str, dict[str, float]]:
@@ -131,15 +144,23 @@ def iqm_with_ci(
     :param seed: seed of the bootstrap's generator (the same call gives the same interval)
     :return: arm -> ``{"iqm", "ci_low", "ci_high"}``
     """
-    check_int("reps", reps)
-    metrics = _metrics()
-    out = {}
-    for name, matrix in scores.items():
-        matrix = _check_matrix(f"scores[{name!r}]", matrix)
-        boot = stratified_resamples(matrix, reps, np.random.default_rng(seed))  # (reps, n, m)
-        low, high = _percentile_interval(iqm_of_resamples(boot), confidence)
-        out[name] = {"iqm": float(metrics.aggregate_iqm(matrix)), "ci_low": low, "ci_high": high}
-    return out
+    out = _aggregate_with_ci(scores, _metrics().aggregate_iqm, iqm_of_resamples, confidence, reps, seed)
+    return {name: {"iqm": v.pop("value"), **v} for name, v in out.items()}
+
+
+def mean_with_ci(
+    scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
+) -> dict[str, dict[str, float]]:
+    """Mean of each arm over seeds × episodes (rliable's ``aggregate_mean``; for a 0/1 metric, the rate)
+    with its stratified bootstrap confidence interval. Where a 0/1 metric such as collision is rarer
+    than 1 in 4 episodes its IQM is 0, as the trimmed quarters hold every 1: report the rate.
+
+    :return: arm -> ``{"mean", "ci_low", "ci_high"}`` (arguments as :func:`iqm_with_ci`)
+    """
+    out = _aggregate_with_ci(
+        scores, _metrics().aggregate_mean, lambda boot: boot.reshape(len(boot), -1).mean(axis=1), confidence, reps, seed
+    )
+    return {name: {"mean": v.pop("value"), **v} for name, v in out.items()}
 
 
 def probability_of_improvement(
@@ -173,5 +194,5 @@ def probability_of_improvement(
 
 
 __all__ = [
-    "LOWER_IS_BETTER", "improvement_of_resamples", "iqm", "iqm_of_resamples", "iqm_with_ci", "probability_of_improvement", "score_matrix", "stratified_resamples",
+    "LOWER_IS_BETTER", "improvement_of_resamples", "iqm", "iqm_of_resamples", "iqm_with_ci", "mean_with_ci", "probability_of_improvement", "score_matrix", "stratified_resamples",
 ]
