@@ -3,6 +3,7 @@
     python benchmarks/bench_ua2c.py latency      # replanning (S=32, k=10, N=10) vs SAC predict
     python benchmarks/bench_ua2c.py throughput   # learn() env steps/s on Pendulum-v1, default hyperparameters
     python benchmarks/bench_ua2c.py throughput --ua2c-kwargs "{'policy_kwargs': {'torch_compile': True}}"
+    python benchmarks/bench_ua2c.py throughput --env envs:MixedTraffic-v0   # the SUMO env, both at defaults
     python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
     python benchmarks/bench_ua2c.py learning --algos UA2C --ua2c-kwargs "{'chunk_size': 1}"
 
@@ -127,10 +128,12 @@ def _throughput(model: UA2C | SAC, warm_steps: int, steps: int) -> tuple[float, 
     return steps / wall, steps / cpu, model._n_updates - n0
 
 
-def throughput(steps: int, ua2c_kwargs: dict) -> None:
-    """learn() env steps/s including training, at default hyperparameters, after each warm-up."""
-    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0, **ua2c_kwargs)
-    sac = SAC("MlpPolicy", ENV_ID, seed=0)
+def throughput(steps: int, ua2c_kwargs: dict, env_id: str = ENV_ID) -> None:
+    """learn() env steps/s including training, at default hyperparameters, after each warm-up. The two
+    models run one after the other, each env closed before the next opens (a SUMO env holds its
+    process's one simulation)."""
+    print(f"env {env_id}")
+    ua2c = UA2C("MlpPolicy", env_id, seed=0, **ua2c_kwargs)
     start = time.perf_counter()
     ua2c_fps, ua2c_cpu_fps, ua2c_updates = _throughput(ua2c, ua2c.learning_starts + 200, steps)
     if ua2c.policy.torch_compile:  # compiled during the warm-up's first plans and updates
@@ -138,7 +141,10 @@ def throughput(steps: int, ua2c_kwargs: dict) -> None:
             f"UA2C torch_compile: warm-up ({ua2c.learning_starts + 200} steps) and timed learn() took "
             f"{time.perf_counter() - start:.1f} s wall, compilation included"
         )
+    ua2c.env.close()
+    sac = SAC("MlpPolicy", env_id, seed=0)
     sac_fps, sac_cpu_fps, sac_updates = _throughput(sac, sac.learning_starts + 200, steps)
+    sac.env.close()
     data = ua2c.replay_buffer.sample(ua2c.batch_size)
     ua2c_step_ms = cpu_ms(lambda: ua2c._gradient_step(data), 20, warmup=3)
     sac_step_ms = cpu_ms(lambda: sac.train(1, sac.batch_size), 20, warmup=3)
@@ -216,6 +222,9 @@ def main() -> None:
         default={},
         help="latency, throughput and learning: UA2C arguments, e.g. \"{'chunk_size': 1}\"",
     )
+    parser.add_argument(
+        "--env", default=ENV_ID, help="throughput: env id (module:id imports the module first, e.g. envs:MixedTraffic-v0)"
+    )
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -223,7 +232,7 @@ def main() -> None:
     if args.part == "latency":
         latency(args.repeats, args.ua2c_kwargs)
     elif args.part == "throughput":
-        throughput(args.steps or 1000, args.ua2c_kwargs)
+        throughput(args.steps or 1000, args.ua2c_kwargs, args.env)
     else:
         learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos, args.ua2c_kwargs)
 
