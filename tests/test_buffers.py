@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from ua2c_helpers import ACT, OBS
 
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, _StartIndex
-
-OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
-ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 
 
 @pytest.fixture(autouse=True)

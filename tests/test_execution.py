@@ -8,9 +8,8 @@ import zipfile
 import numpy as np
 import pytest
 import torch as th
-from gymnasium import spaces
 from torch import nn
-from ua2c_helpers import FAST, rollout_actions
+from ua2c_helpers import ACT, FAST, OBS, rollout_actions
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import (
@@ -24,8 +23,6 @@ from sb3_ua2c.chunking import (
 from sb3_ua2c.config import UA2CConfig
 from sb3_ua2c.policies import UA2CPolicy
 
-OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
-ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 T = th.tensor
 
 

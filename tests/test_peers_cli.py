@@ -22,7 +22,15 @@ from sb3_ua2c.peers.budget import (
     peer_unit_seconds,
     stage_wall_seconds,
 )
-from sb3_ua2c.peers.report import aggregate, arm_summary, binned_curve, means_table, readme_table, results_table, verdicts
+from sb3_ua2c.peers.report import (
+    aggregate,
+    arm_summary,
+    binned_curve,
+    means_table,
+    readme_table,
+    results_table,
+    verdicts,
+)
 
 OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql"}
 

@@ -5,8 +5,8 @@ padding left out of the flow loss)."""
 import numpy as np
 import pytest
 import torch as th
-from gymnasium import spaces
 from torch import nn
+from ua2c_helpers import ACT, OBS
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.buffers import ChunkReplayBuffer
@@ -20,8 +20,6 @@ from sb3_ua2c.chunking import (
 from sb3_ua2c.flow import flow_matching_loss
 from sb3_ua2c.policies import ChunkCritics, UA2CPolicy
 
-OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
-ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 T = th.tensor
 
 

@@ -6,6 +6,9 @@ from gymnasium import spaces
 
 from sb3_ua2c.policies import UA2CPolicy
 
+#: 1-dim observation and action spaces of the hand-computed buffer, target and execution tests
+OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
+ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 #: tiny networks
 TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
 #: tiny networks, short warm-up, few candidates

@@ -16,7 +16,13 @@ from typing import Any
 import numpy as np
 
 from sb3_ua2c.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
-from sb3_ua2c.peers.stats import LOWER_IS_BETTER, iqm_with_ci, mean_with_ci, probability_of_improvement, score_matrix
+from sb3_ua2c.peers.stats import (
+    LOWER_IS_BETTER,
+    iqm_with_ci,
+    mean_with_ci,
+    probability_of_improvement,
+    score_matrix,
+)
 
 #: Evaluation metrics reported per arm (keys of the evaluation episodes).
 METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step")
