@@ -72,8 +72,9 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
-    metrics = {m: iqm_with_ci({"x": score_matrix(records, m)}, reps=reps)["x"] for m in METRICS}
-    means = {m: mean_with_ci({"x": score_matrix(records, m)}, reps=reps)["x"] for m in METRICS}
+    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_seeds, n_episodes)
+    metrics = iqm_with_ci(scores, reps=reps)
+    means = mean_with_ci(scores, reps=reps)
     offline = None
     if all(r.get("offline_evaluation") for r in records):
         off = _offline_score_records(records)

@@ -121,7 +121,7 @@ def iqm(scores: np.ndarray) -> float:
 
 
 def _aggregate_with_ci(
-    scores: Mapping[str, np.ndarray], point: Any, of_resamples: Any, confidence: float, reps: int, seed: int
+    scores: Mapping[str, np.ndarray], key: str, point: Any, of_resamples: Any, confidence: float, reps: int, seed: int
 ) -> dict[str, dict[str, float]]:
     check_int("reps", reps)
     out = {}
@@ -129,7 +129,7 @@ def _aggregate_with_ci(
         matrix = _check_matrix(f"scores[{name!r}]", matrix)
         boot = stratified_resamples(matrix, reps, np.random.default_rng(seed))  # (reps, n, m)
         low, high = _percentile_interval(of_resamples(boot), confidence)
-        out[name] = {"value": float(point(matrix)), "ci_low": low, "ci_high": high}
+        out[name] = {key: float(point(matrix)), "ci_low": low, "ci_high": high}
     return out
 
 
@@ -144,8 +144,7 @@ def iqm_with_ci(
     :param seed: seed of the bootstrap's generator (the same call gives the same interval)
     :return: arm -> ``{"iqm", "ci_low", "ci_high"}``
     """
-    out = _aggregate_with_ci(scores, _metrics().aggregate_iqm, iqm_of_resamples, confidence, reps, seed)
-    return {name: {"iqm": v.pop("value"), **v} for name, v in out.items()}
+    return _aggregate_with_ci(scores, "iqm", _metrics().aggregate_iqm, iqm_of_resamples, confidence, reps, seed)
 
 
 def mean_with_ci(
@@ -157,10 +156,8 @@ def mean_with_ci(
 
     :return: arm -> ``{"mean", "ci_low", "ci_high"}`` (arguments as :func:`iqm_with_ci`)
     """
-    out = _aggregate_with_ci(
-        scores, _metrics().aggregate_mean, lambda boot: boot.reshape(len(boot), -1).mean(axis=1), confidence, reps, seed
-    )
-    return {name: {"mean": v.pop("value"), **v} for name, v in out.items()}
+    of_resamples = lambda boot: boot.reshape(len(boot), -1).mean(axis=1)  # noqa: E731  (reps,)
+    return _aggregate_with_ci(scores, "mean", _metrics().aggregate_mean, of_resamples, confidence, reps, seed)
 
 
 def probability_of_improvement(
