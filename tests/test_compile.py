@@ -39,7 +39,6 @@ def test_torch_compile_keeps_parameters_checkpoints_and_constructor_parameters(t
     assert model.policy.torch_compile is True
 
 
-@pytest.mark.skipif(not hasattr(th, "compile"), reason="torch.compile is not available in this torch")
 def test_compiled_critics_match_eager_to_rounding():
     th.manual_seed(0)
     eager = make_policy()
