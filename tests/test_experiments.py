@@ -227,8 +227,29 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert unit.pretrain_step_ms(1) == pytest.approx(16.8)
     assert unit.replan_ms(100.0) == pytest.approx(4.0 + 100 * 0.008)  # 4.8 ms
     full = estimate_seconds(FULL_BUDGET, 5)
-    wall = full["total"] / 5 * math.ceil(5 / 2)  # 2 workers: one of them runs 3 seeds
+    wall = experiments.estimate_wall_seconds(full, 5, 2)
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
+    # the two parts of a seed fill the workers: shorter than whole seeds (one worker runs 3 of 5)
+    assert full["total"] / 2 <= wall < full["total"] / 5 * math.ceil(5 / 2)
+
+
+def test_list_schedule_and_wall_estimate_by_hand() -> None:
+    schedule = experiments.list_schedule_seconds
+    # 2 workers take 4, 3 at t = 0; the third unit (2) goes to the worker free at 3, the fourth (2)
+    # to the one free at 4: the workers end at 5 and 6
+    assert schedule([4.0, 3.0, 2.0, 2.0], 2) == pytest.approx(6.0)
+    assert schedule([4.0, 3.0, 2.0, 2.0], 1) == pytest.approx(11.0)
+    assert schedule([4.0, 3.0], 8) == pytest.approx(4.0)  # more workers than units
+    assert schedule([], 2) == 0.0
+    with pytest.raises(ValueError, match="workers"):
+        schedule([1.0], 0)
+    # 3 seeds, main parts of 10 s and style parts of 4 s (style 1 + style_ablation 3 per seed) on 2
+    # workers: mains end at 10, 10, 20 on the two workers; styles start at 10 (-> 14), 14 (-> 18), 18
+    # (-> 22) on the worker free at 10, so the last one ends at 22
+    stages = {"pretrain": 24.0, "evaluate": 6.0, "style": 3.0, "style_ablation": 9.0, "total": 42.0}
+    assert experiments.estimate_wall_seconds(stages, 3, 2) == pytest.approx(22.0)
+    assert experiments.estimate_wall_seconds(stages, 3, 1) == pytest.approx(42.0)
+    assert experiments.estimate_wall_seconds(stages, 3, 6) == pytest.approx(10.0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -458,10 +479,18 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     measured = summary["seconds"]["measured"]  # wall-clock seconds of every unit, by stage
     assert set(measured) == {"datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation", "total"}
     assert measured["total"] == pytest.approx(sum(v for k, v in measured.items() if k != "total"))
-    units = json.loads((quick_run / "fig2_work" / "seed0" / "unit_seconds.json").read_text())
-    # dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online evals 3,
-    # δ sweep 2, sampled evals 6, style 3, ablation 4, second online phase 2 + 2 evals + 2 sampled
-    assert len(units) == 42 and "seed0/pretrain/pretrain_k2" in units
+    work = quick_run / "fig2_work" / "seed0"
+    units = json.loads((work / "unit_seconds.json").read_text())  # the seed's main part
+    style = json.loads((work / "unit_seconds_style.json").read_text())  # its style part
+    # main: dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online
+    # evals 3, δ sweep 2, sampled evals 6, second online phase 2 + 2 evals + 2 sampled
+    assert len(units) == 35 and "seed0/pretrain/pretrain_k2" in units
+    # style: collect, train, evaluate; the ablation's dataset, pre-training, fine-tuning, evaluation
+    assert sorted(style) == [
+        "seed0/dataset_style", "seed0/evaluate/adaptive_style", "seed0/finetune/adaptive_style",
+        "seed0/pretrain/pretrain_style", "seed0/style/collect", "seed0/style/evaluate", "seed0/style/train",
+    ]
+    units = {**units, **style}
     assert "seed0/finetune/adaptive_r1" in units and "seed0/evaluate/fixed_r1_sampled" in units
     # (c) pools both online phases: 2 seeds x 2 phases
     assert summary["online_phases"]["phases"] == [0, 1] and summary["online_phases"]["runs"] == 4
@@ -601,6 +630,12 @@ def test_a_seed_in_use_is_refused(quick_run: Path, tmp_path: Path, capsys) -> No
             assert f"{held} is in use by another fig2 process" in capsys.readouterr().err
     with experiments.seed_lock(work):  # released on exit
         pass
+    # each part of a seed has its own lock: a seed's style part runs next to its main part
+    with experiments.seed_lock(work):
+        with experiments.seed_lock(work, ".lock-style"):
+            assert (work / ".lock-style").read_text() == str(os.getpid())
+    with pytest.raises(ValueError, match="part must be one of \\['main', 'style', 'all'\\], got 'both'"):
+        experiments.run_seed(3, QUICK_BUDGET, experiments.RunPaths.under(tmp_path), part="both")
 
 
 def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
@@ -832,3 +867,20 @@ def test_budget_of_reruns_a_report_with_its_own_budget(quick_run: Path, tmp_path
     with pytest.raises(SystemExit):
         experiments.main(["--budget-of", str(quick_run), "--quick", "--out", str(tmp_path)])
     assert "--budget-of and --quick" in capsys.readouterr().err
+
+
+def test_run_all_submits_every_main_part_before_the_style_parts(tmp_path: Path, monkeypatch) -> None:
+    from sb3_ua2c.experiments import units
+
+    calls = []
+
+    def fake_seed_unit(seed, budget, paths, part="all"):
+        calls.append((seed, part))
+        return [f"seed{seed}/{part}/unit"]
+
+    monkeypatch.setattr(units, "run_seed_unit", fake_seed_unit)
+    lines: list[str] = []
+    executed = units.run_all([3, 1], QUICK_BUDGET, experiments.RunPaths.under(tmp_path), workers=1, printer=lines.append)
+    assert calls == [(3, "main"), (1, "main"), (3, "style"), (1, "style")]
+    assert executed == ["seed3/main/unit", "seed1/main/unit", "seed3/style/unit", "seed1/style/unit"]
+    assert lines[0].startswith("seed 3 (main): 1 unit(s) run in ")

@@ -57,7 +57,9 @@ from sb3_ua2c.experiments.budget import (
     CostModel,
     Fig2Budget,
     estimate_seconds,
+    estimate_wall_seconds,
     extra_kweights,
+    list_schedule_seconds,
     velocity_field_weights,
 )
 from sb3_ua2c.experiments.cli import (
@@ -105,6 +107,7 @@ from sb3_ua2c.experiments.stats import (
     t_confidence_interval,
 )
 from sb3_ua2c.experiments.units import (
+    SEED_PARTS,
     SeedBusyError,
     UnitLog,
     finetune_overrides,
@@ -131,6 +134,7 @@ __all__ = [
     "QUICK_BUDGET",
     "RunPaths",
     "SAMPLED_METHODS",
+    "SEED_PARTS",
     "STYLE_SEED_BASE",
     "SeedBusyError",
     "UNIT_FIELDS",
@@ -143,9 +147,11 @@ __all__ = [
     "compare",
     "delta_name",
     "estimate_seconds",
+    "estimate_wall_seconds",
     "extra_kweights",
     "finetune_overrides",
     "format_markdown",
+    "list_schedule_seconds",
     "load_raw",
     "main",
     "measured_seconds",

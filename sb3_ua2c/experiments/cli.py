@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import shlex
 import sys
@@ -17,11 +16,17 @@ from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg
 from sb3_ua2c.executor import UnitsFailedError
 from sb3_ua2c.experiments.aggregation import aggregate, load_raw
-from sb3_ua2c.experiments.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
+from sb3_ua2c.experiments.budget import (
+    FULL_BUDGET,
+    QUICK_BUDGET,
+    Fig2Budget,
+    estimate_seconds,
+    estimate_wall_seconds,
+)
 from sb3_ua2c.experiments.manifest import RunPaths, read_manifest
 from sb3_ua2c.experiments.names import MAX_SEED, PAPER
 from sb3_ua2c.experiments.report import format_pct, write_report
-from sb3_ua2c.experiments.units import SeedBusyError, measured_seconds, run_all
+from sb3_ua2c.experiments.units import SEED_PARTS, SeedBusyError, measured_seconds, run_all
 
 
 def command_line(prog: str, argv: Sequence[str]) -> str:
@@ -76,7 +81,7 @@ def build_parser(prog: str = "python benchmarks/fig2.py") -> argparse.ArgumentPa
     parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
     parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
-    parser.add_argument("--workers", type=int, default=2, help="seeds run in parallel processes (default: 2)")
+    parser.add_argument("--workers", type=int, default=2, help="units run in parallel processes, two per seed: its main and style parts (default: 2)")
     parser.add_argument(
         "--ray-address",
         default=None,
@@ -120,8 +125,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
     try:
         if not args.report_only:
             est = estimate_seconds(budget, len(seeds))
-            workers = min(args.workers, len(seeds))
-            wall = est["total"] / len(seeds) * math.ceil(len(seeds) / workers)  # seeds run whole on a worker
+            workers = min(args.workers, len(SEED_PARTS) * len(seeds))
+            wall = estimate_wall_seconds(est, len(seeds), workers)
             print(
                 f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
                 f"~{wall / 60:.0f} min wall before resuming ("

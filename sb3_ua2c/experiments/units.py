@@ -138,8 +138,9 @@ class SeedBusyError(RuntimeError):
 
 
 @contextmanager
-def seed_lock(work: Path) -> Iterator[None]:
-    """Hold an exclusive lock on a seed's work directory (``<work>/.lock``, ``flock``) while inside.
+def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
+    """Hold an exclusive lock on a seed's work directory (``<work>/<name>``, ``flock``) while inside;
+    each part of a seed (:data:`SEED_PARTS`) has its own lock file.
 
     Two ``fig2`` processes on one work directory (e.g. a second one started with ``--seed-list``)
     would otherwise train the same unit at once and write the same files. The lock dies with its
@@ -149,6 +150,7 @@ def seed_lock(work: Path) -> Iterator[None]:
     work directory there.
 
     :param work: the seed's work directory (must exist)
+    :param name: the lock file's name in ``work``
     :raises SeedBusyError: if another open lock holds it, naming the directory and the holder's pid
     """
     try:
@@ -156,7 +158,7 @@ def seed_lock(work: Path) -> Iterator[None]:
     except ImportError:  # pragma: no cover - Windows
         yield
         return
-    with open(work / ".lock", "a+") as handle:
+    with open(work / name, "a+") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -176,30 +178,44 @@ def seed_lock(work: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths) -> list[str]:
-    """Run (or resume) every unit of one seed; return the names of the units actually executed.
+SEED_PARTS = ("main", "style")
+"""The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the
+dataset, Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"style"`` (the
+style classifier of (d) and the style-context ablation, which has its own dataset and arms)."""
+
+
+def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
+    """Run (or resume) the units of one seed; return the names of the units actually executed.
 
     The wall-clock seconds of every unit run are merged into ``<work>/seed<s>/unit_seconds.json``
-    (measured cost of the run, next to :func:`estimate_seconds`). The seed's work directory is
-    locked meanwhile (:func:`seed_lock`).
+    (part ``"main"``) and ``unit_seconds_style.json`` (part ``"style"``): the measured cost of the
+    run, next to :func:`estimate_seconds`. The part's lock (:func:`seed_lock`) is held meanwhile.
 
     :param seed: the seed (datasets, networks, online env, evaluation scenarios derive from it)
     :param budget: the run's budget
     :param paths: the run's directories
+    :param part: one of :data:`SEED_PARTS`, or ``"all"`` for both, one after the other
+    :raises ValueError: on an unknown ``part``
     """
     import torch
 
+    if part not in (*SEED_PARTS, "all"):
+        raise ValueError(f"part must be one of {[*SEED_PARTS, 'all']}, got {part!r}")
     torch.set_num_threads(1)
     work, raw = paths.seed_work(seed), paths.seed_raw(seed)
     work.mkdir(parents=True, exist_ok=True)
     raw.mkdir(parents=True, exist_ok=True)
-    log = UnitLog()
-    with seed_lock(work):
-        try:
-            _run_seed_units(seed, budget, work, raw, log)
-        finally:  # also on an interruption: the finished units' times are kept
-            _merge_seconds(work / "unit_seconds.json", log.seconds)
-    return list(log)
+    executed: list[str] = []
+    for name in SEED_PARTS if part == "all" else (part,):
+        lock_file, seconds_file = _PART_FILES[name]
+        log = UnitLog()
+        with seed_lock(work, lock_file):
+            try:
+                _PART_UNITS[name](seed, budget, work, raw, log)
+            finally:  # also on an interruption: the finished units' times are kept
+                _merge_seconds(work / seconds_file, log.seconds)
+        executed += log
+    return executed
 
 
 def _merge_seconds(path: Path, seconds: Mapping[str, float]) -> None:
@@ -265,8 +281,8 @@ class _SeedUnits:
         _evaluation(self.raw, method, checkpoint, self.seed, self.budget, settings, delta, self.log, **kwargs)
 
 
-def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
-    """The units of :func:`run_seed`, in dependency order."""
+def _main_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
+    """The units of part ``"main"`` of a seed, in dependency order: (a)-(c) and the sweeps."""
     from sb3_ua2c.pipeline import env_settings
 
     units = _SeedUnits(seed, budget, work, raw, log)
@@ -283,14 +299,6 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
         for method in SAMPLED_METHODS:
             checkpoint, threshold = sampled[method]
             units.evaluate(sampled_name(method), checkpoint, settings, threshold, deterministic=False)
-    # (d): driving-style inference
-    classifier = _style_unit(seed, budget, work, raw, log)
-    # beyond the paper: the style context c_t appended to the observation (Eq. 6)
-    if budget.style_ablation:
-        ds_style = units.dataset("dataset_style", str(classifier.resolve()))
-        pre_style = units.pretrained(budget.chunk_size, ds_style, "pretrain_style")
-        fine_style = units.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
-        units.evaluate("adaptive_style", fine_style, env_settings(ds_style), budget.entropy_threshold)
     # more online phases from the same checkpoint, pooled into (c) (the first one is in _online_units)
     for r in range(1, budget.online_replicates):
         for arm, delta in (("adaptive", budget.entropy_threshold), ("fixed", math.inf)):
@@ -299,6 +307,27 @@ def _run_seed_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: U
             units.evaluate(name, tuned, settings, delta)
             if budget.sampled_eval:
                 units.evaluate(sampled_name(name), tuned, settings, delta, deterministic=False)
+
+
+def _style_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
+    """The units of part ``"style"`` of a seed: (d), driving-style inference, then (beyond the paper)
+    the style context c_t appended to the observation (Eq. 6), pre-trained and fine-tuned on its own data."""
+    from sb3_ua2c.pipeline import env_settings
+
+    classifier = _style_unit(seed, budget, work, raw, log)
+    if budget.style_ablation:
+        units = _SeedUnits(seed, budget, work, raw, log)
+        ds_style = units.dataset("dataset_style", str(classifier.resolve()))
+        pre_style = units.pretrained(budget.chunk_size, ds_style, "pretrain_style")
+        fine_style = units.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
+        units.evaluate("adaptive_style", fine_style, env_settings(ds_style), budget.entropy_threshold)
+
+
+_PART_UNITS = {"main": _main_units, "style": _style_units}
+_PART_FILES = {  # lock file, measured seconds
+    "main": (".lock", "unit_seconds.json"),
+    "style": (".lock-style", "unit_seconds_style.json"),
+}
 
 
 def _offline_units(units: _SeedUnits, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
@@ -387,16 +416,18 @@ def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitL
 def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
     """Wall-clock seconds of the units run so far, by the stages of :func:`estimate_seconds`.
 
-    :param paths: the run's directories (reads ``<work>/seed<s>/unit_seconds.json``)
+    :param paths: the run's directories (reads ``<work>/seed<s>/unit_seconds*.json``, one per part)
     :param seeds: the seeds to count
     :return: seconds per stage and ``"total"`` (stages without a record are absent)
     """
     out: dict[str, float] = {}
     for s in seeds:
-        path = paths.seed_work(s) / "unit_seconds.json"
-        if not path.is_file():
-            continue
-        for name, seconds in json.loads(path.read_text()).items():
+        records: dict[str, float] = {}
+        for _, file in _PART_FILES.values():
+            path = paths.seed_work(s) / file
+            if path.is_file():
+                records.update(json.loads(path.read_text()))
+        for name, seconds in records.items():
             parts = name.split("/")  # seed<s>/<stage>[/<what>]
             if name.endswith("_style"):
                 stage = "style_ablation"
@@ -414,9 +445,9 @@ def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
     return out
 
 
-def run_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths) -> list[str]:
+def run_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part: str = "all") -> list[str]:
     """:func:`run_seed` as an executor unit (plain arguments: it may run in another process or on a Ray node)."""
-    return run_seed(seed, Fig2Budget.from_dict(budget), paths)
+    return run_seed(seed, Fig2Budget.from_dict(budget), paths, part)
 
 
 def run_all(
@@ -427,24 +458,30 @@ def run_all(
     printer: Any = print,
     ray_address: str | None = None,
 ) -> list[str]:
-    """Run (or resume) every seed, one :mod:`sb3_ua2c.executor` unit per seed: ``workers`` seeds at a
-    time in separate processes (one SUMO simulation per process), in this process when
-    ``workers=1``, or as Ray tasks on the cluster at ``ray_address``. A seed resumes its own units
-    (they are files), so the seed units have no result file and always run.
+    """Run (or resume) every seed as two :mod:`sb3_ua2c.executor` units, its parts
+    (:data:`SEED_PARTS`): every ``"main"`` part first, then the shorter ``"style"`` parts, which fill
+    the workers that the main parts leave idle (5 seeds on 2 workers no longer end with one seed
+    alone on one core). ``workers`` units at a time in separate processes (one SUMO simulation per
+    process), in this process when ``workers=1``, or as Ray tasks on the cluster at ``ray_address``.
+    A part resumes its own units (they are files), so the units have no result file and always run.
 
     :return: the units executed, over all seeds
-    :raises UnitsFailedError: after every seed ran, naming the seeds that raised
+    :raises UnitsFailedError: after every part ran, naming the parts that raised
     """
     from sb3_ua2c.executor import Unit, make_executor, run_units
 
     check_int("Fig2Budget.workers", workers)
     check_manifest(paths, budget)
     write_manifest(paths, budget)
-    serial = ray_address is None and (workers == 1 or len(seeds) == 1)
-    executor = make_executor(min(workers, max(len(seeds), 1)), ray_address, serial=serial)
-    units = [Unit(f"seed{s}", run_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths}) for s in seeds]
+    parts = [(s, part) for part in SEED_PARTS for s in seeds]
+    serial = ray_address is None and workers == 1
+    executor = make_executor(min(workers, len(parts)), ray_address, serial=serial)
+    units = [
+        Unit(f"seed{s}/{part}", run_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths, "part": part})
+        for s, part in parts
+    ]
     executed: list[str] = []
-    for s, result in zip(seeds, run_units(units, executor, printer=None), strict=True):
-        printer(f"seed {s}: {len(result.value)} unit(s) run in {result.wall_seconds:.0f} s")
+    for (s, part), result in zip(parts, run_units(units, executor, printer=None), strict=True):
+        printer(f"seed {s} ({part}): {len(result.value)} unit(s) run in {result.wall_seconds:.0f} s")
         executed += result.value
     return executed
