@@ -55,6 +55,10 @@ def test_quick_run_writes_the_report(quick_run):
     assert len(report["records"]) == 6 and report["estimate"]["total_cpu"] > 0
     text = (out / "ogbench.md").read_text()
     assert "| offline updates | 4 | 1,000,000 |" in text and "| online steps | 25 | 1,000,000 |" in text
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", report["date"]) and report["n_units"] == 6
+    cpu = sum(report["seconds"].values()) / 60
+    assert f"Command: `{report['command']}` ({report['date']})" in text
+    assert f"Compute: {cpu:.0f} CPU-min over 6 units (estimate " in text
 
 
 def test_rerun_skips_stored_units_and_reruns_one_deleted_unit(quick_run, capsys):
@@ -73,7 +77,13 @@ def test_rerun_skips_stored_units_and_reruns_one_deleted_unit(quick_run, capsys)
     printed = capsys.readouterr().out
     assert "5 of 6 unit(s) already stored, 1 to run" in printed and "fixed-s1" in printed
     assert record.is_file()
+    recorded = json.loads((out / "ogbench.json").read_text())
+    recorded["date"] = "2026-01-02 03:04 UTC"  # as if the run had ended then
+    (out / "ogbench.json").write_text(json.dumps(recorded))
     assert main(["--quick", "--out", str(out), "--report-only"]) == 0
+    rebuilt = json.loads((out / "ogbench.json").read_text())  # the run's command and date, not the rebuild's
+    assert rebuilt["date"] == "2026-01-02 03:04 UTC" and rebuilt["command"] == recorded["command"]
+    assert "--report-only" not in rebuilt["command"]
     printed = capsys.readouterr().out
     assert "already stored" not in printed and "[1/" not in printed and "report:" in printed  # nothing ran
 

@@ -12,8 +12,10 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -80,7 +82,13 @@ def _run(args: argparse.Namespace, command: str) -> int:
             warnings.simplefilter("ignore", UserWarning)
             records = runner.run_benchmark(args.task, arms, seeds, budget, work, executor)
     # the quick run's statistics mean nothing: fewer bootstrap replications keep it fast
-    summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000)
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    previous = out / "ogbench.json"
+    if args.report_only and previous.is_file():  # a rebuilt report keeps the command and date of the run
+        recorded = json.loads(previous.read_text())
+        command, date = recorded.get("command") or command, recorded.get("date") or date
+    summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000,
+                                  date=date)
     for arm, s in summary["arms"].items():
         print(f"{arm:>9}: success offline {100 * s['offline']['mean']:.1f} %, online {100 * s['online']['mean']:.1f} %")
     print(f"ranking (fixed vs one-step, online): {summary['ranking']['ours_online']}; Q-chunking: "

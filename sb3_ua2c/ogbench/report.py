@@ -96,6 +96,7 @@ def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[st
         "ranking": {"ours_online": ours, "qc": QC_REFERENCE["ranking"], "agrees_with_qc": ours == "fixed chunks > one-step"},
         "above_bar": best > SUCCESS_BAR, "best_mean_success": best, "qc_reference": QC_REFERENCE,
         "seconds": {arm: sum(r["seconds"]["total_cpu"] for r in recs) for arm, recs in groups.items()},
+        "n_units": len(records),
     }
 
 
@@ -108,9 +109,17 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
     b, qc = summary["budget"], summary["qc_reference"]
     lines = [f"# OGBench: {summary['task']}", ""]
     if command:
-        lines += [f"Command: `{command}`", ""]
+        lines += [f"Command: `{command}`" + (f" ({summary['date']})" if summary.get("date") else ""), ""]
+    cpu = sum(summary["seconds"].values()) / 60
+    est = summary.get("estimate") or {}
+    lines += [f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units"
+              + (f" (estimate {est['total_cpu'] / 60:.0f} CPU-min, an upper bound)" if est.get("total_cpu") else "")
+              + ".", ""]
     lines += ["Success rate over the evaluation episodes after each phase: mean, per seed, and IQM over "
-              "seeds x episodes with its stratified bootstrap 95 % interval (rliable).", "",
+              "seeds x episodes with its stratified bootstrap 95 % interval (rliable). Success is 0 or 1 per "
+              "episode, so its IQM is about (p - 0.25) / 0.5 clipped to [0, 1] for a success rate p: 0 below 25 % "
+              "and 100 % above 75 %. Read the means; the IQM and the probabilities of improvement carry the "
+              "intervals.", "",
               "| arm | seeds | offline mean | offline IQM [95 % CI] | online mean | online IQM [95 % CI] | per seed (online) |",
               "|---|---|---|---|---|---|---|"]
     for arm, s in summary["arms"].items():
@@ -187,14 +196,16 @@ def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
 
 
 def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command: str | None = None,
-                 estimate: Mapping[str, float] | None = None, reps: int = 2000) -> dict[str, Any]:
-    """Write ``ogbench.md``, ``ogbench.json`` and the PNGs into ``out``; return the summary."""
+                 estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None) -> dict[str, Any]:
+    """Write ``ogbench.md``, ``ogbench.json`` and the PNGs into ``out``; return the summary (``date``: when the
+    run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
     from sb3_ua2c.pipeline import write_json
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(records, reps=reps)
     summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
+    summary["date"] = date
     write_plots(records, out)
     (out / "ogbench.md").write_text(format_markdown(summary, command))
     write_json(out / "ogbench.json", {**summary, "records": [
