@@ -852,7 +852,8 @@ def test_budget_of_reruns_a_report_with_its_own_budget(quick_run: Path, tmp_path
     rerun = ["--budget-of", str(quick_run), "--seeds", "1", "--workers", "1", "--out", str(tmp_path / "rerun"),
              "--work", str(quick_run / "fig2_work"), "--raw", str(quick_run / "fig2_raw")]
     assert experiments.main(rerun) == 0
-    assert "seed 0: 0 unit(s) run" in capsys.readouterr().out  # the quick run's own budget: every unit exists
+    out = capsys.readouterr().out  # the quick run's own budget: every unit of both parts exists
+    assert "seed 0 (main): 0 unit(s) run" in out and "seed 0 (style): 0 unit(s) run" in out
     assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET
     assert experiments.main([*rerun, "--budget", '{"online_replicates": 1}']) == 0  # --budget applies on top
     assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET.replace(online_replicates=1)
