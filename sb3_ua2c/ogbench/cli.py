@@ -12,10 +12,8 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -58,6 +56,7 @@ def _run(args: argparse.Namespace, command: str) -> int:
     import warnings
 
     from sb3_ua2c.checks import check_int
+    from sb3_ua2c.cli_args import run_header
     from sb3_ua2c.executor import make_executor
     from sb3_ua2c.ogbench import report, runner
     from sb3_ua2c.ogbench.unit import dataset_file
@@ -82,11 +81,7 @@ def _run(args: argparse.Namespace, command: str) -> int:
             warnings.simplefilter("ignore", UserWarning)
             records = runner.run_benchmark(args.task, arms, seeds, budget, work, executor)
     # the quick run's statistics mean nothing: fewer bootstrap replications keep it fast
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    previous = out / "ogbench.json"
-    if args.report_only and previous.is_file():  # a rebuilt report keeps the command and date of the run
-        recorded = json.loads(previous.read_text())
-        command, date = recorded.get("command") or command, recorded.get("date") or date
+    command, date = run_header(command, out / "ogbench.json" if args.report_only else None)
     summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000,
                                   date=date)
     for arm, s in summary["arms"].items():

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -12,6 +11,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.cli_args import run_header
 from sb3_ua2c.executor import UnitsFailedError, make_executor
 from sb3_ua2c.experiments.cli import command_line
 from sb3_ua2c.experiments.names import MAX_SEED
@@ -155,14 +155,12 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     paths = PeersPaths.under(args.out, args.raw, args.work)
-    command = command_line(prog, sys.argv[1:] if argv is None else argv)
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    command, date = run_header(
+        command_line(prog, sys.argv[1:] if argv is None else argv),
+        paths.out / "peers.json" if args.report_only else None,
+    )
     try:
         if args.report_only:
-            previous = paths.out / "peers.json"
-            if previous.is_file():  # a rebuilt report keeps the command and date of the run
-                recorded = json.loads(previous.read_text())
-                command, date = recorded.get("command", command), recorded.get("date", date)
             budget = read_manifest(paths) or budget
         else:
             _run(args, seeds, arms, budget, paths)
