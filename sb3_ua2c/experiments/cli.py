@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_ua2c.checks import check_int
-from sb3_ua2c.cli_args import json_object_arg
+from sb3_ua2c.cli_args import json_object_arg, run_header
 from sb3_ua2c.executor import UnitsFailedError
 from sb3_ua2c.experiments.aggregation import aggregate, load_raw
 from sb3_ua2c.experiments.budget import (
@@ -119,8 +119,10 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)
-    command = command_line(prog, sys.argv[1:] if argv is None else argv)
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    previous = paths.out / "fig2.json"  # a rebuilt report keeps the command and date of the run
+    command, date = run_header(
+        command_line(prog, sys.argv[1:] if argv is None else argv), previous if args.report_only else None
+    )
     t0 = time.perf_counter()
     try:
         if not args.report_only:
@@ -138,10 +140,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python benchmarks/fig2.
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
         recorded: dict[str, Any] = {}
         if args.report_only:
-            previous = paths.out / "fig2.json"
-            if previous.is_file():  # a rebuilt report keeps the command and date of the run
+            if previous.is_file():
                 recorded = json.loads(previous.read_text())
-                command, date = recorded.get("command", command), recorded.get("date", date)
             # the budget the run was made with: its manifest, else the one recorded in fig2.json
             manifest = read_manifest(paths)
             if manifest is None and "budget" in recorded:
