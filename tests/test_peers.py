@@ -11,7 +11,7 @@ from gymnasium import spaces
 
 from sb3_ua2c.offline import Episode, collect_dataset
 from sb3_ua2c.peers import EvalProtocol, run_d3rlpy, run_sb3_offline_mix, run_sb3_online, zoo_hyperparams
-from sb3_ua2c.peers.common import episode_transitions, literal_call
+from sb3_ua2c.peers.common import episode_transitions, literal_call, recorded_path
 from sb3_ua2c.peers.sb3_arms import OfflineMixReplayBuffer, scale_actions
 from sb3_ua2c.pipeline import evaluate
 
@@ -55,6 +55,15 @@ def test_episode_transitions_keep_next_observations_and_terminations():
     np.testing.assert_allclose(t["next_observations"][:, 0], [0.01, 0.02, 1.01, 1.02, 1.03], rtol=1e-6)
     assert t["terminations"].tolist() == [False, True, False, False, False]  # the truncation bootstraps
     assert t["rewards"].tolist() == [0, 1, 0, 1, 2]
+
+
+def test_records_name_paths_inside_the_working_directory_relative_to_it(tmp_path, monkeypatch):
+    # committed records (results/peers_raw) must not name a directory of the machine that made them
+    (tmp_path / "run").mkdir()
+    monkeypatch.chdir(tmp_path / "run")
+    assert recorded_path(tmp_path / "run" / "results" / "peers_work" / "seed0" / "dataset") == "results/peers_work/seed0/dataset"
+    assert recorded_path("results/x") == "results/x"
+    assert recorded_path(tmp_path / "elsewhere") == str(tmp_path / "elsewhere")
 
 
 def test_scale_actions_maps_the_bounds_to_unit_range():

@@ -168,6 +168,16 @@ def evaluation_record(policy: Any, settings: Mapping[str, Any], protocol: EvalPr
     return {"summary": summarize(episodes), "episodes": rows}
 
 
+def recorded_path(path: str | os.PathLike) -> str:
+    """``path`` as a record stores it: relative to the working directory when it lies inside it
+    (``results/peers_work/...``), so that committed records name no directory of the machine."""
+    path = Path(path).absolute()
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
 def unit_record(
     arm: str,
     seed: int,
@@ -189,7 +199,7 @@ def unit_record(
     record = {
         "arm": arm,
         "seed": seed,
-        "dataset": {"path": str(dataset.path), "episodes": len(dataset), "transitions": dataset.total_steps,
+        "dataset": {"path": recorded_path(dataset.path), "episodes": len(dataset), "transitions": dataset.total_steps,
                     "seed": dataset.metadata.get("seed")},
         "env": env_settings(dataset),
         "eval_seeds": list(protocol.seeds),

@@ -17,7 +17,14 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from sb3_ua2c.peers.common import EvalProtocol, PhaseClock, learning_curve, read_dataset, unit_record
+from sb3_ua2c.peers.common import (
+    EvalProtocol,
+    PhaseClock,
+    learning_curve,
+    read_dataset,
+    recorded_path,
+    unit_record,
+)
 
 
 def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -34,7 +41,7 @@ def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwarg
             ds = None  # damaged: collect again
     if ds is None or len(ds) != n_episodes:
         ds = collect_dataset(path, n_episodes, env_kwargs=dict(env_kwargs), seed=seed, overwrite=True)
-    return {"path": str(path), "episodes": len(ds), "transitions": ds.total_steps, "seed": seed}
+    return {"path": recorded_path(path), "episodes": len(ds), "transitions": ds.total_steps, "seed": seed}
 
 
 def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrain_steps: int, seed: int,
