@@ -9,7 +9,10 @@ terminated at the window's last step) and the histories at ``t`` and ``t + L``.
 
 ``online_targets="window"`` (not in the paper) samples the online steps like the offline ones: every
 executed step starts a k-step window of the actions executed next, across plan boundaries (Eq. 4),
-instead of one sample per plan with its executed prefix (Eq. 8).
+instead of one sample per plan with its executed prefix (Eq. 8). ``online_targets="auto"`` chooses
+when the first online step is stored: Eq. 8 if the batches mix in offline episodes (offline-to-online,
+the paper's setting), windows otherwise (online-only training), the better of the two in each setting
+as measured (docs/benchmarks.md).
 
 For the prefix critic (``prefix_targets``, not in the paper) a sample also says which prefixes
 ``u = 1..k`` have a target: ``"all"`` adds the histories ``h_{t+min(u, L)}`` of every prefix;
@@ -33,7 +36,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_ua2c.chunking import check_prefix_targets
 
 #: values of ``online_targets`` (:class:`ChunkReplayBuffer`, ``UA2C``)
-ONLINE_TARGETS = ("prefix", "window")
+ONLINE_TARGETS = ("auto", "prefix", "window")
 
 
 def check_online_targets(value: Any) -> None:
@@ -237,7 +240,9 @@ class ChunkReplayBuffer(BaseBuffer):
     :param online_targets: ``"prefix"`` (the paper, Eq. 8): one online sample per plan, its chunk the
         selected plan and its horizon the executed length ``L_t``; ``"window"``: every online step
         starts a sample whose chunk is the next ``k`` executed actions (``min(k, steps to the episode
-        end)``), i.e. the target of Eq. 4 as for the offline windows
+        end)``), i.e. the target of Eq. 4 as for the offline windows; ``"auto"``: ``"prefix"`` if,
+        when the first online step is stored, the buffer holds offline episodes and
+        ``offline_ratio > 0``, else ``"window"`` (:attr:`active_online_targets`)
     :param prefix_targets: ``None`` (the chunk critic), ``"all"`` or ``"sampled"``: what a sample holds
         for the prefix critic's targets (see :class:`ChunkReplaySamples`)
     """
@@ -267,8 +272,9 @@ class ChunkReplayBuffer(BaseBuffer):
         self.chunk_size, self.history_len, self.offline_ratio = chunk_size, history_len, offline_ratio
         self.online_targets = online_targets
         self.obs_dim = int(np.prod(self.obs_shape))
-        prefix = online_targets == "prefix"
-        self.online = _Steps(buffer_size, n_envs, self.obs_dim, self.action_dim, chunk_size, plans=prefix)
+        #: ``"prefix"`` or ``"window"``; ``None`` while ``online_targets="auto"`` waits for the first step
+        self._active_targets: str | None = None if online_targets == "auto" else online_targets
+        self.online = self._online_steps(self._active_targets == "prefix")
         self.offline = _Steps(0, 1, self.obs_dim, self.action_dim, chunk_size, plans=False)
         self.offline_size = 0
         self._next_episode_step = np.zeros(n_envs, dtype=np.int64)
@@ -279,9 +285,28 @@ class ChunkReplayBuffer(BaseBuffer):
         #: the valid online sample starts, kept up to date by :meth:`add`
         self._starts = _StartIndex(buffer_size * n_envs)
 
+    def _online_steps(self, plans: bool) -> _Steps:
+        return _Steps(self.buffer_size, self.n_envs, self.obs_dim, self.action_dim, self.chunk_size, plans=plans)
+
+    @property
+    def active_online_targets(self) -> str | None:
+        """
+        The online samples in use, ``"prefix"`` (Eq. 8) or ``"window"``; with ``online_targets="auto"``
+        ``None`` until the first online step is stored (and again after :meth:`reset`).
+        """
+        return self._active_targets
+
+    def _resolve_online_targets(self) -> None:
+        """``online_targets="auto"``, at the first online step: Eq. 8 offline-to-online, else windows."""
+        mixed = self.offline_size > 0 and self.offline_ratio > 0.0
+        self._active_targets = "prefix" if mixed else "window"
+        if mixed:  # the online part is empty: give it the plan storage
+            self.online = self._online_steps(plans=True)
+
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self.__dict__.setdefault("prefix_targets", None)
+        self.__dict__.setdefault("_active_targets", self.online_targets)  # pickled before "auto" existed
         if self.online.plans is not None and getattr(self.online, "ended", None) is None:
             self.online.ended = np.zeros(self.online.horizon.shape, dtype=bool)  # pickled before it existed
         if "_starts" not in state:  # pickled before the start index existed
@@ -319,6 +344,8 @@ class ChunkReplayBuffer(BaseBuffer):
         :param plans: current plans, shape ``(n_envs, k, action_dim)``
         :param plan_lengths: ``L_t`` of the current plans, shape ``(n_envs,)``
         """
+        if self._active_targets is None:
+            self._resolve_online_targets()
         s, p, n = self.online, self.pos, self.n_envs
         episode_start = np.asarray(episode_start, dtype=bool).reshape(n)
         new_plan = np.asarray(new_plan, dtype=bool).reshape(n)
@@ -437,6 +464,10 @@ class ChunkReplayBuffer(BaseBuffer):
         self._plan_start[:] = -1
         self.online.horizon[:] = 0
         self._starts.clear()
+        if self.online_targets == "auto":  # the online part is empty again: choose again
+            self._active_targets = None
+            if self.online.plans is not None:
+                self.online = self._online_steps(plans=False)
 
     # ------------------------------------------------------------------ offline part
     def add_offline_episodes(self, episodes: Iterable[Any]) -> int:

@@ -46,7 +46,8 @@ class UA2CConfig:
     :param commit_discrete: ``L_t`` extends through the first switch of a categorical action in the
         selected chunk (not in the paper)
     :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
-    :param online_targets: ``"prefix"`` (Eq. 8) or ``"window"`` (Eq. 4 on executed actions), see
+    :param online_targets: ``"prefix"`` (Eq. 8), ``"window"`` (Eq. 4 on executed actions) or
+        ``"auto"`` (Eq. 8 with offline data, windows without), see
         :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
     :param critic_type: ``"chunk"`` (Eq. 3) or ``"prefix"`` (``Q_u`` of every prefix, not in the paper)
     :param prefix_targets: the prefix critic's targets: ``"all"`` (every prefix of every window) or
@@ -70,7 +71,7 @@ class UA2CConfig:
     discrete_entropy: bool = True
     commit_discrete: bool = False
     offline_ratio: float = 0.5
-    online_targets: str = "prefix"
+    online_targets: str = "auto"
     critic_type: str = "chunk"
     prefix_targets: str = "all"
     clip_actor_chunk: bool = False

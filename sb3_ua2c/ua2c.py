@@ -63,8 +63,9 @@ class UA2C(OffPolicyAlgorithm):
     Mixed Traffic" (§3, Eq. 2-4, 7, 8).
 
     Rollouts sample ``n_candidates`` chunks, keep the one with the highest ``min_j Q_j``, execute
-    its reliable prefix ``L_t`` (Eq. 7) and replan; each executed plan is one replay sample whose
-    target is Eq. 8 (``L = L_t``). Offline episodes added with :meth:`add_offline_episodes` give
+    its reliable prefix ``L_t`` (Eq. 7) and replan; offline-to-online, each executed plan is one
+    replay sample whose target is Eq. 8 (``L = L_t``; without offline data the default
+    ``online_targets="auto"`` samples windows of executed actions instead). Offline episodes added with :meth:`add_offline_episodes` give
     k-step windows from any start with the logged actions (Eq. 4). ``entropy_threshold=inf`` is
     fixed chunk execution and ``chunk_size=1`` the one-step baseline, on the same code path.
 
@@ -120,10 +121,13 @@ class UA2C(OffPolicyAlgorithm):
         encoded by equal-width bins over the Box bounds (e.g. ``{1: [-1, 0, 1]}`` for a lane change
         with thresholds ±1/3)
     :param offline_ratio: fraction of each batch drawn from offline episodes (when any are stored)
-    :param online_targets: ``"prefix"`` (default, Eq. 8): one online sample per plan, the target
-        of its executed prefix ``L_t``; ``"window"`` (not in the paper): every executed step starts a
-        k-step window of the actions executed next, across plan boundaries, with the target of
-        Eq. 4, so that online samples mean what the offline windows mean
+    :param online_targets: ``"prefix"`` (Eq. 8): one online sample per plan, the target of its
+        executed prefix ``L_t``; ``"window"`` (not in the paper): every executed step starts a k-step
+        window of the actions executed next, across plan boundaries, with the target of Eq. 4, so
+        that online samples mean what the offline windows mean; ``"auto"`` (default): chosen when
+        the first online step is stored, ``"prefix"`` if the buffer holds offline episodes (and
+        ``offline_ratio > 0``: offline-to-online, the paper's setting), ``"window"`` otherwise
+        (online-only training); ``model.replay_buffer.active_online_targets`` says which
     :param critic_type: ``"chunk"`` (default, Eq. 3) or ``"prefix"`` (not in the paper): ``Q_u`` of every
         prefix ``u = 1..k`` with its own n-step target (:func:`~sb3_ua2c.chunking.prefix_bellman_targets`);
         replanning ranks candidates by ``Q_{L_t}``, the actor's value term reads ``Q_k``
@@ -178,7 +182,7 @@ class UA2C(OffPolicyAlgorithm):
         commit_discrete: bool = False,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
-        online_targets: str = "prefix",
+        online_targets: str = "auto",
         critic_type: str = "chunk",
         prefix_targets: str = "all",
         clip_actor_chunk: bool = False,

@@ -196,7 +196,7 @@ def test_online_windows_in_the_ring_and_several_envs():
 
 
 def test_online_targets_is_validated():
-    for bad in ("plan", "", None, 1):
+    for bad in ("plan", "", None, 1, "Auto"):
         with pytest.raises(ValueError, match="online_targets"):
             make_buffer(targets=bad)
 
@@ -209,6 +209,61 @@ def offline_episode(offset=0.0, terminated=True):
         terminations=np.array([False, False, False, terminated]),
         truncations=np.array([False, False, False, not terminated]),
     )
+
+
+def same_samples(a, b, batch=64):
+    np.random.seed(5)  # noqa: NPY002
+    x = a.sample(batch)
+    np.random.seed(5)  # noqa: NPY002
+    y = b.sample(batch)
+    for name, u, v in zip(ChunkReplaySamples._fields, x, y, strict=True):
+        assert (u is None and v is None) or th.equal(u, v), name
+
+
+@pytest.mark.parametrize(
+    ("offline", "ratio", "chosen", "n_online"),
+    [(False, 0.5, "window", 5), (True, 0.5, "prefix", 3), (True, 0.0, "window", 5)],
+)
+def test_auto_online_targets_are_eq8_offline_to_online_and_windows_online_only(offline, ratio, chosen, n_online):
+    """online_targets="auto" chooses at the first online step and then is the chosen buffer, sample for sample."""
+    auto, explicit = (make_buffer(ratio=ratio, targets=t) for t in ("auto", chosen))
+    assert auto.online_targets == "auto" and auto.active_online_targets is None
+    assert explicit.active_online_targets == chosen
+    for buf in (auto, explicit):
+        if offline:
+            buf.add_offline_episodes([offline_episode()])
+        add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=1, start=True)
+        add_step(buf, 1, plan=[0.8, 0.9, 1.0], length=2)
+        add_step(buf, 2)
+        add_step(buf, 3, plan=[-0.5, -0.5, -0.5], length=3)
+        add_step(buf, 4, terminated=True)
+    assert auto.active_online_targets == chosen and auto.online_targets == "auto"
+    assert (auto.online.plans is not None) == (chosen == "prefix")
+    # windows: every step of the 5 starts one; Eq. 8: one per plan (3 plans)
+    assert auto.n_samples() == explicit.n_samples() == (n_online, 4 if offline else 0)
+    same_samples(auto, explicit)
+
+
+def test_auto_online_targets_choose_again_after_reset_and_survive_pickling():
+    buf = make_buffer(targets="auto")
+    add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=1, start=True)
+    assert buf.active_online_targets == "window"
+    buf.reset()  # the online part is empty again; offline episodes arrive before the next step
+    assert buf.active_online_targets is None
+    buf.add_offline_episodes([offline_episode()])
+    add_step(buf, 0, plan=[0.5, 0.6, 0.7], length=2, start=True)
+    add_step(buf, 1)
+    assert buf.active_online_targets == "prefix" and buf.n_samples() == (1, 4)
+    # Eq. 8's sample: the executed a_0 a_1, then the plan's tail
+    assert rows(buf.sample(64))[0.7]["chunks"] == pytest.approx([0.1, 0.2, 0.7])
+    copy = pickle.loads(pickle.dumps(buf))
+    assert copy.active_online_targets == "prefix"
+    same_samples(buf, copy)
+    state = dict(pickle.loads(pickle.dumps(make_buffer(targets="window"))).__dict__)
+    del state["_active_targets"]  # pickled before "auto" existed
+    old = ChunkReplayBuffer.__new__(ChunkReplayBuffer)
+    old.__setstate__(state)
+    assert old.active_online_targets == "window"
 
 
 def test_offline_windows_from_any_start():

@@ -311,6 +311,51 @@ def test_online_targets_is_validated_saved_and_overridable(tmp_path):
         UA2C.load(tmp_path / "m.zip", online_targets="eq4")
 
 
+def pendulum_episode(seed: int, steps: int = 30) -> dict[str, np.ndarray]:
+    """A logged Pendulum-v1 episode of random actions, truncated after ``steps`` steps."""
+    env = gym.make("Pendulum-v1")
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list] = {"observations": [obs], "actions": [], "rewards": []}
+    for _ in range(steps):
+        action = rng.uniform(-1.0, 1.0, size=1).astype(np.float32)
+        obs, reward, *_ = env.step(2.0 * action)
+        rows["observations"].append(obs)
+        rows["actions"].append(action)
+        rows["rewards"].append(reward)
+    flags = np.zeros(steps, dtype=bool)
+    return {
+        **{k: np.asarray(v, dtype=np.float32) for k, v in rows.items()},
+        "terminations": flags,
+        "truncations": np.r_[flags[:-1], True],
+    }
+
+
+@pytest.mark.parametrize(("offline", "chosen"), [(False, "window"), (True, "prefix")])
+def test_default_online_targets_train_as_the_measured_best_choice(tmp_path, offline, chosen):
+    """
+    The default "auto" is Eq. 8 offline-to-online and windows online only: the same parameters,
+    bit for bit, as the explicit choice; the setting is saved, the choice is made again online.
+    """
+    trained = {}
+    for targets in ("auto", chosen):
+        model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, online_targets=targets, **FAST)
+        if offline:
+            model.add_offline_episodes([pendulum_episode(1), pendulum_episode(2)])
+        model.learn(150)
+        assert model.replay_buffer.active_online_targets == chosen
+        trained[targets] = params(model)
+    assert UA2C("MlpPolicy", "Pendulum-v1", **FAST).online_targets == "auto"
+    for k, v in trained["auto"].items():
+        assert th.equal(v, trained[chosen][k]), k
+    model.save(tmp_path / "m.zip")
+    assert UA2C.load(tmp_path / "m.zip").replay_buffer.active_online_targets == chosen  # explicit setting
+    auto = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    auto.save(tmp_path / "auto.zip")
+    loaded = UA2C.load(tmp_path / "auto.zip")
+    assert loaded.online_targets == "auto" and loaded.replay_buffer.active_online_targets is None
+
+
 def test_commit_discrete_is_validated_saved_and_overridable(tmp_path):
     env = gym.make("Pendulum-v1")
     with pytest.raises(ValueError, match="commit_discrete"):
