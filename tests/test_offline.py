@@ -243,10 +243,13 @@ def test_pretrain_then_finetune_starts_from_loaded_weights(traffic_dataset, tmp_
             StartsFromCheckpoint.checked = True
 
         def _on_step(self) -> bool:
+            StartsFromCheckpoint.targets = self.model.replay_buffer.active_online_targets
             return True
 
     out = finetune(ckpt, tmp_path / "fine.zip", 30, dataset=traffic_dataset, callback=StartsFromCheckpoint())
     assert StartsFromCheckpoint.checked
+    # offline-to-online: the default online_targets="auto" chose Eq. 8 (offline episodes in the buffer)
+    assert StartsFromCheckpoint.targets == "prefix"
     env = make_env(env_kwargs=SHORT_ENV)
     try:
         tuned = load_checkpoint(out, env)
