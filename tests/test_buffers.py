@@ -211,10 +211,11 @@ def offline_episode(offset=0.0, terminated=True):
     )
 
 
-def same_samples(a, b, batch=64):
-    np.random.seed(5)  # noqa: NPY002
+def same_samples(a, b, batch=64, seed=5):
+    """Two buffers give the same batch, field for field, from the same global NumPy seed."""
+    np.random.seed(seed)  # noqa: NPY002
     x = a.sample(batch)
-    np.random.seed(5)  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
     y = b.sample(batch)
     for name, u, v in zip(ChunkReplaySamples._fields, x, y, strict=True):
         assert (u is None and v is None) or th.equal(u, v), name
@@ -560,12 +561,7 @@ def test_pickled_buffer_keeps_its_starts():
     assert len(starts) > 10
     copy = pickle.loads(pickle.dumps(buf))
     assert copy._online_starts().tolist() == starts
-    np.random.seed(3)  # noqa: NPY002
-    a = buf.sample(32)
-    np.random.seed(3)  # noqa: NPY002
-    b = copy.sample(32)
-    for x, y in zip(a, b, strict=True):
-        assert (x is None and y is None) or th.equal(x, y)
+    same_samples(buf, copy, batch=32, seed=3)
     # a buffer pickled before the index existed, whose plans held the selected plans: on loading it
     # gets the index and its chunks (the executed actions, then the plan's tail)
     state = dict(pickle.loads(pickle.dumps(buf)).__dict__)

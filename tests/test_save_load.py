@@ -115,25 +115,29 @@ def test_same_seed_gives_bit_identical_weights():
     assert not all(th.equal(pa[k], pc[k]) for k in pa)
 
 
-def test_offline_episodes_and_pretrain_without_env_interaction():
+def pendulum_episode(seed: int, steps: int | None = None) -> dict[str, np.ndarray]:
+    """A logged Pendulum-v1 episode of seeded uniform random torques in env units ([-2, 2]), to its
+    time limit or truncated after ``steps`` steps."""
     env = gym.make("Pendulum-v1")
-    episodes = []
-    for seed in range(2):
-        obs, _ = env.reset(seed=seed)
-        rows = dict(observations=[obs], actions=[], rewards=[], terminations=[], truncations=[])
-        done = False
-        while not done:
-            action = env.action_space.sample()
-            obs, reward, term, trunc, _ = env.step(action)
-            for key, value in zip(
-                ("actions", "rewards", "terminations", "truncations"),
-                (action, reward, term, trunc),
-                strict=True,
-            ):
-                rows[key].append(value)
-            rows["observations"].append(obs)
-            done = term or trunc
-        episodes.append({k: np.array(v) for k, v in rows.items()})
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list] = dict(observations=[obs], actions=[], rewards=[], terminations=[], truncations=[])
+    term = trunc = False
+    while not (term or trunc):
+        action = rng.uniform(-2.0, 2.0, size=1).astype(np.float32)
+        obs, reward, term, trunc, _ = env.step(action)
+        trunc = trunc or len(rows["actions"]) + 1 == steps
+        for key, value in zip(
+            ("actions", "rewards", "terminations", "truncations"), (action, reward, term, trunc), strict=True
+        ):
+            rows[key].append(value)
+        rows["observations"].append(obs)
+    env.close()
+    return {k: np.array(v) for k, v in rows.items()}
+
+
+def test_offline_episodes_and_pretrain_without_env_interaction():
+    episodes = [pendulum_episode(seed) for seed in range(2)]
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, offline_ratio=0.5, **FAST)
     assert model.add_offline_episodes(episodes) == 400
     stored = model.replay_buffer.offline.actions[:200, 0, 0]
@@ -311,26 +315,6 @@ def test_online_targets_is_validated_saved_and_overridable(tmp_path):
         UA2C.load(tmp_path / "m.zip", online_targets="eq4")
 
 
-def pendulum_episode(seed: int, steps: int = 30) -> dict[str, np.ndarray]:
-    """A logged Pendulum-v1 episode of random actions, truncated after ``steps`` steps."""
-    env = gym.make("Pendulum-v1")
-    obs, _ = env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    rows: dict[str, list] = {"observations": [obs], "actions": [], "rewards": []}
-    for _ in range(steps):
-        action = rng.uniform(-1.0, 1.0, size=1).astype(np.float32)
-        obs, reward, *_ = env.step(2.0 * action)
-        rows["observations"].append(obs)
-        rows["actions"].append(action)
-        rows["rewards"].append(reward)
-    flags = np.zeros(steps, dtype=bool)
-    return {
-        **{k: np.asarray(v, dtype=np.float32) for k, v in rows.items()},
-        "terminations": flags,
-        "truncations": np.r_[flags[:-1], True],
-    }
-
-
 @pytest.mark.parametrize(("offline", "chosen"), [(False, "window"), (True, "prefix")])
 def test_default_online_targets_train_as_the_measured_best_choice(tmp_path, offline, chosen):
     """
@@ -341,7 +325,7 @@ def test_default_online_targets_train_as_the_measured_best_choice(tmp_path, offl
     for targets in ("auto", chosen):
         model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, online_targets=targets, **FAST)
         if offline:
-            model.add_offline_episodes([pendulum_episode(1), pendulum_episode(2)])
+            model.add_offline_episodes([pendulum_episode(1, steps=30), pendulum_episode(2, steps=30)])
         model.learn(150)
         assert model.replay_buffer.active_online_targets == chosen
         trained[targets] = params(model)

@@ -25,6 +25,7 @@ from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import OfflineDataset
 from sb3_ua2c.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
 from sb3_ua2c.ogbench.env import ENV_ID, OGBenchSingleTask
+from sb3_ua2c.peers.common import recorded_path
 
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
 #: ``adaptive`` is UA2C's default (k = 5, δ = 0, best of S = 32 candidates), ``fixed`` executes every
@@ -242,7 +243,7 @@ def run_ogbench_unit(
     record = {
         "arm": arm, "task": task, "seed": seed, "budget": budget.to_dict(),
         "algo_kwargs": {k: str(v) if isinstance(v, float) and math.isinf(v) else v for k, v in kwargs.items()},
-        "dataset": {"path": str(path), "transitions": ds.total_steps, "segments": len(ds), "generation": generation},
+        "dataset": {"path": recorded_path(path), "transitions": ds.total_steps, "segments": len(ds), "generation": generation},
         "success_offline": offline_eval["success"], "success_online": online_eval["success"],
         "eval_offline": offline_eval, "eval_online": online_eval,
         "curve": [{"step": 0, "success": offline_eval["success"]}, *curve.evaluations,
