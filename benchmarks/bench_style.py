@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from sb3_ua2c.style import (
+from envs.style import (
     SLOT_FEATURES,
     DrivingStyleClassifier,
     RandomDriver,
@@ -31,7 +31,7 @@ from sb3_ua2c.style import (
     load_classifier,
     valid_mask,
 )
-from sb3_ua2c.wrappers import DrivingStyleContext
+from envs.wrappers import DrivingStyleContext
 
 
 class _TorchEncoderPeer(nn.Module):

@@ -21,10 +21,11 @@ import time
 
 import torch as th
 
+from envs.collection import TRAFFIC_DEFAULTS, make_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.flow import flow_matching_loss, interpolate
 from sb3_ua2c.offline import load_dataset
-from sb3_ua2c.pipeline import TRAFFIC_DEFAULTS, env_settings, make_env
+from sb3_ua2c.pipeline import env_settings
 
 
 def step_changes(chunks: th.Tensor, previous: th.Tensor) -> tuple[float, float]:

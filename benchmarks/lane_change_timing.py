@@ -23,10 +23,11 @@ import math
 import numpy as np
 import torch as th
 
+from envs.collection import make_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import categorize, commit_through_switch
 from sb3_ua2c.offline import load_dataset
-from sb3_ua2c.pipeline import env_settings, make_env
+from sb3_ua2c.pipeline import env_settings
 
 
 def first_switch(plan: np.ndarray, discrete_dims: dict[int, int]) -> int | None:

@@ -1,11 +1,11 @@
 """Command line of sb3-ua2c: ``python -m sb3_ua2c <command>`` (console script: ``ua2c``).
 
-Commands: ``collect`` (offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2),
-``evaluate`` (metrics table + JSON), ``main`` (all four end to end), ``style`` (driving-style
-classifier: collect / train / evaluate), ``fig2`` (the paper's Figure 2 over several seeds), ``peers`` (the
-head-to-head against SAC, TQC, RLPD-style SAC, IQL and Cal-QL, ``docs/peers.md``), ``ogbench`` (the OGBench
-single-task benchmark, ``docs/ogbench.md``). Each run writes into its own run directory
-(``--run-dir``, default ``runs/<command>-<date>-<time>``).
+Commands, all on ``MixedTraffic-v0`` (the traffic application, package ``envs``): ``collect``
+(offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2), ``evaluate`` (metrics table +
+JSON), ``main`` (all four end to end), ``style`` (driving-style classifier: collect / train /
+evaluate). Each run writes into its own run directory (``--run-dir``, default
+``runs/<command>-<date>-<time>``). The research experiments (Figure 2, the head-to-head, OGBench)
+run from a checkout as ``python -m experiments.<name>``.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def _run_dir(args: argparse.Namespace) -> Path:
 
 
 def _behaviour(args: argparse.Namespace):
-    from sb3_ua2c.offline import BehaviourConfig
+    from envs.collection import BehaviourConfig
 
     return BehaviourConfig(
         sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob, accel_noise=args.accel_noise,
@@ -41,7 +41,7 @@ def _behaviour(args: argparse.Namespace):
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from sb3_ua2c.offline import collect_dataset
+    from envs.collection import collect_dataset
 
     out = Path(args.out) if args.out else _run_dir(args) / "dataset"
     ds = collect_dataset(
@@ -53,18 +53,20 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
+    from envs.collection import TRAFFIC_DEFAULTS, make_env
     from sb3_ua2c.pipeline import pretrain
 
     out = Path(args.out) if args.out else _run_dir(args) / "pretrained.zip"
     path = pretrain(
-        args.dataset, out, args.steps, seed=args.seed, algo_kwargs=args.hyperparams,
-        progress_bar=not args.no_progress, verbose=args.verbose,
+        args.dataset, out, args.steps, seed=args.seed, algo_kwargs={**TRAFFIC_DEFAULTS, **(args.hyperparams or {})},
+        progress_bar=not args.no_progress, verbose=args.verbose, make_env=make_env,
     )
     print(f"checkpoint: {path}")
     return 0
 
 
 def cmd_finetune(args: argparse.Namespace) -> int:
+    from envs.collection import make_env
     from sb3_ua2c.pipeline import finetune
 
     out = Path(args.out) if args.out else _run_dir(args) / "finetuned.zip"
@@ -72,7 +74,7 @@ def cmd_finetune(args: argparse.Namespace) -> int:
         args.checkpoint, out, args.timesteps, dataset=args.dataset,
         env_settings_=_settings_from_args(args), offline_ratio=args.offline_ratio,
         entropy_threshold=args.entropy_threshold, seed=args.seed, progress_bar=not args.no_progress,
-        monitor_file=out.with_suffix(""),
+        monitor_file=out.with_suffix(""), make_env=make_env,
     )
     print(f"checkpoint: {path}; online episodes: {out.with_suffix('')}.monitor.csv")
     return 0
@@ -88,7 +90,8 @@ def _settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from sb3_ua2c.pipeline import evaluate, format_table, summarize, write_json
+    from envs.evaluation import evaluate, format_table, summarize
+    from sb3_ua2c.pipeline import write_json
 
     settings = _settings_from_args(args)
     rows, raw = {}, {}
@@ -114,16 +117,9 @@ MAIN_BUDGET = {
 
 
 def cmd_main(args: argparse.Namespace) -> int:
-    from sb3_ua2c.offline import collect_dataset
-    from sb3_ua2c.pipeline import (
-        env_settings,
-        evaluate,
-        finetune,
-        format_table,
-        pretrain,
-        summarize,
-        write_json,
-    )
+    from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
+    from envs.evaluation import evaluate, format_table, summarize
+    from sb3_ua2c.pipeline import env_settings, finetune, pretrain, write_json
 
     budget = MAIN_BUDGET["quick" if args.quick else "full"]
     run = _run_dir(args)
@@ -136,11 +132,13 @@ def cmd_main(args: argparse.Namespace) -> int:
         run / "dataset", budget["episodes"], seed=args.seed, style_classifier=style, progress_bar=progress, overwrite=True
     )
     print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
-    pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress)
+    pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress,
+                   algo_kwargs=TRAFFIC_DEFAULTS, make_env=make_env)
     print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
     fine = finetune(
         pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress,
         monitor_file=run / "finetuned",  # SB3's Monitor log of the online episodes: finetuned.monitor.csv
+        make_env=make_env,
     )
     print(f"[4/4] evaluate on {budget['eval_episodes']} held-out episodes")
     settings = env_settings(ds)
@@ -159,7 +157,7 @@ def cmd_main(args: argparse.Namespace) -> int:
 
 
 def cmd_style(argv: list[str]) -> int:
-    from sb3_ua2c import style
+    from envs import style
 
     return int(style.main(argv) or 0)
 
@@ -186,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     env_args(p)
     p.add_argument("--out", default=None, help="dataset directory (default: <run-dir>/dataset)")
     p.add_argument("--episodes", type=int, default=100)
-    from sb3_ua2c.offline import BehaviourConfig  # the behaviour defaults live in one place
+    from envs.collection import BehaviourConfig  # the behaviour defaults live in one place
 
     b = BehaviourConfig()
     p.add_argument("--sumo-fraction", type=float, default=b.sumo_fraction,
@@ -248,12 +246,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("style", help="driving-style classifier: collect / train / evaluate (see 'style --help')",
                    add_help=False)
-    sub.add_parser("fig2", help="reproduce the paper's Figure 2 over several seeds (see 'fig2 --help')",
-                   add_help=False)
-    sub.add_parser("peers", help="head-to-head against SAC, TQC, SAC+offline, IQL, Cal-QL (see 'peers --help')",
-                   add_help=False)
-    sub.add_parser("ogbench", help="OGBench single-task benchmark, offline then online (see 'ogbench --help')",
-                   add_help=False)
     return parser
 
 
@@ -271,18 +263,6 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "style":
         return cmd_style(argv[1:])
-    if argv and argv[0] == "fig2":
-        from sb3_ua2c.experiments import main as fig2_main
-
-        return int(fig2_main(argv[1:], prog="python -m sb3_ua2c fig2") or 0)
-    if argv and argv[0] == "peers":
-        from sb3_ua2c.peers.cli import main as peers_main
-
-        return int(peers_main(argv[1:]) or 0)
-    if argv and argv[0] == "ogbench":
-        from sb3_ua2c.ogbench.cli import main as ogbench_main
-
-        return int(ogbench_main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
         _set_threads(args.threads)

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
-from pathlib import Path
 from typing import Any
 
 
@@ -32,15 +30,3 @@ def float_arg(text: str) -> float:
 def threshold_arg(text: str) -> float | str:
     """argparse type of δ (Eq. 7): ``"auto"`` or a float other than NaN (``"inf"`` = fixed chunks)."""
     return "auto" if text == "auto" else float_arg(text)
-
-
-def run_header(command: str, previous: Path | None = None) -> tuple[str, str]:
-    """The command and date (UTC, to the minute) a report records: now, or, when ``previous`` (the report's
-    JSON from the run) exists, the ones it recorded, so that a report rebuilt with ``--report-only``
-    keeps the run's."""
-    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    if previous is not None and Path(previous).is_file():
-        recorded = json.loads(Path(previous).read_text())
-        command, date = recorded.get("command") or command, recorded.get("date") or date
-    return command, date
-

@@ -1,4 +1,4 @@
-"""Offline-to-online stages: Phase 1 pre-training, Phase 2 online adaptation, evaluation.
+"""Offline-to-online stages: Phase 1 pre-training and Phase 2 online adaptation, for any environment.
 
 Every stage rebuilds the environment from the dataset's metadata (``env_id``, ``env_kwargs``,
 ``style_classifier``), so the data, the checkpoint and the online env always share their spaces.
@@ -9,19 +9,18 @@ file and renamed, so an interrupted run never leaves a half-written checkpoint.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
-import math
 import os
 import tempfile
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
-import torch as th
 from stable_baselines3.common.monitor import Monitor
 
-from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import (
     OfflineDataset,
     OfflineDatasetError,
@@ -31,15 +30,16 @@ from sb3_ua2c.offline import (
 )
 from sb3_ua2c.ua2c import UA2C
 
-#: UA2C arguments for ``MixedTraffic-v0`` (the lane change, action dim 1, is categorical).
-TRAFFIC_DEFAULTS: dict[str, Any] = {"discrete_action_dims": {1: [-1.0, 0.0, 1.0]}}
+EnvMaker = Callable[..., gym.Env]
 
 
 def env_settings(dataset: OfflineDataset) -> dict[str, Any]:
     """``make_env`` arguments recorded in a dataset's metadata."""
     meta = dataset.metadata
+    if "env_id" not in meta:
+        raise OfflineDatasetError(f"dataset {dataset.path} records no env_id in its metadata")
     return {
-        "env_id": meta.get("env_id", "MixedTraffic-v0"),
+        "env_id": meta["env_id"],
         "env_kwargs": dict(meta.get("env_kwargs") or {}),
         "style_classifier": meta.get("style_classifier"),
     }
@@ -84,6 +84,7 @@ def pretrain(
     algo_kwargs: dict[str, Any] | None = None,
     progress_bar: bool = False,
     verbose: int = 0,
+    make_env: EnvMaker = make_env,
 ) -> Path:
     """Phase 1: pre-train UA2C from an offline dataset alone (Eq. 2, Eq. 3 with the Eq. 4 target).
 
@@ -94,12 +95,14 @@ def pretrain(
     :param out: checkpoint path (``.zip``)
     :param n_gradient_steps: gradient steps
     :param seed: seed of the networks and minibatch sampling
-    :param algo_kwargs: UA2C constructor arguments (defaults: :data:`TRAFFIC_DEFAULTS` for MixedTraffic)
+    :param algo_kwargs: UA2C constructor arguments
+    :param make_env: builds the environment from the dataset's settings (:func:`env_settings`);
+        :func:`sb3_ua2c.offline.make_env` by default, ``envs.make_env`` for ``MixedTraffic-v0`` data
     :return: the checkpoint path
     """
     ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
     settings = env_settings(ds)
-    kwargs = {**(TRAFFIC_DEFAULTS if settings["env_id"] == "MixedTraffic-v0" else {}), **(algo_kwargs or {})}
+    kwargs = dict(algo_kwargs or {})
     env = make_env(**settings)
     try:
         ds.check_compatible(env)
@@ -140,6 +143,7 @@ def finetune(
     callback: Any = None,
     algo_overrides: dict[str, Any] | None = None,
     monitor_file: str | os.PathLike | None = None,
+    make_env: EnvMaker = make_env,
 ) -> Path:
     """Phase 2: online adaptation from a pre-trained checkpoint with adaptive execution (Eq. 7, 8).
 
@@ -163,15 +167,18 @@ def finetune(
     :param monitor_file: write SB3's ``Monitor`` log of the online episodes (return, length, wall
         time and ``collision``) to this CSV file (``.monitor.csv`` is appended unless present); read
         it back with :func:`read_monitor`
+    :param make_env: builds the environment from the settings (see :func:`pretrain`)
     :return: the fine-tuned checkpoint path
     """
     ds = None
     if dataset is not None:
         ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
-    settings = env_settings(ds) if ds is not None else dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
     shape_args = {"chunk_size", "history_len", "policy_kwargs"} & set(algo_overrides or {})
     if shape_args:
         raise ValueError(f"algo_overrides cannot change the network shapes of a checkpoint: {sorted(shape_args)}")
+    if ds is None and env_settings_ is None:
+        raise ValueError("finetune needs a dataset or env_settings_ to build the environment")
+    settings = env_settings(ds) if ds is not None else dict(env_settings_)
     overrides: dict[str, Any] = {"learning_starts": 0, **(algo_overrides or {})}
     if offline_ratio is not None:
         overrides["offline_ratio"] = offline_ratio
@@ -190,123 +197,6 @@ def finetune(
         return save_atomic(model, out)
     finally:
         env.close()
-
-
-@dataclass(frozen=True)
-class EpisodeMetrics:
-    """What :func:`evaluate` measures per episode (``MixedTraffic-v0`` info keys)."""
-
-    seed: int
-    reward: float
-    length: int
-    cumulative_jerk: float  # Σ_t |jerk_t| [m/s³], the smoothness cost of Fig. 2(b)
-    collision: bool
-    merge_success: bool
-    mean_speed: float  # [m/s]
-    mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
-
-    @property
-    def jerk_per_step(self) -> float:
-        """``cumulative_jerk / length`` [m/s³]: smoothness that does not reward ending an episode early."""
-        return self.cumulative_jerk / self.length if self.length else math.nan
-
-
-def evaluate(
-    checkpoint: str | os.PathLike | UA2C | Any,
-    n_episodes: int = 5,
-    seeds: tuple[int, ...] = (0,),
-    env_settings_: dict[str, Any] | None = None,
-    entropy_threshold: float | None = None,
-    deterministic: bool = True,
-    n_elite: int | None = None,
-    flow_steps: int | None = None,
-) -> list[EpisodeMetrics]:
-    """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
-
-    Episode ``i`` of seed ``s`` is reset with seed ``1000 * s + i`` (the same scenarios for every
-    checkpoint evaluated with the same seeds). With ``deterministic=False`` every replanning draws
-    fresh candidate noise, as the rollouts of Phase 2 do; the noise of an episode comes from torch's
-    generator seeded with the episode's seed (the global generator is restored afterwards), so
-    sampled evaluations are reproducible too.
-
-    :param checkpoint: a UA2C ``.zip`` path, a UA2C model, or any policy with SB3's
-        ``predict(obs, state=None, episode_start=None, deterministic=True)`` and
-        ``observation_space``/``action_space`` (e.g. SB3's SAC, or :mod:`sb3_ua2c.peers`' adapter of a
-        d3rlpy policy): such a policy acts one action per decision (``mean_executed_length`` 1) and
-        takes none of the UA2C overrides below
-    :param n_episodes: episodes per seed
-    :param seeds: evaluation seeds
-    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
-    :param entropy_threshold: override δ for execution
-    :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``); ``False``: fresh,
-        seeded noise per replanning
-    :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
-    :param flow_steps: override the Euler steps of the sampler when acting (``UA2C.set_flow_steps``)
-    """
-    check_int("n_episodes", n_episodes)
-    settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
-    env = make_env(**settings)
-    try:
-        if isinstance(checkpoint, str | os.PathLike):
-            model = load_checkpoint(checkpoint, env)
-        elif isinstance(checkpoint, UA2C) or callable(getattr(checkpoint, "predict", None)):
-            model = checkpoint
-            check_spaces_match(model.observation_space, model.action_space, env, what="the model")
-        else:
-            raise TypeError(f"checkpoint must be a path or a policy with predict(), got {type(checkpoint).__name__}")
-        overrides = {"entropy_threshold": entropy_threshold, "n_elite": n_elite, "flow_steps": flow_steps}
-        given = sorted(name for name, value in overrides.items() if value is not None)
-        if given and not isinstance(model, UA2C):
-            raise ValueError(f"{given} apply to UA2C only, not to a {type(model).__name__}")
-        if entropy_threshold is not None:
-            model.set_entropy_threshold(entropy_threshold)
-        if n_elite is not None:
-            model.set_n_elite(n_elite)
-        if flow_steps is not None:
-            model.set_flow_steps(flow_steps)
-        results = []
-        for s in seeds:
-            for i in range(n_episodes):
-                results.append(_run_episode(model, env, 1000 * int(s) + i, deterministic))
-        return results
-    finally:
-        env.close()
-
-
-def _run_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
-    if deterministic:
-        return _drive_episode(model, env, seed, deterministic)
-    with th.random.fork_rng(devices=[]):  # seeded candidate noise, the caller's generator untouched
-        th.manual_seed(seed)
-        return _drive_episode(model, env, seed, deterministic)
-
-
-def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
-    obs, info = env.reset(seed=seed)
-    state, start = None, np.ones(1, dtype=bool)
-    total, jerk, speeds, lengths = 0.0, 0.0, [], []
-    collision = merged = False
-    steps = 0
-    done = False
-    while not done:
-        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
-        if not hasattr(state, "plan_position"):  # a one-action-per-decision policy
-            lengths.append(1)
-        elif int(state.plan_position[0]) == 1:  # a plan was made at this step
-            lengths.append(int(state.plan_length[0]))
-        start = np.zeros(1, dtype=bool)
-        obs, reward, terminated, truncated, info = env.step(action)
-        total += float(reward)
-        jerk += abs(float(info.get("jerk", 0.0)))
-        speeds.append(float(info.get("av_speed", math.nan)))
-        collision |= bool(info.get("collision", False))
-        merged |= bool(info.get("merge_done", False))
-        steps += 1
-        done = terminated or truncated
-    return EpisodeMetrics(
-        seed=seed, reward=total, length=steps, cumulative_jerk=jerk, collision=collision,
-        merge_success=merged, mean_speed=float(np.nanmean(speeds)), mean_executed_length=float(np.mean(lengths)),
-    )
 
 
 def read_monitor(path: str | os.PathLike) -> list[dict[str, float]]:
@@ -328,31 +218,6 @@ def read_monitor(path: str | os.PathLike) -> list[dict[str, float]]:
              for key, value in row.items()} for row in rows]
 
 
-SUMMARY_KEYS = (
-    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
-)
-
-
-def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
-    """Means over episodes (collision and merge as rates) plus the episode count."""
-    if not results:
-        raise ValueError("no episodes to summarize")
-    out = {key: float(np.mean([float(getattr(r, key)) for r in results])) for key in SUMMARY_KEYS}
-    out["episodes"] = len(results)
-    return out
-
-
-def format_table(rows: dict[str, dict[str, float]]) -> str:
-    """A plain-text table, one row per method."""
-    headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
-    lines = [" | ".join(f"{h:>12}" for h in headers)]
-    lines.append("-|-".join("-" * 12 for _ in headers))
-    for name, s in rows.items():
-        values = (s["reward"], s["cumulative_jerk"], s["collision"], s["merge_success"], s["mean_speed"], s["mean_executed_length"])
-        lines.append(" | ".join([f"{name:>12}"] + [f"{v:12.3f}" for v in values]))
-    return "\n".join(lines)
-
-
 def write_json(path: str | os.PathLike, payload: Any) -> Path:
     """Write JSON atomically."""
     path = Path(path)
@@ -364,8 +229,8 @@ def write_json(path: str | os.PathLike, payload: Any) -> Path:
 
 
 def _json_default(obj: Any) -> Any:
-    if isinstance(obj, EpisodeMetrics):
-        return asdict(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.asdict(obj)
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, Path):
@@ -374,6 +239,6 @@ def _json_default(obj: Any) -> Any:
 
 
 __all__ = [
-    "TRAFFIC_DEFAULTS", "EpisodeMetrics", "OfflineDatasetError", "evaluate", "finetune", "format_table",
-    "load_checkpoint", "pretrain", "read_monitor", "save_atomic", "summarize", "write_json",
+    "OfflineDatasetError", "env_settings", "finetune", "load_checkpoint", "pretrain", "read_monitor", "save_atomic",
+    "write_json",
 ]

@@ -21,7 +21,7 @@ def fail(message: str) -> None:
 
 def sumo_episode(seed: int, accel: float = 1.0, time_limit: float = 2.0) -> dict[str, float]:
     """A short MixedTraffic-v0 episode at constant acceleration: its return and length (uses libsumo)."""
-    from sb3_ua2c.offline import make_env
+    from envs.collection import make_env
 
     env = make_env(env_kwargs={"time_limit": time_limit})
     try:
@@ -40,8 +40,8 @@ def sumo_episode(seed: int, accel: float = 1.0, time_limit: float = 2.0) -> dict
 def demo_units(dataset: str, out: str) -> list:
     """The units the Ray test runs on a real cluster and compares with a local run: plain functions,
     two SUMO episodes and a tiny SAC peer unit on ``dataset`` (written under ``out``)."""
-    from sb3_ua2c.executor import Unit
-    from sb3_ua2c.peers import run_sb3_online
+    from experiments.common.runner import Unit
+    from experiments.peers import run_sb3_online
 
     sac = {"out_dir": f"{out}/sac", "dataset": dataset, "seed": 1, "online_steps": 20, "eval_seeds": (2001,),
            "eval_episodes": 1, "hyperparams": {"learning_starts": 5, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}}}
@@ -50,11 +50,11 @@ def demo_units(dataset: str, out: str) -> list:
 
 
 def run_demo_on_ray(address: str, dataset: str, out: str, out_file: str) -> None:
-    """Run :func:`demo_units` through :class:`~sb3_ua2c.executor.RayExecutor` and write their values
+    """Run :func:`demo_units` through :class:`~experiments.common.runner.RayExecutor` and write their values
     as JSON (the driver of the Ray test, run inside the cluster's namespace)."""
     import json
 
-    from sb3_ua2c.executor import RayExecutor, run_units
+    from experiments.common.runner import RayExecutor, run_units
 
     results = run_units(demo_units(dataset, out), RayExecutor(address), printer=None)
     with open(out_file, "w") as f:

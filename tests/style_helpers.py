@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_ua2c.style import SLOT_FEATURES, SLOT_NAMES, StyleDataset, valid_mask
+from envs.style import SLOT_FEATURES, SLOT_NAMES, StyleDataset, valid_mask
 
 # per style (conservative, neutral, aggressive): time headway [s], accel noise std [m/s²]
 _HEADWAY = (2.2, 1.5, 0.9)

@@ -1,0 +1,228 @@
+"""Offline data of ``MixedTraffic-v0``: the SUMO behaviour policy, dataset collection, and the
+environment every offline-to-online stage rebuilds from a dataset's metadata (with the
+driving-style context c_t when the dataset records a ``style_classifier``)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset, write_dataset
+
+#: UA2C arguments for ``MixedTraffic-v0`` (the lane change, action dim 1, is categorical).
+TRAFFIC_DEFAULTS: dict[str, Any] = {"discrete_action_dims": {1: [-1.0, 0.0, 1.0]}}
+
+
+BehaviourPolicy = Callable[[np.ndarray, dict[str, Any], np.random.Generator], np.ndarray | None]
+
+
+#: ``BehaviourConfig.driver_style`` values (the middle three are ``envs.STYLES``).
+DRIVER_STYLES = ("default", "conservative", "neutral", "aggressive", "mixed")
+
+
+@dataclass(frozen=True)
+class BehaviourConfig:
+    """Behaviour policy of an offline collection run on ``MixedTraffic-v0`` (human-like driving).
+
+    Per episode, SUMO's own car-following and lane-change models drive the AV with probability
+    ``sumo_fraction``; the recorded action is the one SUMO actually performed
+    (``info["applied_action"]``). To widen state coverage, at each step of a SUMO-driven episode a
+    takeover starts with probability ``perturb_prob``: for ``perturb_steps`` steps the AV holds the
+    last performed acceleration plus Gaussian noise of standard deviation ``accel_noise`` [m/s²]
+    (drawn once per takeover), with a random lane change at its first step with probability
+    ``lane_change_prob``. Long takeovers are lapses of attention: the AV keeps accelerating towards
+    a slower leader or the end of the acceleration lane and SUMO's driver takes back control late,
+    sometimes too late, so the data also hold the near-misses and collisions a value function
+    needs to learn what unsafe chunks cost. The remaining episodes use a random policy
+    (uniform acceleration, lane change with probability ``lane_change_prob`` per step).
+
+    :param sumo_fraction: fraction of episodes driven by SUMO's driver model, in [0, 1]
+    :param perturb_prob: per-step probability that a takeover starts in SUMO episodes, in [0, 1]
+    :param accel_noise: standard deviation of a takeover's acceleration offset [m/s²], >= 0
+    :param perturb_steps: length of a takeover in environment steps, >= 1
+    :param lane_change_prob: per-step probability of a random lane change (takeovers, random episodes)
+    :param driver_style: parameters of SUMO's driver model for the AV: ``"default"`` (the AV's own
+        moderate IDM type), an HDV style (``"conservative"``, ``"neutral"``, ``"aggressive"``) or
+        ``"mixed"`` (one of the three drawn per episode)
+    """
+
+    sumo_fraction: float = 1.0
+    perturb_prob: float = 0.03
+    accel_noise: float = 2.5
+    perturb_steps: int = 15
+    lane_change_prob: float = 0.02
+    driver_style: str = "mixed"
+
+    def __post_init__(self) -> None:
+        for name in ("sumo_fraction", "perturb_prob", "lane_change_prob"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+                raise ValueError(f"BehaviourConfig.{name} must be a number in [0, 1], got {value!r}")
+        if isinstance(self.accel_noise, bool) or not isinstance(self.accel_noise, int | float) or not (
+            np.isfinite(self.accel_noise) and self.accel_noise >= 0
+        ):
+            raise ValueError(f"BehaviourConfig.accel_noise must be a finite number >= 0, got {self.accel_noise!r}")
+        check_int("BehaviourConfig.perturb_steps", self.perturb_steps)
+        if self.driver_style not in DRIVER_STYLES:
+            raise ValueError(f"BehaviourConfig.driver_style must be one of {DRIVER_STYLES}, got {self.driver_style!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> BehaviourConfig:
+        """Build from a mapping; an unknown key raises ``ValueError`` naming it."""
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown BehaviourConfig key(s) {sorted(unknown)}; valid: {sorted(cls.__dataclass_fields__)}")
+        return cls(**values)
+
+
+def make_env(
+    env_id: str = "MixedTraffic-v0",
+    env_kwargs: dict[str, Any] | None = None,
+    style_classifier: str | os.PathLike | None = None,
+) -> gym.Env:
+    """Create the environment used by every offline-to-online stage (same spaces everywhere).
+
+    :param env_id: a registered gymnasium id (``import envs`` registers ``MixedTraffic-v0``)
+    :param env_kwargs: keyword arguments of the environment
+    :param style_classifier: path of a saved :class:`~envs.style.DrivingStyleClassifier`, or
+        ``"default"`` for the packaged one; when given, observations carry the driving-style
+        context c_t (Eq. 6) through :class:`~envs.wrappers.DrivingStyleContext`
+    """
+    import envs  # noqa: F401  (registers MixedTraffic-v0)
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    if style_classifier is not None:
+        from envs.wrappers import DrivingStyleContext
+
+        env = DrivingStyleContext(env, classifier=None if style_classifier == "default" else style_classifier)
+    return env
+
+
+def collect_episodes(
+    env: gym.Env,
+    n_episodes: int,
+    behaviour: BehaviourConfig | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+) -> list[Episode]:
+    """Drive ``env`` (a ``MixedTraffic-v0``, possibly wrapped) with the behaviour policy.
+
+    Episode ``i`` is reset with seed ``seed + i``; the behaviour's own randomness comes from a
+    generator seeded with ``seed``, so the same arguments give the same episodes.
+
+    :param env: the environment (its unwrapped env must offer ``set_ego_controller``)
+    :param n_episodes: number of episodes, >= 1
+    :param behaviour: the behaviour policy (default :class:`BehaviourConfig`)
+    :param seed: base seed
+    :param progress_bar: show a tqdm progress bar
+    :return: the episodes, actions in the environment's units
+    """
+    check_int("n_episodes", n_episodes)
+    behaviour = behaviour or BehaviourConfig()
+    base = env.unwrapped
+    if not hasattr(base, "set_ego_controller"):
+        raise ValueError(f"collect_episodes needs a MixedTraffic env (with set_ego_controller), got {type(base).__name__}")
+    low, high = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
+    rng = np.random.default_rng(seed)
+    episodes = []
+    iterator = range(n_episodes)
+    if progress_bar:
+        from tqdm.auto import tqdm
+
+        iterator = tqdm(iterator, desc="collect", unit="episode")
+    for i in iterator:
+        sumo_driven = bool(rng.random() < behaviour.sumo_fraction)
+        obs, info = env.reset(seed=seed + i, options={"ego_controller": "sumo" if sumo_driven else "agent"})
+        style = behaviour.driver_style
+        if style == "mixed":
+            style = DRIVER_STYLES[1 + int(rng.integers(3))]
+        if sumo_driven and style != "default":
+            base.set_ego_driver_style(style)
+        observations, actions, rewards, terminations, truncations = [obs], [], [], [], []
+        last_accel = 0.0
+        takeover_left, takeover_accel = 0, 0.0  # steps left in the current takeover, its acceleration
+        done = False
+        while not done:
+            lane_change = float(rng.choice((-1.0, 1.0))) if rng.random() < behaviour.lane_change_prob else 0.0
+            if sumo_driven:
+                starts = bool(rng.random() < behaviour.perturb_prob)
+                noise = float(rng.standard_normal())  # drawn every step: the same stream for any perturb_steps
+                if takeover_left == 0 and starts:
+                    takeover_left = behaviour.perturb_steps
+                    takeover_accel = last_accel + behaviour.accel_noise * noise
+                else:
+                    lane_change = 0.0  # random lane changes only at the first step of a takeover
+                base.set_ego_controller("agent" if takeover_left > 0 else "sumo")
+                action = np.array([takeover_accel, lane_change])
+                takeover_left = max(takeover_left - 1, 0)
+            else:
+                action = np.array([rng.uniform(low[0], high[0]), lane_change])
+            action = np.clip(action, low, high).astype(env.action_space.dtype)
+            obs, reward, terminated, truncated, info = env.step(action)
+            performed = np.asarray(info["applied_action"], dtype=np.float64)
+            last_accel = float(performed[0])
+            observations.append(obs)
+            actions.append(np.clip(performed, low, high))
+            rewards.append(float(reward))
+            terminations.append(bool(terminated))
+            truncations.append(bool(truncated))
+            done = terminated or truncated
+        episodes.append(
+            Episode(
+                observations=np.asarray(observations, dtype=env.observation_space.dtype),
+                actions=np.asarray(actions, dtype=env.action_space.dtype),
+                rewards=np.asarray(rewards),
+                terminations=np.asarray(terminations),
+                truncations=np.asarray(truncations),
+                seed=seed + i,
+            )
+        )
+    return episodes
+
+
+def collect_dataset(
+    path: str | os.PathLike,
+    n_episodes: int,
+    env_id: str = "MixedTraffic-v0",
+    env_kwargs: dict[str, Any] | None = None,
+    style_classifier: str | None = None,
+    behaviour: BehaviourConfig | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+    overwrite: bool = False,
+) -> OfflineDataset:
+    """Collect ``n_episodes`` with the behaviour policy and store them as a local Minari dataset.
+
+    The metadata records everything needed to rebuild the same environment (``env_id``,
+    ``env_kwargs``, ``style_classifier``), the behaviour policy and the seed.
+
+    :return: the dataset, loaded back from disk
+    """
+    behaviour = behaviour or BehaviourConfig()
+    env = make_env(env_id, env_kwargs, style_classifier)
+    try:
+        episodes = collect_episodes(env, n_episodes, behaviour, seed=seed, progress_bar=progress_bar)
+        metadata = {
+            "env_id": env_id,
+            "env_kwargs": dict(env_kwargs or {}),
+            "style_classifier": None if style_classifier is None else str(style_classifier),
+            "behaviour": "sumo-driver+perturbation/random",
+            "behaviour_config": {k: getattr(behaviour, k) for k in behaviour.__dataclass_fields__},
+            "seed": seed,
+            "n_episodes": n_episodes,
+            "total_steps": int(sum(len(ep) for ep in episodes)),
+            "mean_return": float(np.mean([ep.rewards.sum() for ep in episodes])),
+        }
+        write_dataset(
+            episodes, path, env.observation_space, env.action_space, env=env,
+            metadata=metadata, overwrite=overwrite,
+        )
+    finally:
+        env.close()
+    return load_dataset(path)

@@ -1,0 +1,163 @@
+"""Evaluation on ``MixedTraffic-v0``: reward, smoothness (cumulative jerk), collisions, merges and
+the executed chunk lengths L_t of a checkpoint, on seeded scenarios."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from envs.collection import make_env
+from sb3_ua2c import UA2C
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import check_spaces_match
+from sb3_ua2c.pipeline import load_checkpoint
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """What :func:`evaluate` measures per episode (``MixedTraffic-v0`` info keys)."""
+
+    seed: int
+    reward: float
+    length: int
+    cumulative_jerk: float  # Σ_t |jerk_t| [m/s³], the smoothness cost of Fig. 2(b)
+    collision: bool
+    merge_success: bool
+    mean_speed: float  # [m/s]
+    mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
+
+    @property
+    def jerk_per_step(self) -> float:
+        """``cumulative_jerk / length`` [m/s³]: smoothness that does not reward ending an episode early."""
+        return self.cumulative_jerk / self.length if self.length else math.nan
+
+
+def evaluate(
+    checkpoint: str | os.PathLike | UA2C | Any,
+    n_episodes: int = 5,
+    seeds: tuple[int, ...] = (0,),
+    env_settings_: dict[str, Any] | None = None,
+    entropy_threshold: float | None = None,
+    deterministic: bool = True,
+    n_elite: int | None = None,
+    flow_steps: int | None = None,
+) -> list[EpisodeMetrics]:
+    """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
+
+    Episode ``i`` of seed ``s`` is reset with seed ``1000 * s + i`` (the same scenarios for every
+    checkpoint evaluated with the same seeds). With ``deterministic=False`` every replanning draws
+    fresh candidate noise, as the rollouts of Phase 2 do; the noise of an episode comes from torch's
+    generator seeded with the episode's seed (the global generator is restored afterwards), so
+    sampled evaluations are reproducible too.
+
+    :param checkpoint: a UA2C ``.zip`` path, a UA2C model, or any policy with SB3's
+        ``predict(obs, state=None, episode_start=None, deterministic=True)`` and
+        ``observation_space``/``action_space`` (e.g. SB3's SAC, or :mod:`experiments.peers`' adapter of a
+        d3rlpy policy): such a policy acts one action per decision (``mean_executed_length`` 1) and
+        takes none of the UA2C overrides below
+    :param n_episodes: episodes per seed
+    :param seeds: evaluation seeds
+    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
+    :param entropy_threshold: override δ for execution
+    :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``); ``False``: fresh,
+        seeded noise per replanning
+    :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
+    :param flow_steps: override the Euler steps of the sampler when acting (``UA2C.set_flow_steps``)
+    """
+    check_int("n_episodes", n_episodes)
+    settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
+    env = make_env(**settings)
+    try:
+        if isinstance(checkpoint, str | os.PathLike):
+            model = load_checkpoint(checkpoint, env)
+        elif isinstance(checkpoint, UA2C) or callable(getattr(checkpoint, "predict", None)):
+            model = checkpoint
+            check_spaces_match(model.observation_space, model.action_space, env, what="the model")
+        else:
+            raise TypeError(f"checkpoint must be a path or a policy with predict(), got {type(checkpoint).__name__}")
+        overrides = {"entropy_threshold": entropy_threshold, "n_elite": n_elite, "flow_steps": flow_steps}
+        given = sorted(name for name, value in overrides.items() if value is not None)
+        if given and not isinstance(model, UA2C):
+            raise ValueError(f"{given} apply to UA2C only, not to a {type(model).__name__}")
+        if entropy_threshold is not None:
+            model.set_entropy_threshold(entropy_threshold)
+        if n_elite is not None:
+            model.set_n_elite(n_elite)
+        if flow_steps is not None:
+            model.set_flow_steps(flow_steps)
+        results = []
+        for s in seeds:
+            for i in range(n_episodes):
+                results.append(_run_episode(model, env, 1000 * int(s) + i, deterministic))
+        return results
+    finally:
+        env.close()
+
+
+def _run_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+    if deterministic:
+        return _drive_episode(model, env, seed, deterministic)
+    with th.random.fork_rng(devices=[]):  # seeded candidate noise, the caller's generator untouched
+        th.manual_seed(seed)
+        return _drive_episode(model, env, seed, deterministic)
+
+
+def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
+    obs, info = env.reset(seed=seed)
+    state, start = None, np.ones(1, dtype=bool)
+    total, jerk, speeds, lengths = 0.0, 0.0, [], []
+    collision = merged = False
+    steps = 0
+    done = False
+    while not done:
+        action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+        if not hasattr(state, "plan_position"):  # a one-action-per-decision policy
+            lengths.append(1)
+        elif int(state.plan_position[0]) == 1:  # a plan was made at this step
+            lengths.append(int(state.plan_length[0]))
+        start = np.zeros(1, dtype=bool)
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += float(reward)
+        jerk += abs(float(info.get("jerk", 0.0)))
+        speeds.append(float(info.get("av_speed", math.nan)))
+        collision |= bool(info.get("collision", False))
+        merged |= bool(info.get("merge_done", False))
+        steps += 1
+        done = terminated or truncated
+    return EpisodeMetrics(
+        seed=seed, reward=total, length=steps, cumulative_jerk=jerk, collision=collision,
+        merge_success=merged, mean_speed=float(np.nanmean(speeds)), mean_executed_length=float(np.mean(lengths)),
+    )
+
+
+SUMMARY_KEYS = (
+    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
+)
+
+
+def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
+    """Means over episodes (collision and merge as rates) plus the episode count."""
+    if not results:
+        raise ValueError("no episodes to summarize")
+    out = {key: float(np.mean([float(getattr(r, key)) for r in results])) for key in SUMMARY_KEYS}
+    out["episodes"] = len(results)
+    return out
+
+
+def format_table(rows: dict[str, dict[str, float]]) -> str:
+    """A plain-text table, one row per method."""
+    headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
+    lines = [" | ".join(f"{h:>12}" for h in headers)]
+    lines.append("-|-".join("-" * 12 for _ in headers))
+    for name, s in rows.items():
+        values = (s["reward"], s["cumulative_jerk"], s["collision"], s["merge_success"], s["mean_speed"], s["mean_executed_length"])
+        lines.append(" | ".join([f"{name:>12}"] + [f"{v:12.3f}" for v in values]))
+    return "\n".join(lines)
+
+
+__all__ = ["SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "format_table", "summarize"]

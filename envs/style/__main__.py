@@ -1,0 +1,6 @@
+"""``python -m envs.style``: the same command line as ``python -m sb3_ua2c style``."""
+
+from envs.style.cli import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,167 @@
+"""Command line of the Figure-2 runner (``python -m experiments.fig2``, ``python -m experiments.fig2``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from experiments.common.budget import (
+    FULL_BUDGET,
+    QUICK_BUDGET,
+    Fig2Budget,
+    estimate_seconds,
+    estimate_wall_seconds,
+)
+from experiments.common.names import MAX_SEED, PAPER
+from experiments.common.records import command_line, run_header
+from experiments.common.runner import UnitsFailedError
+from experiments.fig2.aggregation import aggregate, load_raw
+from experiments.fig2.manifest import RunPaths, read_manifest
+from experiments.fig2.report import format_pct, write_report
+from experiments.fig2.units import SEED_PARTS, SeedBusyError, measured_seconds, run_all
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.cli_args import json_object_arg
+
+
+def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
+    """The budget a report ran with: the ``budget`` key of its ``fig2.json`` (``report`` is that file or
+    the directory holding it). Fields newer than the report take their class defaults, which are the
+    values every report made before them ran with.
+
+    :raises ValueError: naming the path, when it holds no readable ``fig2.json`` with a budget
+    """
+    path = Path(report)
+    path = path / "fig2.json" if path.is_dir() else path
+    try:
+        recorded = json.loads(path.read_text())["budget"]
+    except FileNotFoundError:
+        raise ValueError(f"--budget-of: {path} does not exist") from None
+    except (json.JSONDecodeError, TypeError, KeyError) as exc:
+        raise ValueError(f"--budget-of: {path} is not a fig2.json with a 'budget' key ({exc!r})") from exc
+    return Fig2Budget.from_dict(recorded)
+
+
+def build_parser(prog: str = "python -m experiments.fig2") -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description="Reproduce the UA2C paper's Figure 2 (a)-(d) on MixedTraffic-v0 over several seeds, with the "
+        "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
+    )
+    parser.add_argument("--seeds", type=int, default=5, help="number of seeds 0..N-1 (default: 5)")
+    parser.add_argument(
+        "--seed-list", type=int, nargs="+", default=None, help="explicit seeds (overrides --seeds)"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test"
+    )
+    parser.add_argument(
+        "--budget",
+        type=json_object_arg,
+        default={},
+        help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'",
+    )
+    parser.add_argument(
+        "--budget-of",
+        default=None,
+        metavar="REPORT",
+        help="start from the budget a report ran with (its fig2.json, or the directory holding it) instead of "
+        "the default; --budget applies on top. Reruns a report made under another default exactly",
+    )
+    parser.add_argument("--out", default="results", help="report directory (default: results)")
+    parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
+    parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
+    parser.add_argument("--workers", type=int, default=2, help="units run in parallel processes, two per seed: its main and style parts (default: 2)")
+    parser.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="run the seeds as tasks on a Ray cluster (e.g. 127.0.0.1:6379 of `ray start --head`); the "
+        "directories must be on a filesystem every node shares",
+    )
+    parser.add_argument(
+        "--report-only", action="store_true", help="only rebuild the report from the raw results"
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments.fig2") -> int:
+    """Entry point; returns the exit code (2 on a bad argument or missing results).
+
+    :param argv: arguments (default ``sys.argv[1:]``)
+    :param prog: how the command was invoked, for the help text and the report's command line
+    """
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    try:
+        if args.budget_of is not None and args.quick:
+            raise ValueError("--budget-of and --quick both choose the base budget: pass one of them")
+        base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
+        budget = base.replace(**args.budget) if args.budget else base
+        if args.seed_list is not None:
+            seeds = list(dict.fromkeys(args.seed_list))
+        else:
+            check_int("Fig2Budget.seeds", args.seeds)
+            seeds = list(range(args.seeds))
+        if any(not 0 <= s < MAX_SEED for s in seeds):
+            raise ValueError(f"seeds must be in [0, {MAX_SEED}), got {seeds}")
+        check_int("Fig2Budget.workers", args.workers)
+    except ValueError as exc:
+        parser.error(str(exc))
+    paths = RunPaths.under(args.out, args.raw, args.work)
+    previous = paths.out / "fig2.json"  # a rebuilt report keeps the command and date of the run
+    command, date = run_header(
+        command_line(prog, sys.argv[1:] if argv is None else argv), previous if args.report_only else None
+    )
+    t0 = time.perf_counter()
+    try:
+        if not args.report_only:
+            est = estimate_seconds(budget, len(seeds))
+            workers = min(args.workers, len(SEED_PARTS) * len(seeds))
+            wall = estimate_wall_seconds(est, len(seeds), workers)
+            print(
+                f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
+                f"~{wall / 60:.0f} min wall before resuming ("
+                + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total")
+                + " CPU-min)",
+                flush=True,
+            )
+            executed = run_all(seeds, budget, paths, workers, ray_address=args.ray_address)
+            print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
+        recorded: dict[str, Any] = {}
+        if args.report_only:
+            if previous.is_file():
+                recorded = json.loads(previous.read_text())
+            # the budget the run was made with: its manifest, else the one recorded in fig2.json
+            manifest = read_manifest(paths)
+            if manifest is None and "budget" in recorded:
+                manifest = Fig2Budget.from_dict(recorded["budget"])
+            budget = manifest or budget
+        summary = aggregate(load_raw(paths, seeds), seeds, budget)
+        summary["seconds"] = {
+            # without the work directory (e.g. a fresh clone), the timings recorded with the run
+            "measured": measured_seconds(paths, seeds) or recorded.get("seconds", {}).get("measured", {}),
+            "estimated": estimate_seconds(budget, len(seeds)),
+        }
+    except (ValueError, FileNotFoundError, SeedBusyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except UnitsFailedError as exc:  # a seed in use by another process is a usage error (2), others fail (1)
+        print(f"error: {exc}", file=sys.stderr)
+        busy = all("SeedBusyError" in tb for tb in exc.failures.values())
+        return 2 if busy else 1
+    files = write_report(summary, paths, command, date)
+    for label, key in (
+        ("offline reward", "offline_reward_gain_pct"),
+        ("offline jerk", "offline_jerk_change_pct"),
+        ("online reward", "online_reward_gain_pct"),
+    ):
+        print(f"{label}: ours {format_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
+    print(f"style macro accuracy: {summary['style_macro_accuracy']:.3f}")
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0

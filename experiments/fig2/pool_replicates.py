@@ -1,0 +1,81 @@
+"""Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``).
+
+Usage::
+
+    python -m experiments.fig2.pool_replicates results results/fig2_actor512_m8_online3 [more report dirs] [--sampled]
+
+Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
+evaluations of the two fine-tuned arms, and ``{adaptive,fixed}_r<r>.json`` those of its further
+online phases (``Fig2Budget.online_replicates``): every phase a report holds is a run. The reports
+must share their pre-trained checkpoints (same seeds, same Phase-1 budget) and differ in the online
+seeds only; do not pass two reports holding the same phase (e.g. a report and its own rerun). Prints per directory and
+pooled: the mean reward of both arms, (c) as the change of the means, and the mean ± 95 %
+Student-t interval of the paired per-run changes (one run = one seed of one replicate).
+``--sampled`` pools the evaluations with fresh candidate noise (``{adaptive,fixed}_sampled.json``,
+``Fig2Budget.sampled_eval``) instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from experiments.fig2 import (
+    PAPER,
+    RunPaths,
+    load_raw,
+    relative_change_pct,
+    replicate_name,
+    t_confidence_interval,
+)
+
+
+def arm_rewards(report: Path, suffix: str = "") -> dict[tuple[int, int], tuple[float, float]]:
+    """``{(seed, phase): (adaptive reward, fixed reward)}`` of one report directory, for every online
+    phase it holds (``suffix``: ``"_sampled"``)."""
+    seeds = sorted(int(d.name.removeprefix("seed")) for d in (report / "fig2_raw").glob("seed*"))
+    if not seeds:
+        raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
+    raw = load_raw(RunPaths.under(report), seeds)  # {method: {seed: summary}}
+    out = {}
+    for seed in seeds:
+        phase = 0
+        while all(seed in raw.get(replicate_name(arm, phase) + suffix, {}) for arm in ("adaptive", "fixed")):
+            out[(seed, phase)] = tuple(raw[replicate_name(arm, phase) + suffix][seed]["reward"] for arm in ("adaptive", "fixed"))
+            phase += 1
+    return out
+
+
+def describe(name: str, pairs: list[tuple[float, float]]) -> str:
+    adaptive, fixed = np.array(pairs).T
+    per_run = [relative_change_pct(a, f) for a, f in pairs]
+    mean, half = t_confidence_interval(per_run)
+    return (
+        f"| {name} | {len(pairs)} | {adaptive.mean():.1f} | {fixed.mean():.1f} | "
+        f"{relative_change_pct(adaptive.mean(), fixed.mean()):+.2f} % | {mean:+.1f} ± {half:.1f} % |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("reports", nargs="+", type=Path)
+    parser.add_argument("--sampled", action="store_true", help="pool the evaluations with fresh candidate noise")
+    args = parser.parse_args()
+    runs = {report: arm_rewards(report, "_sampled" if args.sampled else "") for report in args.reports}
+    seeds = {tuple(sorted({seed for seed, _ in r})) for r in runs.values()}
+    if len(seeds) != 1:
+        raise SystemExit(f"error: the reports hold different seeds: {sorted(seeds)}")
+    print("| report | runs | adaptive | fixed | (c) change of the means | per-run changes |")
+    print("|---|---|---|---|---|---|")
+    pooled = []
+    for report, by_seed in runs.items():
+        print(describe(str(report), list(by_seed.values())))
+        pooled += list(by_seed.values())
+    print(describe("pooled", pooled))
+    print(f"paper: {PAPER['online_reward_gain_pct']:+.2f} %")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,424 @@
+"""The Figure-2 report: ``fig2.md`` (:func:`format_markdown`, one builder per section), ``fig2.json``
+and the PNG panels (:func:`write_report`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.names import (
+    CLAIM_COMPARISONS,
+    MAX_SEED,
+    METHOD_LABELS,
+    PAPER,
+    SAMPLED_METHODS,
+    sampled_name,
+)
+from experiments.common.records import strict_json
+from experiments.common.stats import t_confidence_interval
+from experiments.fig2.manifest import RunPaths
+from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
+
+Lines = list[str]
+
+
+def _fmt(stat: Mapping[str, Any], digits: int = 2) -> str:
+    mean, half = stat["mean"], stat["ci95"]
+    if not math.isfinite(mean):
+        return "n/a"
+    return f"{mean:.{digits}f}" + ("" if not math.isfinite(half) else f" ± {half:.{digits}f}")
+
+
+def format_pct(x: float) -> str:
+    return "n/a" if not math.isfinite(x) else f"{x:+.2f}%"
+
+
+def paper_verdict(paper_key: str, change_pct: float) -> str:
+    """``"at or beyond"`` when our relative change is at least as good as the paper's (higher reward,
+    lower jerk), ``"short"`` otherwise (also for a NaN change)."""
+    better_is_lower = paper_key == "offline_jerk_change_pct"
+    ours, paper = float(change_pct), PAPER[paper_key]
+    ok = ours <= paper if better_is_lower else ours >= paper
+    return "at or beyond" if ok else "short"
+
+
+def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
+    """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
+    sections = (
+        _header(summary, command, date),
+        _claims_table(summary),
+        _methods_table(summary),
+        _online_phases_table(summary),
+        _training_episodes_table(summary),
+        _style_section(summary),
+        _delta_sweep_table(summary),
+        _k_sweep_table(summary),
+        _acting_sweep_table(summary),
+        _style_context_section(summary),
+        _budget_section(summary),
+        _compute_table(summary),
+    )
+    return "\n".join([line for section in sections for line in section] + [""])
+
+
+def _n_phases(summary: Mapping[str, Any]) -> int:
+    return len(summary.get("online_phases", {}).get("phases", [0]))
+
+
+def _header(summary: Mapping[str, Any], command: str, date: str) -> Lines:
+    n = len(summary["seeds"])
+    return [
+        "# Figure 2 reproduction on MixedTraffic-v0",
+        "",
+        f"Command: `{command}`  ",
+        f"Date: {date}  ",
+        f"Seeds: {summary['seeds']} (means ± 95% Student-t intervals over {n} seed(s); "
+        "a single seed has no interval)",
+        "",
+        "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
+        "the per-seed column is the mean ± 95% interval of the per-seed changes. Where a claim is short "
+        "of the paper, docs/research-log.md (\"What was tried\") says what was tried. "
+        "Rows without a suffix act with fixed candidate noise (`predict(deterministic=True)`: the same "
+        "history always gives the same plan); rows marked \"sampled\" evaluate the same checkpoints "
+        "drawing fresh candidate noise at every replanning, as the rollouts of Phase 2 do (seeded per "
+        "episode).",
+        "",
+    ]
+
+
+def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None], ...]:
+    """``(label, comparisons key, PAPER key or None)`` of the claims table, in order: (a)-(c), the
+    variants beyond the paper, then the "sampled" rows of (a)-(c), (b'') and (c''')."""
+    n_phases = _n_phases(summary)
+    pooled = f" ({len(summary['seeds'])} seeds × {n_phases} online phases, pooled)" if n_phases > 1 else ""
+    rows = (
+        ("(a) offline reward, chunk vs one-step", "offline_reward", "offline_reward_gain_pct"),
+        ("(b) cumulative jerk, chunk vs one-step", "offline_jerk", "offline_jerk_change_pct"),
+        (f"(c) online reward, adaptive vs fixed{pooled}", "online_reward", "online_reward_gain_pct"),
+    )
+    extra = (
+        ("(a') offline reward, chunk with adaptive execution vs one-step", "offline_reward_chunk_adaptive", None),
+        ("(b') cumulative jerk, chunk with adaptive execution vs one-step", "offline_jerk_chunk_adaptive", None),
+        ("(b'') jerk per step (Σ\\|jerk\\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
+        (
+            f"(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed{pooled}",
+            "online_phase_reward",
+            None,
+        ),
+        (f"(c'') the same over the last quarter of the training episodes{pooled}", "online_phase_reward_last", None),
+        (
+            "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks"
+            + (" (first online phase)" if pooled else ""),
+            "online_execution_rule",
+            None,
+        ),
+    )
+    sampled = tuple(
+        (f"{label} — sampled", f"{key}_sampled", paper_key) for label, key, paper_key in (*rows, extra[2], extra[5])
+    )
+    return (*rows, *extra, *sampled)
+
+
+def _claims_table(summary: Mapping[str, Any]) -> Lines:
+    """The headline table: our relative change of each claim next to the paper's."""
+    c = summary["comparisons"]
+    lines = ["| claim | ours | per-seed changes | paper | vs paper |", "|---|---|---|---|---|"]
+    for label, key, paper_key in _claim_rows(summary):
+        if key not in c:
+            continue
+        cmp = c[key]
+        per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
+        paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
+        verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
+        lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {paper} | {verdict} |")
+    style = summary.get("style")
+    if style:
+        lines.append(
+            f"| (d) style inference, macro accuracy | {_fmt(style['macro_accuracy'], 3)} | | confusion matrix only | |"
+        )
+    return lines
+
+
+def _methods_table(summary: Mapping[str, Any]) -> Lines:
+    """Every metric of the main methods (and their "sampled" evaluations), mean ± interval over seeds."""
+    lines = [
+        "",
+        "## Methods",
+        "",
+        "| method | reward | cum. jerk | jerk per step | collision rate | merge success | mean speed [m/s] | mean L_t |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
+    order += [sampled_name(m) for m in SAMPLED_METHODS]
+    for m in order:
+        if m not in summary["methods"]:
+            continue
+        s = summary["methods"][m]
+        lines.append(
+            f"| {METHOD_LABELS[m]} | {_fmt(s['reward'])} | {_fmt(s['cumulative_jerk'], 1)} "
+            f"| {_fmt(s['jerk_per_step'])} | {_fmt(s['collision'])} "
+            f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
+        )
+    return lines
+
+
+def _online_phases_table(summary: Mapping[str, Any]) -> Lines:
+    """(c) within each online phase and pooled (only with more than one phase)."""
+    if _n_phases(summary) <= 1:
+        return []
+    c, op = summary["comparisons"], summary["online_phases"]
+    offset = summary["budget"].get("online_seed_offset", 0)
+    lines = [
+        "",
+        "## (c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
+        "",
+        "The methods table and the Phase-2 table show the first online phase; (c), (c') and (c'') pool "
+        f"the {op['runs']} paired runs of all phases. Phase r runs seed s with "
+        f"s + {MAX_SEED} × (online_seed_offset + r).",
+        "",
+        "| online phase | fixed | adaptive | (c) | (c) sampled |",
+        "|---|---|---|---|---|",
+    ]
+    for row in op["per_phase"]:
+        sampled_change = format_pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""
+        lines.append(
+            f"| {offset + row['phase']} | {_fmt(row['fixed'])} | {_fmt(row['adaptive'])} "
+            f"| {format_pct(row['change']['change_pct'])} | {sampled_change} |"
+        )
+    sampled_pooled = format_pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""
+    lines.append(
+        f"| pooled ({op['runs']} runs) | {_fmt(op['fixed'])} | {_fmt(op['adaptive'])} "
+        f"| {format_pct(c['online_reward']['change_pct'])} | {sampled_pooled} |"
+    )
+    return lines
+
+
+def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
+    """The Phase-2 training episodes of each logged arm (first online phase)."""
+    if not summary.get("online_phase"):
+        return []
+    lines = [
+        "",
+        "## Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
+        + (", first online phase" if _n_phases(summary) > 1 else ""),
+        "",
+        "| arm | mean return | mean return, last quarter | collision rate | episodes |",
+        "|---|---|---|---|---|",
+    ]
+    for arm, st in summary["online_phase"].items():
+        lines.append(
+            f"| {METHOD_LABELS[arm]} | {_fmt(st['reward'])} | {_fmt(st['reward_last'])} "
+            f"| {_fmt(st['collision'])} | {_fmt(st['episodes'], 1)} |"
+        )
+    return lines
+
+
+def _style_section(summary: Mapping[str, Any]) -> Lines:
+    """(d): the confusion matrix summed over seeds and the logistic-regression baseline."""
+    style = summary.get("style")
+    if not style:
+        return []
+    lines = [
+        "",
+        "## (d) Driving-style inference",
+        "",
+        f"Confusion matrix ({style['confusion_matrix_layout']}):",
+        "",
+        "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
+        "|---" * (len(style["classes"]) + 1) + "|",
+    ]
+    for name, row in zip(style["classes"], style["confusion_matrix"], strict=True):
+        lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
+    if style["baseline_macro_accuracy_per_seed"]:
+        base = t_confidence_interval(style["baseline_macro_accuracy_per_seed"])
+        lines += [
+            "",
+            f"Logistic-regression baseline on summary features: macro accuracy "
+            f"{_fmt({'mean': base[0], 'ci95': base[1]}, 3)}.",
+        ]
+    return lines
+
+
+def _delta_sweep_table(summary: Mapping[str, Any]) -> Lines:
+    if not summary["delta_sweep"]:
+        return []
+    lines = [
+        "",
+        "## δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
+        "",
+        "| δ | mean L_t | reward | cum. jerk |",
+        "|---|---|---|---|",
+    ]
+    for row in summary["delta_sweep"]:
+        lines.append(
+            f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
+            f"| {_fmt(row['cumulative_jerk'], 1)} |"
+        )
+    return lines
+
+
+def _k_sweep_table(summary: Mapping[str, Any]) -> Lines:
+    if not summary["k_sweep"]:
+        return []
+    lines = [
+        "",
+        "## k sweep (offline, same data and gradient budget, full chunks)",
+        "",
+        "| k | reward | cum. jerk | collision rate |",
+        "|---|---|---|---|",
+    ]
+    for row in summary["k_sweep"]:
+        lines.append(
+            f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} | {_fmt(row['collision'])} |"
+        )
+    return lines
+
+
+def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
+    """The offline checkpoints acting with other Euler steps N and elite sizes m."""
+    if not summary.get("acting_sweep"):
+        return []
+    default = summary.get("acting_default", {"n_elite": 1})
+    lines = [
+        "",
+        "## Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
+        f"the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and "
+        f"m = {default['n_elite']}",
+        "",
+        "| N | m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
+        "chunk jerk per step | chunk collision rate |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in summary["acting_sweep"]:
+        one, ch = row["onestep"], row["chunk"]
+        lines.append(
+            f"| {row['flow_steps']} | {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} "
+            f"| {_fmt(one['cumulative_jerk'], 1)} "
+            f"| {_fmt(ch['cumulative_jerk'], 1)} | {format_pct(row['jerk_change']['change_pct'])} "
+            f"| {_fmt(ch['jerk_per_step'])} | {_fmt(ch['collision'])} |"
+        )
+    return lines
+
+
+def _style_context_section(summary: Mapping[str, Any]) -> Lines:
+    if "style_context" not in summary:
+        return []
+    cmp = summary["style_context"]["reward_gain_pct"]
+    per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]})
+    return [
+        "",
+        "## Style context c_t (Eq. 6) in the observation",
+        "",
+        f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
+        f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).",
+    ]
+
+
+def _budget_section(summary: Mapping[str, Any]) -> Lines:
+    b = summary["budget"]
+    phases = f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else ""
+    onestep = f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else ""
+    phase2 = f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else ""
+    offset = f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}" if b.get("online_seed_offset") else ""
+    return [
+        "",
+        "## Budget (per seed)",
+        "",
+        f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
+        f"{b['finetune_steps']} online steps per fine-tuned arm{phases}; {b['eval_episodes']} evaluation "
+        f"episode(s) per method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; "
+        f"env {b['env_kwargs'] or 'defaults'}; UA2C {b['algo_kwargs'] or 'defaults'}{onestep}{phase2}{offset}.",
+    ]
+
+
+def _compute_table(summary: Mapping[str, Any]) -> Lines:
+    """Measured against estimated compute per stage (only when units were timed)."""
+    seconds = summary.get("seconds", {})
+    if not seconds.get("measured"):
+        return []
+    measured, estimated = seconds["measured"], seconds.get("estimated", {})
+    lines = [
+        "",
+        "Compute, summed over seeds (one worker = one core; measured = units run by the calls "
+        "that built these results):",
+        "",
+        "| stage | measured [min] | estimated [min] |",
+        "|---|---|---|",
+    ]
+    for stage in (*[k for k in estimated if k != "total"], "total"):
+        got = measured.get(stage)
+        lines.append(
+            f"| {stage} | {'n/a' if got is None else f'{got / 60:.1f}'} | {estimated.get(stage, math.nan) / 60:.1f} |"
+        )
+    return lines
+
+
+#: Bar panels of (a)-(c): file name, title, y label, arms (baseline first), metric, PAPER key.
+CLAIM_PANELS = (
+    ("fig2_a_offline_reward.png", "(a) offline reward", "episode reward", ("onestep", "chunk"), "reward",
+     "offline_reward_gain_pct"),
+    ("fig2_b_offline_jerk.png", "(b) offline cumulative jerk", "Σ|jerk| [m/s³]", ("onestep", "chunk"),
+     "cumulative_jerk", "offline_jerk_change_pct"),
+    ("fig2_c_online_reward.png", "(c) online reward", "episode reward", ("fixed", "adaptive"), "reward",
+     "online_reward_gain_pct"),
+)
+_SHORT_LABELS = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "adaptive": "adaptive"}
+
+
+def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[tuple[str, Any]], str]]:
+    """Arguments of :func:`~experiments.fig2.plots.bar_panel` for (a)-(c), then the same for the
+    evaluations with fresh candidate noise (``*_sampled.png``) when the run has them: file name, title,
+    y label, ``[(arm label, stat)]``, note. (c) shows every pooled run when there are several phases."""
+    methods, op = summary["methods"], summary.get("online_phases", {})
+    suffixes = ("", "_sampled") if "sampled" in summary else ("",)
+    panels = []
+    for suffix in suffixes:
+        for name, title, ylabel, arms, metric, paper_key in CLAIM_PANELS:
+            if suffix:
+                name, title = name.replace(".png", "_sampled.png"), f"{title}, sampled"
+                ours = summary["sampled"][paper_key]
+            else:
+                ours = summary["comparisons"][CLAIM_COMPARISONS[paper_key]]["change_pct"]
+            stats = {a: methods[a + suffix][metric] for a in arms}
+            if paper_key == "online_reward_gain_pct" and len(op.get("phases", [0])) > 1:  # every pooled run
+                stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"
+            note = f"ours {format_pct(ours)}, paper {PAPER[paper_key]:+.2f}%"
+            panels.append((name, title, ylabel, [(_SHORT_LABELS[a], stats[a]) for a in arms], note))
+    return panels
+
+
+def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date: str) -> list[Path]:
+    """Write ``fig2.json``, ``fig2.md`` and the PNG panels into ``paths.out``; return the files."""
+    from sb3_ua2c.pipeline import write_json
+
+    out = paths.out
+    out.mkdir(parents=True, exist_ok=True)
+    files = [write_json(out / "fig2.json", strict_json({**summary, "command": command, "date": date}))]
+    md = out / "fig2.md"
+    md.write_text(format_markdown(summary, command, date))
+    files.append(md)
+    for name, title, ylabel, arms, note in _claim_panels(summary):
+        bar_panel(out / name, title, ylabel, arms, note)
+        files.append(out / name)
+    if "style" in summary:
+        from envs.style import plot_confusion
+
+        st = summary["style"]
+        plot_confusion(
+            np.asarray(st["confusion_matrix"]),
+            out / "fig2_d_style_confusion.png",
+            st["classes"],
+            title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}",
+        )
+        files.append(out / "fig2_d_style_confusion.png")
+    if summary.get("online_phase"):
+        curve_panel(out / "fig2_c_online_curves.png", summary)
+        files.append(out / "fig2_c_online_curves.png")
+    if summary["delta_sweep"] or summary["k_sweep"]:
+        sweep_panel(out / "fig2_sweeps.png", summary)
+        files.append(out / "fig2_sweeps.png")
+    return files

@@ -1,0 +1,216 @@
+"""Report of the OGBench benchmark: success after the offline and the online phase, per arm.
+
+Statistics are rliable's (:mod:`experiments.common.stats`): an arm's scores form a ``(n_seeds,
+n_episodes)`` matrix of evaluation successes (0 or 1), the IQM is taken over seeds x episodes with
+a stratified bootstrap 95 % interval, and the probability of improvement compares two arms episode
+column by episode column. The ranking of fixed chunks against one-step is set against Q-chunking's
+published one (Li, Zhou, Levine 2025: QC > FQL on every OGBench domain, cube-single included).
+
+Outputs: ``ogbench.md``, ``ogbench.json`` and the learning curves ``ogbench_online_success.png``
+(evaluation success vs online environment steps) and ``ogbench_online_return.png`` (return of the
+online training episodes).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.stats import iqm_with_ci, probability_of_improvement
+
+PHASES = ("offline", "online")
+LABELS = {"adaptive": "UA2C (adaptive chunks)", "fixed": "fixed chunks (k = 5, δ = inf)", "onestep": "one-step (k = 1)"}
+#: Q-chunking's protocol and published result (Li, Zhou, Levine 2025, OGBench single-task, 5 domains).
+QC_REFERENCE = {
+    "offline_updates": 1_000_000, "online_steps": 1_000_000, "dataset_transitions": 1_000_000,
+    "mean_success": {"QC": 0.86, "FQL (one-step)": 0.58}, "ranking": "fixed chunks (QC) > one-step (FQL)",
+}
+SUCCESS_BAR = 0.10
+
+
+def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarray:
+    """``(n_seeds, n_episodes)`` evaluation successes of one arm after ``phase``, rows by seed."""
+    if phase not in PHASES:
+        raise ValueError(f"phase must be one of {PHASES}, got {phase!r}")
+    if not records:
+        raise ValueError("records must not be empty")
+    rows = [list(map(float, r[f"eval_{phase}"]["successes"])) for r in sorted(records, key=lambda r: r["seed"])]
+    if len({len(row) for row in rows}) != 1:
+        raise ValueError(f"every seed needs the same number of evaluation episodes, got {[len(r) for r in rows]}")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def by_arm(records: Sequence[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
+    """Records grouped by arm, arms in their first-seen order."""
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for record in records:
+        groups.setdefault(record["arm"], []).append(record)
+    return groups
+
+
+def ranking(poi: Mapping[str, float] | None) -> str:
+    """Our ranking of fixed chunks vs one-step from ``P(fixed > one-step)`` and its 95 % interval."""
+    if poi is None:
+        return "not measured (needs both the fixed and the one-step arm)"
+    if poi["ci_low"] > 0.5:
+        return "fixed chunks > one-step"
+    if poi["ci_high"] < 0.5:
+        return "one-step > fixed chunks"
+    return "no clear ranking (the interval of P(fixed > one-step) contains 0.5)"
+
+
+def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
+    """Everything the report shows, JSON-able: per arm and phase the mean success, per-seed success
+    and IQM with its 95 % interval; per pair of arms and phase the probability of improvement."""
+    groups = by_arm(records)
+    tasks = sorted({r["task"] for r in records})
+    if len(tasks) != 1:
+        raise ValueError(f"records must come from one task, got {tasks}")
+    arms: dict[str, Any] = {}
+    matrices = {phase: {arm: success_matrix(recs, phase) for arm, recs in groups.items()} for phase in PHASES}
+    for phase in PHASES:
+        intervals = iqm_with_ci(matrices[phase], reps=reps)
+        for arm, matrix in matrices[phase].items():
+            arms.setdefault(arm, {"seeds": sorted(r["seed"] for r in groups[arm])})[phase] = {
+                "mean": float(matrix.mean()), "per_seed": matrix.mean(axis=1).tolist(), **intervals[arm]}
+    pairs: dict[str, Any] = {}
+    for x, y in itertools.permutations(groups, 2):
+        if (y, x) in {tuple(k.split(" > ")) for k in pairs}:
+            continue
+        pairs[f"{x} > {y}"] = {phase: probability_of_improvement(matrices[phase][x], matrices[phase][y], reps=reps)
+                               for phase in PHASES}
+    poi = pairs.get("fixed > onestep", {}).get("online")
+    if poi is None and "onestep > fixed" in pairs:
+        flipped = pairs["onestep > fixed"]["online"]
+        poi = {"probability": 1 - flipped["probability"], "ci_low": 1 - flipped["ci_high"],
+               "ci_high": 1 - flipped["ci_low"]}
+    best = max((a[p]["mean"] for a in arms.values() for p in PHASES), default=0.0)
+    ours = ranking(poi)
+    return {
+        "task": tasks[0], "budget": records[0]["budget"], "arms": arms, "improvement": pairs,
+        "ranking": {"ours_online": ours, "qc": QC_REFERENCE["ranking"], "agrees_with_qc": ours == "fixed chunks > one-step"},
+        "above_bar": best > SUCCESS_BAR, "best_mean_success": best, "qc_reference": QC_REFERENCE,
+        "seconds": {arm: sum(r["seconds"]["total_cpu"] for r in recs) for arm, recs in groups.items()},
+        "n_units": len(records),
+    }
+
+
+def _pct(x: float) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{100 * x:.1f} %"
+
+
+def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> str:
+    """``ogbench.md``: the success table, probabilities of improvement, budget next to QC's, ranking."""
+    b, qc = summary["budget"], summary["qc_reference"]
+    lines = [f"# OGBench: {summary['task']}", ""]
+    if command:
+        lines += [f"Command: `{command}`" + (f" ({summary['date']})" if summary.get("date") else ""), ""]
+    cpu = sum(summary["seconds"].values()) / 60
+    est = summary.get("estimate") or {}
+    lines += [f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units"
+              + (f" (estimate {est['total_cpu'] / 60:.0f} CPU-min, an upper bound)" if est.get("total_cpu") else "")
+              + ".", ""]
+    lines += ["Success rate over the evaluation episodes after each phase: mean, per seed, and IQM over "
+              "seeds x episodes with its stratified bootstrap 95 % interval (rliable). Success is 0 or 1 per "
+              "episode, so its IQM is about (p - 0.25) / 0.5 clipped to [0, 1] for a success rate p: 0 below 25 % "
+              "and 100 % above 75 %. Read the means; the IQM and the probabilities of improvement carry the "
+              "intervals.", "",
+              "| arm | seeds | offline mean | offline IQM [95 % CI] | online mean | online IQM [95 % CI] | per seed (online) |",
+              "|---|---|---|---|---|---|---|"]
+    for arm, s in summary["arms"].items():
+        off, on = s["offline"], s["online"]
+        lines.append(f"| {LABELS.get(arm, arm)} | {len(s['seeds'])} | {_pct(off['mean'])} | {_pct(off['iqm'])} "
+                     f"[{_pct(off['ci_low'])}, {_pct(off['ci_high'])}] | {_pct(on['mean'])} | {_pct(on['iqm'])} "
+                     f"[{_pct(on['ci_low'])}, {_pct(on['ci_high'])}] | "
+                     f"{', '.join(f'{100 * v:.0f}' for v in on['per_seed'])} |")
+    lines += ["", "Probability of improvement P(X > Y) over the evaluation episodes (0.5 = no difference):", "",
+              "| X > Y | offline [95 % CI] | online [95 % CI] |", "|---|---|---|"]
+    for pair, p in summary["improvement"].items():
+        lines.append("| " + pair + " | " + " | ".join(
+            f"{p[ph]['probability']:.2f} [{p[ph]['ci_low']:.2f}, {p[ph]['ci_high']:.2f}]" for ph in PHASES) + " |")
+    r = summary["ranking"]
+    lines += ["", "## Budget and ranking next to Q-chunking", "",
+              "| | this run | Q-chunking |", "|---|---|---|",
+              f"| dataset | {b['dataset_episodes']} episodes x {b['episode_steps'] - 1} transitions, generated here "
+              f"| {qc['dataset_transitions']:,} transitions (OGBench's) |",
+              f"| offline updates | {b['pretrain_steps']:,} | {qc['offline_updates']:,} |",
+              f"| online steps | {b['finetune_steps']:,} | {qc['online_steps']:,} |",
+              f"| evaluation | {b['eval_episodes']} episodes per seed | |",
+              f"| ranking, fixed chunks vs one-step | {r['ours_online']} | {r['qc']} |", "",
+              f"Our ranking {'agrees' if r['agrees_with_qc'] else 'does not agree'} with Q-chunking's. Q-chunking "
+              f"reports a mean success of {qc['mean_success']['QC']:.2f} for QC against "
+              f"{qc['mean_success']['FQL (one-step)']:.2f} for one-step FQL over five domains.", ""]
+    if not summary["above_bar"]:
+        lines += [f"**No arm exceeds {100 * SUCCESS_BAR:.0f} % success at this budget** (best mean "
+                  f"{_pct(summary['best_mean_success'])}): the ranking above says little.", ""]
+    lines += ["Learning curves: `ogbench_online_success.png`, `ogbench_online_return.png`.", ""]
+    return "\n".join(lines)
+
+
+def curve_points(records: Sequence[Mapping[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """Evaluation success vs online steps of one arm: steps ``(P,)`` and the mean over seeds ``(P,)``."""
+    steps = np.asarray([p["step"] for p in records[0]["curve"]], dtype=np.float64)
+    values = np.asarray([[p["success"] for p in r["curve"]] for r in records], dtype=np.float64)  # (seeds, P)
+    return steps, values.mean(axis=0)
+
+
+def return_curve(records: Sequence[Mapping[str, Any]], bins: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Mean return of the online training episodes per bin of environment steps (NaN where none ended)."""
+    total = records[0]["budget"]["finetune_steps"]
+    edges = np.linspace(0, total, bins + 1)
+    episodes = [e for r in records for e in r["training_episodes"]]
+    steps = np.asarray([e["step"] for e in episodes], dtype=np.float64)
+    returns = np.asarray([e["return"] for e in episodes], dtype=np.float64)
+    which = np.clip(np.digitize(steps, edges[1:-1]), 0, bins - 1)
+    means = np.array([returns[which == i].mean() if np.any(which == i) else np.nan for i in range(bins)])
+    return (edges[:-1] + edges[1:]) / 2, means
+
+
+def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
+    """The two learning-curve PNGs (matplotlib's Agg canvas; no pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    paths = []
+    for name, ylabel, curve in (("ogbench_online_success.png", "evaluation success", curve_points),
+                                ("ogbench_online_return.png", "online episode return", return_curve)):
+        fig = Figure(figsize=(5.0, 3.6), dpi=120)
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot()
+        for arm, recs in by_arm(records).items():
+            x, y = curve(recs)
+            ax.plot(x, y, marker="o", label=LABELS.get(arm, arm))
+        ax.set_xlabel("online environment steps")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{records[0]['task']} ({len(records)} units)", fontsize=9)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / name)
+        paths.append(out / name)
+    return paths
+
+
+def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command: str | None = None,
+                 estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None) -> dict[str, Any]:
+    """Write ``ogbench.md``, ``ogbench.json`` and the PNGs into ``out``; return the summary (``date``: when the
+    run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
+    from sb3_ua2c.pipeline import write_json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarize(records, reps=reps)
+    summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
+    summary["date"] = date
+    write_plots(records, out)
+    (out / "ogbench.md").write_text(format_markdown(summary, command))
+    write_json(out / "ogbench.json", {**summary, "records": [
+        {k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]})
+    return summary
+
+
+__all__ = ["QC_REFERENCE", "format_markdown", "ranking", "success_matrix", "summarize", "write_report"]

@@ -1,0 +1,213 @@
+"""The OGBench benchmark as executor units: one dataset per task first, then one unit per (arm, seed).
+
+Stage 1 generates the task's dataset (:func:`experiments.ogbench.unit.ensure_dataset`) once; every
+arm and seed of stage 2 reads it. Each unit's result is a JSON file in the work directory, so an
+interrupted run resumes with the units not yet stored, and deleting one unit's directory reruns
+that unit alone. A work directory belongs to one budget: units stored under another budget raise a
+``ValueError`` instead of being mixed into the table.
+
+Layout of ``<work>``::
+
+    data/<n>ep-<steps>-s<seed>/<dataset>.npz        the generated dataset (+ -val.npz)
+    data/<n>ep-<steps>-s<seed>/<dataset>.json       its generation's measurements (stage 1's result)
+    units/<task>/<arm>-s<seed>/record.json          a unit's record (stage 2's result), checkpoints
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from experiments.common.runner import Executor, Unit, run_units
+from experiments.ogbench.data import TaskName
+from experiments.ogbench.unit import ARMS, OGBenchBudget, dataset_file, ensure_dataset, run_ogbench_unit
+
+#: The default task: see docs/ogbench.md ("Why these tasks") and the probes in docs/research-log.md.
+DEFAULT_TASK = "pointmaze-medium-navigate-singletask-task1-v0"
+
+#: Budgets per task: ``full`` fits 3 arms x 5 seeds in 3 h wall on 2 cores (see :func:`estimate`),
+#: ``quick`` runs end to end in well under a minute (CI).
+BUDGETS: dict[str, dict[str, OGBenchBudget]] = {
+    "cube-single": {
+        "full": OGBenchBudget(dataset_episodes=200, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50),
+    },
+    "pointmaze-medium": {
+        "full": OGBenchBudget(dataset_episodes=200, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50),
+    },
+    "scene": {
+        "full": OGBenchBudget(dataset_episodes=100, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50,
+                              sparse=True),
+    },
+}
+QUICK_BUDGET = OGBenchBudget(dataset_episodes=2, episode_steps=30, pretrain_steps=4, finetune_steps=25,
+                             eval_episodes=2, curve_points=1, curve_episodes=1, max_episode_steps=20)
+
+#: CPU seconds measured on one core of a shared 2-core machine (2026-12-02, ``experiments/ogbench/measure_costs.py``
+#: and the probes of docs/research-log.md): per pre-training update, per online step (with its
+#: update every ``train_freq`` steps), per evaluation step.
+ARM_COSTS = {
+    "adaptive": {"update": 0.033, "online_step": 0.0102, "eval_step": 0.0027},
+    "fixed": {"update": 0.034, "online_step": 0.0100, "eval_step": 0.0025},
+    "onestep": {"update": 0.019, "online_step": 0.0085, "eval_step": 0.0044},
+}
+#: Oracle steps per CPU second of the dataset generation, by environment family.
+GENERATION_RATE = {"pointmaze": 4270.0, "manipulation": 445.0}
+
+_TASK_ID = re.compile(r"^task[1-5]$")
+
+
+def check_task(task: str) -> TaskName:
+    """``task`` parsed, or a ``ValueError`` naming ``--task``: an OGBench single-task name
+    (``<domain>-<type>-singletask-task<1..5>-v0``) whose dataset can be generated here."""
+    try:
+        name = TaskName.parse(task)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--task: {exc}") from None
+    parts = task.split("-")
+    if not _TASK_ID.match(parts[-2]):
+        raise ValueError(f"--task: {task!r} names no evaluation task; append one of task1..task5, "
+                         f"e.g. {task.rsplit('-', 1)[0]}-task2-{parts[-1]}")
+    return name
+
+
+def check_arms(arms: Sequence[str]) -> list[str]:
+    """``arms`` as a list without repeats, or a ``ValueError`` naming ``--arms``."""
+    unknown = [a for a in arms if a not in ARMS]
+    if unknown or not arms:
+        raise ValueError(f"--arms: unknown arm(s) {unknown} (choose from {sorted(ARMS)})" if unknown
+                         else "--arms: give at least one arm")
+    return list(dict.fromkeys(arms))
+
+
+def task_family(task: str) -> str:
+    """The key of :data:`BUDGETS` for ``task`` (``cube-single``, ``scene``, ``pointmaze-medium``)."""
+    env_name = check_task(task).env_name  # e.g. cube-single-v0
+    family = env_name.rsplit("-", 1)[0]
+    if family not in BUDGETS:
+        raise ValueError(f"--task: no budget is set for {family!r} tasks (known: {sorted(BUDGETS)})")
+    return family
+
+
+def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
+    """The budget of ``task``: the CI budget with ``quick``, else its family's full budget."""
+    family = task_family(task)
+    return QUICK_BUDGET if quick else BUDGETS[family]["full"]
+
+
+def episode_limit(task: str, budget: OGBenchBudget) -> int:
+    """Steps of an evaluation episode without success: the budget's limit or OGBench's."""
+    if budget.max_episode_steps is not None:
+        return budget.max_episode_steps
+    import gymnasium as gym
+    import ogbench.locomaze  # noqa: F401  (registers the environments)
+    import ogbench.manipspace  # noqa: F401
+
+    return int(gym.spec(check_task(task).env_name).max_episode_steps)
+
+
+def estimate(task: str, arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
+             data_ready: bool = False) -> dict[str, float]:
+    """CPU and wall seconds of a run from :data:`ARM_COSTS` (an upper bound on evaluation: every
+    episode runs to its time limit, as it does without success).
+
+    :return: ``{"data_cpu", "units_cpu", "total_cpu", "wall"}``; ``wall`` is the dataset stage plus
+        the units spread over ``workers`` cores
+    """
+    name = check_task(task)
+    rate = GENERATION_RATE["pointmaze" if name.env_name.startswith("pointmaze") else "manipulation"]
+    steps = (budget.dataset_episodes + budget.dataset_episodes // 10) * budget.episode_steps
+    data_cpu = 0.0 if data_ready else steps / rate
+    eval_steps = (2 * budget.eval_episodes + budget.curve_points * budget.curve_episodes) * episode_limit(task, budget)
+    units = [ARM_COSTS[arm]["update"] * budget.pretrain_steps + ARM_COSTS[arm]["online_step"] * budget.finetune_steps
+             + ARM_COSTS[arm]["eval_step"] * eval_steps for arm in arms for _ in range(n_seeds)]
+    slots = max(1, min(workers, len(units)))
+    wall = data_cpu + max(sum(units) / slots, max(units, default=0.0))
+    return {"data_cpu": data_cpu, "units_cpu": sum(units), "total_cpu": data_cpu + sum(units), "wall": wall}
+
+
+def format_estimate(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget, workers: int,
+                    est: dict[str, float]) -> str:
+    return (f"OGBench {task}: arms {list(arms)} x seeds {list(seeds)} = {len(arms) * len(seeds)} unit(s), "
+            f"{budget.dataset_episodes} dataset episodes, {budget.pretrain_steps} offline updates, "
+            f"{budget.finetune_steps} online steps, {budget.eval_episodes} evaluation episodes; estimated "
+            f"{est['total_cpu'] / 3600:.2f} CPU-h (dataset {est['data_cpu'] / 60:.1f} CPU-min), "
+            f"{est['wall'] / 3600:.2f} h wall with {workers} worker(s)")
+
+
+def generation_unit(task: str, budget: OGBenchBudget, data_dir: str) -> dict[str, Any]:
+    """Stage 1: the dataset of ``task`` (generated when missing); its path and measurements."""
+    path, generation = ensure_dataset(task, budget, data_dir)
+    return {"task": task, "path": str(path), "generation": generation, "budget": budget.to_dict()}
+
+
+def unit_dir(work: Path, task: str, arm: str, seed: int) -> Path:
+    return Path(work) / "units" / task / f"{arm}-s{seed}"
+
+
+def build_units(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget,
+                work: str | Path) -> tuple[Unit, list[Unit]]:
+    """The dataset unit and the (arm, seed) units of a run, with their result files under ``work``."""
+    work = Path(work)
+    data_dir = work / "data"
+    data = Unit(f"data/{task}", generation_unit, {"task": task, "budget": budget, "data_dir": str(data_dir)},
+                result_file=dataset_file(task, budget, data_dir).with_suffix(".json"))
+    units = [
+        Unit(f"{task}/{arm}-s{seed}", run_ogbench_unit,
+             {"arm": arm, "task": task, "seed": seed, "budget": budget,
+              "out_dir": str(unit_dir(work, task, arm, seed)), "data_dir": str(data_dir)},
+             result_file=unit_dir(work, task, arm, seed) / "record.json")
+        for arm in arms for seed in seeds
+    ]
+    return data, units
+
+
+def check_stored_budget(units: Sequence[Unit], budget: OGBenchBudget) -> None:
+    """Refuse a work directory whose stored units ran under another budget (``--work``)."""
+    expected = json.loads(json.dumps(budget.to_dict()))
+    for unit in units:
+        if unit.result_file is not None and unit.result_file.is_file():
+            stored = json.loads(unit.result_file.read_text()).get("budget")
+            if stored != expected:
+                raise ValueError(f"--work: {unit.result_file} was run with another budget ({stored}); use a new "
+                                 f"--work directory or delete it")
+
+
+def run_benchmark(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget, work: str | Path,
+                  executor: Executor, printer: Any = print) -> list[dict[str, Any]]:
+    """Stage 1 then stage 2 through ``executor``; returns the records of every (arm, seed) unit."""
+    data, units = build_units(task, arms, seeds, budget, work)
+    check_stored_budget([data, *units], budget)
+    run_units([data], executor, printer=printer)
+    return [r.value for r in run_units(units, executor, printer=printer)]
+
+
+def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: str | Path) -> list[dict[str, Any]]:
+    """The records already stored in ``work`` (``--report-only``); a missing one is a ``ValueError``."""
+    records, missing = [], []
+    for arm in arms:
+        for seed in seeds:
+            path = unit_dir(Path(work), task, arm, seed) / "record.json"
+            if path.is_file():
+                records.append(json.loads(path.read_text()))
+            else:
+                missing.append(f"{arm}-s{seed}")
+    if missing:
+        raise ValueError(f"--report-only: no stored record for {missing} under {Path(work) / 'units' / task}")
+    return records
+
+
+def seeds_arg(value: int) -> list[int]:
+    """``--seeds N`` -> seeds ``0..N-1``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"--seeds must be an integer >= 1, got {value!r}")
+    return list(range(value))
+
+
+__all__ = [
+    "ARM_COSTS", "BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
+    "default_budget", "estimate", "format_estimate", "run_benchmark", "stored_records",
+]
+

@@ -1,0 +1,254 @@
+"""One unit of the OGBench benchmark: (arm, task, seed) -> offline pre-training, online fine-tuning.
+
+A unit pre-trains UA2C on a locally generated OGBench "play" dataset (Phase 1, through
+:func:`sb3_ua2c.pipeline.pretrain`), evaluates the success rate, fine-tunes online with the
+offline data kept in the replay buffer (Phase 2, :func:`sb3_ua2c.pipeline.finetune`) and evaluates
+again. The three arms are the same code with different chunking (see :data:`ARMS`). The record it
+returns is JSON-able: success rates, learning curves, wall-clock and CPU seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from experiments.common.records import recorded_path
+from experiments.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
+from experiments.ogbench.env import ENV_ID, OGBenchSingleTask
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import OfflineDataset
+
+#: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
+#: ``adaptive`` is UA2C's default (k = 5, δ = 0, best of S = 32 candidates), ``fixed`` executes every
+#: chunk in full (δ = inf, k = 5, best of 32: how Q-chunking acts), ``onestep`` replans every step.
+ARMS: dict[str, dict[str, Any]] = {
+    "adaptive": {"chunk_size": 5},
+    "fixed": {"chunk_size": 5, "entropy_threshold": math.inf},
+    "onestep": {"chunk_size": 1},
+}
+
+#: Evaluation episode ``i`` of seed ``s`` resets with seed ``EVAL_SEED_BASE + 1000 * s + i``.
+EVAL_SEED_BASE = 10_000_000
+
+
+@dataclass(frozen=True)
+class OGBenchBudget:
+    """Budget of one unit; a bad value raises ``ValueError`` naming it.
+
+    :param dataset_episodes: training episodes of the generated dataset (``episode_steps`` each)
+    :param episode_steps: steps per dataset episode (OGBench: 1001)
+    :param data_seed: seed of the dataset (one dataset per domain, shared by arms and seeds)
+    :param pretrain_steps: Phase-1 gradient steps
+    :param finetune_steps: Phase-2 environment steps
+    :param train_freq: Phase-2 environment steps per gradient step, the same for every arm (the
+        adaptive arm would otherwise update more often: once per plan)
+    :param eval_episodes: evaluation episodes after each phase
+    :param curve_points: evaluations during Phase 2 (evenly spaced; 0 = only before and after)
+    :param curve_episodes: episodes of each of those evaluations
+    :param sparse: Q-chunking's sparse reward (-1 until the whole task is solved)
+    :param max_episode_steps: time limit of the online and evaluation episodes (``None``: OGBench's);
+        shorter only for quick checks
+    :param algo_kwargs: UA2C constructor arguments of every arm (not ``chunk_size`` / ``entropy_threshold``)
+    """
+
+    dataset_episodes: int = 200
+    episode_steps: int = 1001
+    data_seed: int = 0
+    pretrain_steps: int = 20_000
+    finetune_steps: int = 20_000
+    train_freq: int = 5
+    eval_episodes: int = 50
+    curve_points: int = 4
+    curve_episodes: int = 10
+    sparse: bool = False
+    max_episode_steps: int | None = None
+    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "train_freq", "eval_episodes",
+                     "curve_episodes"):
+            check_int(f"OGBenchBudget.{name}", getattr(self, name))
+        check_int("OGBenchBudget.episode_steps", self.episode_steps, low=2)
+        check_int("OGBenchBudget.data_seed", self.data_seed, low=0)
+        check_int("OGBenchBudget.curve_points", self.curve_points, low=0)
+        if self.max_episode_steps is not None:
+            check_int("OGBenchBudget.max_episode_steps", self.max_episode_steps)
+        if not isinstance(self.sparse, bool):
+            raise ValueError(f"OGBenchBudget.sparse must be a bool, got {self.sparse!r}")
+        if not isinstance(self.algo_kwargs, Mapping):
+            raise ValueError(f"OGBenchBudget.algo_kwargs must be a mapping, got {self.algo_kwargs!r}")
+        reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
+        if reserved:
+            raise ValueError(f"OGBenchBudget.algo_kwargs must not set {sorted(reserved)}: the arm sets them")
+        object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> OGBenchBudget:
+        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown OGBenchBudget key(s) {sorted(unknown)}")
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def dataset_file(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) -> Path:
+    """Where the unit's dataset lives: ``<data_dir>/<n>ep-<steps>-s<seed>/<domain>-play-v0.npz``."""
+    name = TaskName.parse(task)
+    return Path(data_dir) / f"{budget.dataset_episodes}ep-{budget.episode_steps}-s{budget.data_seed}" / name.dataset_file
+
+
+def ensure_dataset(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
+    """The dataset of ``task`` at ``budget``, generated if missing; returns its path and the
+    generation's measurements (``None`` when it already existed)."""
+    path = dataset_file(task, budget, data_dir)
+    if path.is_file() and Path(str(path).replace(".npz", "-val.npz")).is_file():
+        return path, None
+    return path, generate_play_dataset(task, path, budget.dataset_episodes, budget.episode_steps, budget.data_seed)
+
+
+def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> OfflineDataset:
+    """The generated data as the project's :class:`~sb3_ua2c.offline.OfflineDataset` (rewards by
+    OGBench); its metadata make :func:`sb3_ua2c.offline.make_env` build :class:`OGBenchSingleTask`
+    with ``env_kwargs`` (``sparse``, ``max_episode_steps``)."""
+    env, train, _ = load_singletask(task, path, sparse=bool(env_kwargs.get("sparse", False)))
+    env.close()
+    probe = OGBenchSingleTask(task, **env_kwargs)
+    spaces = probe.observation_space, probe.action_space
+    probe.close()
+    metadata = {"env_id": f"experiments.ogbench:{ENV_ID}", "env_kwargs": {"task": task, **env_kwargs},
+                "style_classifier": None, "behaviour": "ogbench-play-oracle"}
+    return OfflineDataset(path, to_episodes(train), *spaces, metadata)
+
+
+def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int) -> dict[str, Any]:
+    """Success rate of ``model`` (stateful ``predict``, deterministic candidates) over ``n_episodes``.
+
+    An episode succeeds when the environment reports ``info["success"]`` (it then terminates).
+    """
+    successes, lengths, returns = [], [], []
+    for i in range(n_episodes):
+        obs, _ = env.reset(seed=EVAL_SEED_BASE + 1000 * seed + i)
+        state, start = None, np.ones(1, dtype=bool)
+        done, success, total, steps = False, False, 0.0, 0
+        while not done:
+            action, state = model.predict(obs, state=state, episode_start=start, deterministic=True)
+            start = np.zeros(1, dtype=bool)
+            obs, reward, terminated, truncated, info = env.step(action)
+            success |= info["success"]
+            total += reward
+            steps += 1
+            done = terminated or truncated
+        successes.append(float(success))
+        lengths.append(steps)
+        returns.append(total)
+    return {"success": float(np.mean(successes)), "successes": successes, "lengths": lengths, "returns": returns}
+
+
+class _OnlineCurve(BaseCallback):
+    """Records Phase-2 training episodes and evaluates at ``eval_at`` environment steps."""
+
+    def __init__(self, env: OGBenchSingleTask, eval_at: list[int], episodes: int, seed: int) -> None:
+        super().__init__()
+        self.env, self.eval_at, self.episodes, self.seed = env, list(eval_at), episodes, seed
+        self.training: list[dict[str, float]] = []
+        self.evaluations: list[dict[str, Any]] = []
+        self._return = 0.0
+
+    def _on_step(self) -> bool:
+        info, reward, done = self.locals["infos"][0], float(self.locals["rewards"][0]), bool(self.locals["dones"][0])
+        self._return += reward
+        if done:
+            self.training.append({"step": self.num_timesteps, "success": float(info["success"]), "return": self._return})
+            self._return = 0.0
+        while self.eval_at and self.num_timesteps >= self.eval_at[0]:
+            step = self.eval_at.pop(0)
+            result = evaluate_success(self.model, self.env, self.episodes, self.seed)
+            self.evaluations.append({"step": step, "success": result["success"]})
+        return True
+
+
+def run_ogbench_unit(
+    arm: str,
+    task: str,
+    seed: int,
+    budget: OGBenchBudget,
+    out_dir: str | os.PathLike,
+    data_dir: str | os.PathLike | None = None,
+) -> dict[str, Any]:
+    """Run one (arm, task, seed) unit and return its record (also written to ``<out_dir>/record.json``).
+
+    :param arm: a key of :data:`ARMS`
+    :param task: OGBench single-task name, e.g. ``cube-single-play-singletask-task2-v0``
+    :param seed: seed of the networks, minibatches, online episodes and evaluation scenarios
+    :param budget: the unit's budget
+    :param out_dir: checkpoints and the record
+    :param data_dir: datasets (default ``<out_dir>/data``); generated there when missing
+    """
+    import torch as th
+
+    from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
+
+    if arm not in ARMS:
+        raise ValueError(f"arm must be one of {sorted(ARMS)}, got {arm!r}")
+    TaskName.parse(task)
+    check_int("seed", seed, low=0)
+    if not isinstance(budget, OGBenchBudget):
+        raise TypeError(f"budget must be an OGBenchBudget, got {type(budget).__name__}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    th.set_num_threads(1)
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    path, generation = ensure_dataset(task, budget, data_dir if data_dir is not None else out / "data")
+    env_kwargs = {"sparse": budget.sparse, "max_episode_steps": budget.max_episode_steps}
+    ds = offline_dataset(task, path, env_kwargs)
+    times: dict[str, float] = {"data_wall": time.perf_counter() - wall0, "data_cpu": time.process_time() - cpu0}
+    kwargs = {**budget.algo_kwargs, **ARMS[arm]}
+    kwargs.setdefault("buffer_size", max(budget.finetune_steps, 1))
+
+    def phase(name: str, fn: Any) -> Any:
+        wall, cpu = time.perf_counter(), time.process_time()
+        result = fn()
+        times[f"{name}_wall"], times[f"{name}_cpu"] = time.perf_counter() - wall, time.process_time() - cpu
+        return result
+
+    env = OGBenchSingleTask(task, **env_kwargs)
+    try:
+        ckpt = phase("pretrain", lambda: pretrain(ds, out / "pretrained.zip", budget.pretrain_steps, seed=seed,
+                                                  algo_kwargs=kwargs))
+        offline_eval = phase("eval_offline", lambda: evaluate_success(load_checkpoint(ckpt, env), env,
+                                                                       budget.eval_episodes, seed))
+        every = budget.finetune_steps / (budget.curve_points + 1)
+        curve = _OnlineCurve(env, [round(every * (i + 1)) for i in range(budget.curve_points)],
+                             budget.curve_episodes, seed)
+        tuned = phase("finetune", lambda: finetune(
+            ckpt, out / "finetuned.zip", budget.finetune_steps, dataset=ds, seed=seed, callback=curve,
+            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},
+        ))
+        online_eval = phase("eval_online", lambda: evaluate_success(load_checkpoint(tuned, env), env,
+                                                                     budget.eval_episodes, seed))
+    finally:
+        env.close()
+    times["total_wall"], times["total_cpu"] = time.perf_counter() - wall0, time.process_time() - cpu0
+    record = {
+        "arm": arm, "task": task, "seed": seed, "budget": budget.to_dict(),
+        "algo_kwargs": {k: str(v) if isinstance(v, float) and math.isinf(v) else v for k, v in kwargs.items()},
+        "dataset": {"path": recorded_path(path), "transitions": ds.total_steps, "segments": len(ds), "generation": generation},
+        "success_offline": offline_eval["success"], "success_online": online_eval["success"],
+        "eval_offline": offline_eval, "eval_online": online_eval,
+        "curve": [{"step": 0, "success": offline_eval["success"]}, *curve.evaluations,
+                  {"step": budget.finetune_steps, "success": online_eval["success"]}],
+        "training_episodes": curve.training, "seconds": times,
+    }
+    write_json(out / "record.json", record)
+    return record

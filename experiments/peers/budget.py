@@ -1,0 +1,237 @@
+"""Budget, arms and cost model of the head-to-head (``python -m experiments.peers``).
+
+Every arm of a seed runs on the Figure-2 protocol of that seed: the same dataset (Figure 2's, built
+once per seed), the same online env-step budget, the same held-out evaluation scenarios. The UA2C
+arms are Figure 2's: pre-trained offline (one-step k = 1, chunk k), then fine-tuned online from that
+checkpoint, acting with adaptive chunks (δ of the budget), fixed chunks (δ = inf) or one step.
+
+The estimate (:func:`estimate_units`) prices every unit in CPU seconds on one core: the UA2C units
+with Figure 2's :class:`~experiments.common.budget.CostModel`, the peer units with
+:class:`PeerCostModel`, calibrated on ``experiments/peers/measure_costs.py`` (CPU seconds of one unit at 10,000
+online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
+389, Cal-QL 2,190). The wall time is the sum over the stages (datasets, pre-training, arms) of the
+longest-first schedule of their units on the workers (:func:`stage_wall_seconds`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from experiments.common.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, extra_kweights
+from sb3_ua2c.checks import check_int
+
+#: UA2C arms (Figure 2's), by name: chunk length ("k" = the budget's ``chunk_size``) and δ ("delta" = the
+#: budget's ``entropy_threshold``, ``"inf"`` = fixed chunks, ``None`` = one step, δ irrelevant).
+UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
+    "ua2c_adaptive": ("k", "delta"),
+    "ua2c_fixed": ("k", "inf"),
+    "ua2c_onestep": (1, None),
+}
+#: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
+PEER_ARMS = ("sac", "tqc", "sac_offline_mix", "iql", "calql")
+ARMS = (*UA2C_ARMS, *PEER_ARMS)
+D3RLPY_ARMS = ("iql", "calql")
+ARM_LABELS = {
+    "ua2c_adaptive": "UA2C adaptive chunks",
+    "ua2c_fixed": "UA2C fixed chunks (δ=inf)",
+    "ua2c_onestep": "UA2C one-step (k=1)",
+    "sac": "SB3 SAC (online)",
+    "tqc": "sb3-contrib TQC (online)",
+    "sac_offline_mix": "SAC + offline data (RLPD-style)",
+    "iql": "d3rlpy IQL (offline → online)",
+    "calql": "d3rlpy Cal-QL (offline → online)",
+}
+
+
+@dataclass(frozen=True)
+class PeersBudget:
+    """Budget of a head-to-head run (per seed); a bad value raises ``ValueError`` naming it.
+
+    :param ua2c: the Figure-2 budget the UA2C arms and the shared inputs come from: dataset
+        (``dataset_episodes``, ``env_kwargs``), offline gradient steps (``pretrain_steps``, also the
+        d3rlpy arms' offline steps), online env steps of EVERY arm (``finetune_steps``), evaluation
+        episodes, ``chunk_size``, δ and the UA2C constructor arguments
+    :param sb3_hyperparams: constructor arguments replacing those of ``zoo_configs/{sac,tqc}.yml`` key by
+        key, for the SAC, TQC and SAC + offline arms (empty: the zoo's)
+    :param d3rlpy_batch_size: minibatch size of IQL and Cal-QL (the SAC zoo entry's 256)
+    :param calql_offline_steps: offline gradient steps of Cal-QL (``None``: ``ua2c.pretrain_steps``,
+        like every other offline phase)
+    """
+
+    ua2c: Fig2Budget = field(default_factory=lambda: FULL_BUDGET.replace(finetune_steps=5000))
+    sb3_hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    d3rlpy_batch_size: int = 256
+    calql_offline_steps: int | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.ua2c, Fig2Budget):
+            raise TypeError(f"PeersBudget.ua2c must be a Fig2Budget, got {type(self.ua2c).__name__}")
+        if not isinstance(self.sb3_hyperparams, Mapping):
+            raise ValueError(f"PeersBudget.sb3_hyperparams must be a mapping, got {self.sb3_hyperparams!r}")
+        check_int("PeersBudget.d3rlpy_batch_size", self.d3rlpy_batch_size)
+        if self.calql_offline_steps is not None:
+            check_int("PeersBudget.calql_offline_steps", self.calql_offline_steps)
+        object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
+
+    @property
+    def online_steps(self) -> int:
+        """Online environment steps of every arm."""
+        return self.ua2c.finetune_steps
+
+    def offline_steps(self, arm: str) -> int:
+        """Offline gradient steps of ``arm`` (0 for the arms without an offline phase)."""
+        if arm == "calql" and self.calql_offline_steps is not None:
+            return self.calql_offline_steps
+        return self.ua2c.pretrain_steps if arm in UA2C_ARMS or arm in D3RLPY_ARMS else 0
+
+    def chunk_length(self, arm: str) -> int:
+        """Chunk length of a UA2C arm."""
+        k, _ = UA2C_ARMS[arm]
+        return self.ua2c.chunk_size if k == "k" else int(k)
+
+    def delta(self, arm: str) -> float | None:
+        """δ a UA2C arm acts with (``inf``: fixed chunks; ``None``: one step)."""
+        _, d = UA2C_ARMS[arm]
+        return None if d is None else float("inf") if d == "inf" else self.ua2c.entropy_threshold
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
+                "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
+        """Inverse of :meth:`to_dict`; an unknown key raises ``ValueError`` naming it."""
+        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown PeersBudget key(s) {sorted(unknown)}")
+        values = dict(values)
+        if "ua2c" in values:
+            values["ua2c"] = Fig2Budget.from_dict(values["ua2c"])
+        return cls(**values)
+
+    def with_online_steps(self, online_steps: int) -> PeersBudget:
+        """A copy with ``online_steps`` online env steps for every arm."""
+        check_int("--online-steps", online_steps)
+        return dataclasses.replace(self, ua2c=self.ua2c.replace(finetune_steps=online_steps))
+
+
+#: Default: the Figure-2 dataset and offline budget (200 episodes, 6,000 gradient steps), 20 evaluation
+#: episodes, and 5,000 online env steps for every arm (about two hours for 5 seeds on 2 cores).
+FULL_PEERS_BUDGET = PeersBudget()
+
+#: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
+QUICK_PEERS_BUDGET = PeersBudget(
+    ua2c=QUICK_BUDGET,
+    sb3_hyperparams={"learning_starts": 10, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}},
+    d3rlpy_batch_size=8,
+)
+
+
+@dataclass(frozen=True)
+class PeerCostModel:
+    """CPU cost of the peer units on one core, calibrated on ``experiments/peers/measure_costs.py`` (2026-12-02).
+
+    :param sb3_update_ms: one SB3 gradient step with its env step (after ``learning_starts``), per arm
+    :param sb3_env_ms: one SB3 env step without an update (the random ``learning_starts`` steps)
+    :param d3rlpy_offline_ms: one d3rlpy offline gradient step, per arm
+    :param d3rlpy_online_ms: one d3rlpy online env step with its update, per arm
+    :param eval_ms_per_step: evaluation, per env step
+    """
+
+    sb3_update_ms: Mapping[str, float] = field(
+        default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "sac_offline_mix": 19.6})
+    sb3_env_ms: float = 0.5
+    d3rlpy_offline_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 13.0, "calql": 125.6})
+    d3rlpy_online_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 30.7, "calql": 143.3})
+    eval_ms_per_step: float = 0.5
+
+
+def steps_per_episode(budget: Fig2Budget) -> float:
+    """Env steps of a full episode: ``time_limit / step_length`` (40 s / 0.2 s = 200 by default)."""
+    return float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
+
+
+def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None = None) -> float:
+    """Estimated CPU seconds of one peer unit (one arm, one seed)."""
+    c = costs or PeerCostModel()
+    ms = 1e-3
+    evals = (2 if arm in D3RLPY_ARMS else 1) * budget.ua2c.eval_episodes * steps_per_episode(budget.ua2c)
+    total = evals * c.eval_ms_per_step * ms
+    if arm in D3RLPY_ARMS:
+        total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
+        return total + budget.online_steps * c.d3rlpy_online_ms[arm] * ms
+    starts = int(budget.sb3_hyperparams.get("learning_starts", 1000))
+    updates = max(budget.online_steps - starts, 0)
+    return total + (updates * c.sb3_update_ms[arm] + (budget.online_steps - updates) * c.sb3_env_ms) * ms
+
+
+def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> dict[str, float]:
+    """Estimated CPU seconds of one seed's UA2C units: ``dataset``, ``pretrain_k<k>`` and each UA2C arm
+    (offline evaluation, online phase, final evaluation), with Figure 2's cost model."""
+    c, b, ms = costs or CostModel(), budget.ua2c, 1e-3
+    spe = steps_per_episode(b)
+    out = {"dataset": b.dataset_episodes * spe * c.collect_ms_per_step * ms}
+    for k in sorted({1, b.chunk_size}):
+        out[f"pretrain_k{k}"] = b.pretrain_steps * c.pretrain_step_ms(k, extra_kweights(b.arm_kwargs(k))) * ms
+    scale = b.algo_kwargs.get("batch_size", 256) / 256
+    for arm in UA2C_ARMS:
+        k = budget.chunk_length(arm)
+        extra = extra_kweights(b.arm_kwargs(k))
+        plan_length = 1.0 if k == 1 else c.adaptive_plan_length if arm == "ua2c_adaptive" else float(k)
+        # one update per chunk_size env steps for every UA2C arm (Figure 2's Phase-2 cadence)
+        online_ms = (c.finetune_ms_per_env_step + c.replan_ms(extra) / plan_length
+                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight) / b.chunk_size)
+        eval_ms = c.eval_ms_per_step + extra / plan_length * c.plan_ms_per_kweight
+        out[arm] = (budget.online_steps * online_ms + 2 * b.eval_episodes * spe * eval_ms) * ms
+    return out
+
+
+def stage_wall_seconds(costs: Sequence[float], workers: int) -> float:
+    """Wall seconds of units with CPU ``costs`` on ``workers`` cores, longest first, each on the first
+    free worker (what a process pool does with units submitted in that order)."""
+    check_int("workers", workers)
+    free = [0.0] * min(workers, max(len(costs), 1))
+    for cost in sorted(costs, reverse=True):
+        heapq.heapreplace(free, free[0] + cost)
+    return max(free)
+
+
+def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int) -> dict[str, Any]:
+    """CPU seconds per unit of each stage and arm (one seed), for :func:`format_estimate`.
+
+    :return: ``{"dataset": s, "pretrain": {k: s}, "arms": {arm: s}}``
+    """
+    ua2c = ua2c_stage_seconds(budget)
+    ks = sorted({budget.chunk_length(a) for a in arms if a in UA2C_ARMS})
+    return {
+        "seeds": n_seeds,
+        "dataset": ua2c["dataset"],
+        "pretrain": {k: ua2c[f"pretrain_k{k}"] for k in ks},
+        "arms": {a: ua2c[a] if a in UA2C_ARMS else peer_unit_seconds(a, budget) for a in arms},
+    }
+
+
+def estimate_wall(estimate: Mapping[str, Any], workers: int) -> dict[str, float]:
+    """CPU and wall seconds of the whole run (every unit still to run) on ``workers`` local cores."""
+    n = estimate["seeds"]
+    stages = [[estimate["dataset"]] * n, list(estimate["pretrain"].values()) * n, list(estimate["arms"].values()) * n]
+    cpu = sum(sum(s) for s in stages)
+    return {"cpu": cpu, "wall": sum(stage_wall_seconds(s, workers) for s in stages if s)}
+
+
+def format_estimate(estimate: Mapping[str, Any], workers: int) -> str:
+    """The estimate as printed before a run: per arm (one unit, all seeds) and in total."""
+    n = estimate["seeds"]
+    totals = estimate_wall(estimate, workers)
+    lines = [f"estimate (CPU on one core per unit; {n} seed(s)):",
+             f"  dataset {estimate['dataset'] / 60:.1f} min/seed; "
+             + ", ".join(f"pretrain k={k} {s / 60:.1f} min/seed" for k, s in estimate["pretrain"].items())]
+    for arm, s in estimate["arms"].items():
+        lines.append(f"  {arm:16s} {s / 60:6.1f} min/unit  {s * n / 60:7.1f} min over seeds")
+    lines.append(f"  total {totals['cpu'] / 60:.0f} CPU-min, ~{totals['wall'] / 60:.0f} min wall on {workers} "
+                 "worker(s) (dedicated cores, before resuming)")
+    return "\n".join(lines)

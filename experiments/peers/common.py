@@ -1,0 +1,218 @@
+"""What every peer unit shares: the Figure-2 protocol inputs, zoo hyperparameters, offline
+transitions, the online learning curve, timing and the result record.
+
+A peer unit reads the same inputs as the UA2C arms of one Figure-2 seed: the seed's Minari dataset
+(its metadata defines the environment: ``env_id``, ``env_kwargs`` and whether observations carry
+the style context c_t), the online step budget, and the held-out evaluation scenarios
+(``eval_seeds`` and ``eval_episodes``, the arguments of :func:`sb3_ua2c.pipeline.evaluate`; the
+Figure-2 runner passes ``(EVAL_SEED_BASE + seed,)`` and ``Fig2Budget.eval_episodes``). It returns
+a JSON-serialisable record (:func:`unit_record`).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.records import recorded_path
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset
+
+#: Keys of a zoo entry that configure rl-zoo3 itself, not the algorithm.
+ZOO_ONLY_KEYS = frozenset({
+    "n_timesteps", "env_wrapper", "normalize", "n_envs", "frame_stack", "callback", "vec_env_wrapper",
+    "env_kwargs", "eval_env_kwargs", "policy",
+})
+
+
+@dataclass(frozen=True)
+class EvalProtocol:
+    """The held-out evaluation scenarios of a unit: episode ``i`` of seed ``e`` resets with
+    ``1000 * e + i`` (:func:`sb3_ua2c.pipeline.evaluate`).
+
+    :param seeds: evaluation seeds (Figure 2: ``(EVAL_SEED_BASE + seed,)``)
+    :param episodes: episodes per evaluation seed (Figure 2: ``Fig2Budget.eval_episodes``)
+    """
+
+    seeds: tuple[int, ...]
+    episodes: int
+
+    def __post_init__(self) -> None:
+        seeds = tuple(self.seeds) if isinstance(self.seeds, Sequence) and not isinstance(self.seeds, str) else None
+        if not seeds:
+            raise ValueError(f"eval_seeds must be a non-empty sequence of integers, got {self.seeds!r}")
+        for s in seeds:
+            check_int("eval_seeds", s, low=0)
+        check_int("eval_episodes", self.episodes)
+        object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
+
+
+def repo_zoo_config(algo: str) -> Path:
+    """``zoo_configs/<algo>.yml`` of the source checkout this package runs from."""
+    return Path(__file__).resolve().parents[2] / "zoo_configs" / f"{algo}.yml"
+
+
+def zoo_hyperparams(algo: str, env_id: str = "MixedTraffic-v0", conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
+    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file.
+
+    rl-zoo3's own keys (``n_timesteps``, ``env_wrapper``, ``policy``, ...) are dropped: the unit
+    sets the budget and builds the environment from the dataset. ``policy_kwargs`` written as a
+    Python expression (``"dict(net_arch=[256, 256])"``) is read without ``eval``: only ``dict(...)``
+    calls and literals are accepted.
+
+    :param algo: ``"sac"`` or ``"tqc"`` (the file name without ``.yml``)
+    :param env_id: the entry to read
+    :param conf_file: the YAML file (default: ``zoo_configs/<algo>.yml`` of the source checkout)
+    """
+    import yaml
+
+    path = Path(conf_file) if conf_file is not None else repo_zoo_config(algo)
+    if not path.is_file():
+        raise FileNotFoundError(f"no zoo config {path}: pass conf_file= (e.g. zoo_configs/{algo}.yml of a source checkout)")
+    entries = yaml.safe_load(path.read_text()) or {}
+    if env_id not in entries:
+        raise ValueError(f"{path} has no entry for {env_id!r}; entries: {sorted(entries)}")
+    params = {k: v for k, v in entries[env_id].items() if k not in ZOO_ONLY_KEYS}
+    if isinstance(params.get("policy_kwargs"), str):
+        params["policy_kwargs"] = literal_call(params["policy_kwargs"])
+    return params
+
+
+def literal_call(expression: str) -> Any:
+    """Evaluate a literal or nested ``dict(key=literal, ...)`` expression (rl-zoo3's ``policy_kwargs``)."""
+
+    def convert(node: ast.AST) -> Any:
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+            return {kw.arg: convert(kw.value) for kw in node.keywords}
+        if isinstance(node, ast.List | ast.Tuple):
+            values = [convert(e) for e in node.elts]
+            return values if isinstance(node, ast.List) else tuple(values)
+        return ast.literal_eval(node)
+
+    try:
+        return convert(ast.parse(expression, mode="eval").body)
+    except (SyntaxError, ValueError) as exc:
+        raise ValueError(f"cannot read {expression!r}: only literals and dict(...) calls are accepted") from exc
+
+
+def read_dataset(dataset: str | os.PathLike | OfflineDataset) -> OfflineDataset:
+    return dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
+
+
+def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
+    """One row per step of ``episodes``: the transitions an off-policy buffer holds.
+
+    :return: ``observations`` and ``next_observations`` ``(N, *obs_shape)``, ``actions``
+        ``(N, *act_shape)`` in the environment's units, ``rewards`` ``(N,)`` and ``terminations``
+        ``(N,)`` (only a termination stops the bootstrap; a truncated step keeps its next observation)
+    """
+    if not episodes:
+        raise ValueError("episodes must not be empty")
+    return {
+        "observations": np.concatenate([ep.observations[:-1] for ep in episodes]),
+        "next_observations": np.concatenate([ep.observations[1:] for ep in episodes]),
+        "actions": np.concatenate([ep.actions for ep in episodes]),
+        "rewards": np.concatenate([ep.rewards for ep in episodes]).astype(np.float32),
+        "terminations": np.concatenate([ep.terminations for ep in episodes]).astype(bool),
+    }
+
+
+def learning_curve(monitor_file: str | os.PathLike) -> list[dict[str, Any]]:
+    """The online training episodes of a ``Monitor`` log: return against env steps.
+
+    :return: per episode ``end_step`` (env steps so far, this episode included), ``reward``,
+        ``length`` and ``collision``
+    """
+    from sb3_ua2c.pipeline import read_monitor
+
+    steps, out = 0, []
+    for e in read_monitor(monitor_file):
+        steps += int(e["l"])
+        out.append({"end_step": steps, "reward": e["r"], "length": int(e["l"]), "collision": bool(e.get("collision", 0.0))})
+    return out
+
+
+@dataclass
+class PhaseClock:
+    """Wall and CPU seconds of a unit's phases (``with clock.phase("online"): ...``)."""
+
+    wall: dict[str, float] = field(default_factory=dict)
+    cpu: dict[str, float] = field(default_factory=dict)
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        yield
+        self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - wall
+        self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - cpu
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"wall_seconds": {**self.wall, "total": sum(self.wall.values())},
+                "cpu_seconds": {**self.cpu, "total": sum(self.cpu.values())}}
+
+
+def evaluation_record(policy: Any, settings: Mapping[str, Any], protocol: EvalProtocol) -> dict[str, Any]:
+    """``policy`` (SB3 ``predict``) on the protocol's scenarios: per-episode metrics and their means."""
+    from envs.evaluation import evaluate, summarize
+
+    episodes = evaluate(policy, n_episodes=protocol.episodes, seeds=protocol.seeds, env_settings_=dict(settings))
+    rows = [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
+    return {"summary": summarize(episodes), "episodes": rows}
+
+
+
+def unit_record(
+    arm: str,
+    seed: int,
+    dataset: OfflineDataset,
+    protocol: EvalProtocol,
+    online_steps: int,
+    hyperparams: Mapping[str, Any],
+    evaluation: Mapping[str, Any],
+    curve: list[dict[str, Any]],
+    clock: PhaseClock,
+    offline_steps: int = 0,
+    offline_evaluation: Mapping[str, Any] | None = None,
+    notes: str = "",
+) -> dict[str, Any]:
+    """The JSON record every peer unit returns (``evaluation`` / ``offline_evaluation`` from
+    :func:`evaluation_record`, ``curve`` from :func:`learning_curve`)."""
+    from sb3_ua2c.pipeline import env_settings
+
+    record = {
+        "arm": arm,
+        "seed": seed,
+        "dataset": {"path": recorded_path(dataset.path), "episodes": len(dataset), "transitions": dataset.total_steps,
+                    "seed": dataset.metadata.get("seed")},
+        "env": env_settings(dataset),
+        "eval_seeds": list(protocol.seeds),
+        "eval_episodes": protocol.episodes,
+        "online_steps": online_steps,
+        "offline_steps": offline_steps,
+        "hyperparams": dict(hyperparams),
+        "evaluation": dict(evaluation),
+        "offline_evaluation": None if offline_evaluation is None else dict(offline_evaluation),
+        "online_episodes": curve,
+        **clock.as_dict(),
+        "notes": notes,
+    }
+    return json.loads(json.dumps(record, default=_plain))  # plain JSON types: the same record once stored
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")

@@ -1,0 +1,223 @@
+"""Peer arms built on d3rlpy: IQL and Cal-QL, offline on the seed's dataset, then online.
+
+Install. d3rlpy 2.8.1 pins ``gymnasium==1.0.0`` while this package runs a newer gymnasium; its code
+paths used here work on ours (``tests/test_peers.py`` runs them), so it is installed without its
+pins, next to the runtime dependencies it imports (the ``peers`` extra)::
+
+    pip install "sb3-ua2c[peers]"
+    pip install --no-deps d3rlpy==2.8.1 gym==0.26.2
+
+``gym`` is imported by d3rlpy for its space checks; installing it without ``gym-notices`` keeps it
+from printing a notice on every import of Stable-Baselines3 (which looks for ``gym``).
+
+Protocol. The offline phase fits on the seed's transitions for ``offline_steps`` gradient steps
+(the UA2C arms' ``pretrain_steps``) and is evaluated on the held-out scenarios; the online phase
+continues with ``fit_online`` for ``online_steps`` env steps, one update per step, with
+``offline_ratio`` of each minibatch drawn from the offline data (d3rlpy's ``MixedReplayBuffer``, as
+UA2C and the offline-mix SAC keep their offline data), and the final policy is evaluated again.
+Actions are scaled to [-1, 1] by d3rlpy's ``MinMaxActionScaler`` over the action space's bounds
+(its squashed Gaussian policies act in [-1, 1]). d3rlpy writes its logs and models under the unit's
+directory (``<out_dir>/d3rlpy/{offline,online}``), never to ``d3rlpy_logs/``.
+
+Data. The dataset's episodes become d3rlpy episodes with every transition intact: a truncated
+episode keeps its final observation (as the next observation of its last step, which bootstraps)
+and a terminated one ends with a terminal transition (next observation zeros, no bootstrap).
+Online, d3rlpy drops the last transition of each truncated episode (its own buffer's rule).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from experiments.peers.common import (
+    EvalProtocol,
+    PhaseClock,
+    evaluation_record,
+    learning_curve,
+    read_dataset,
+    unit_record,
+)
+from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import Episode, OfflineDataset
+
+ALGOS = ("iql", "calql")
+INSTALL = 'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2'
+
+
+def import_d3rlpy() -> Any:
+    """``d3rlpy`` with its structured log quietened to warnings, or an ``ImportError`` naming the install."""
+    try:
+        import d3rlpy
+        import structlog
+    except ImportError as exc:
+        raise ImportError(f"the d3rlpy arms need d3rlpy: {INSTALL}") from exc
+    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
+    return d3rlpy
+
+
+class D3rlpyPolicy:
+    """A d3rlpy algorithm behind SB3's ``predict`` (what :func:`sb3_ua2c.pipeline.evaluate` calls).
+
+    :param algo: a built d3rlpy Q-learning algorithm (IQL, Cal-QL, ...)
+    :param observation_space: the environment's observation space
+    :param action_space: the environment's ``Box`` action space
+    """
+
+    def __init__(self, algo: Any, observation_space: spaces.Space, action_space: spaces.Box) -> None:
+        self.algo = algo
+        self.observation_space = observation_space
+        self.action_space = action_space
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """The greedy action (``deterministic``) or one drawn from the policy; ``state`` is ignored.
+
+        :param observation: ``obs_shape`` or ``(n, *obs_shape)``
+        :return: the action(s) in the environment's units and ``None``
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.shape == self.observation_space.shape
+        batch = obs[None] if single else obs  # (n, *obs_shape)
+        act = self.algo.predict(batch) if deterministic else self.algo.sample_action(batch)
+        act = np.clip(np.asarray(act, dtype=self.action_space.dtype), self.action_space.low, self.action_space.high)
+        return (act[0] if single else act), None
+
+
+def d3rlpy_episodes(episodes: Sequence[Episode]) -> list[Any]:
+    """Our episodes as d3rlpy ``Episode`` objects that keep every transition.
+
+    d3rlpy takes the last transition of a non-terminated episode to have no next observation and
+    drops it; a truncated episode is therefore given its final observation ``o_T`` as an extra row
+    (with a zero action and reward that are never sampled as a transition).
+    """
+    from d3rlpy.dataset import Episode as D3Episode
+
+    out = []
+    for ep in episodes:
+        terminated = bool(ep.terminations[-1])
+        obs = ep.observations[:-1] if terminated else ep.observations  # (T or T + 1, obs_dim)
+        pad = 0 if terminated else 1
+        actions = np.concatenate([ep.actions, np.zeros((pad, *ep.actions.shape[1:]), ep.actions.dtype)])
+        rewards = np.concatenate([ep.rewards, np.zeros(pad)]).astype(np.float32).reshape(-1, 1)
+        out.append(D3Episode(observations=obs.astype(np.float32), actions=actions.astype(np.float32),
+                             rewards=rewards, terminated=terminated))
+    return out
+
+
+def _mixed_buffer(d3rlpy: Any, online: Any, offline: Any, offline_ratio: float) -> Any:
+    """d3rlpy's ``MixedReplayBuffer`` that samples from the offline data alone while the online part is empty."""
+
+    class OfflineFirstMixedBuffer(d3rlpy.dataset.MixedReplayBuffer):
+        def sample_transition_batch(self, batch_size: int) -> Any:
+            if self._primary_replay_buffer.transition_count == 0:
+                return self._secondary_replay_buffer.sample_transition_batch(batch_size)
+            return super().sample_transition_batch(batch_size)
+
+    return OfflineFirstMixedBuffer(online, offline, secondary_mix_ratio=offline_ratio)
+
+
+def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: int, config_kwargs: Mapping[str, Any]) -> Any:
+    """The d3rlpy config of ``algo`` (its defaults, ``batch_size``, the action scaler, then ``config_kwargs``)."""
+    configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig}
+    if algo not in configs:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    scaler = d3rlpy.preprocessing.MinMaxActionScaler(minimum=action_space.low.astype(np.float32),
+                                                     maximum=action_space.high.astype(np.float32))
+    try:
+        return configs[algo](batch_size=batch_size, action_scaler=scaler, **dict(config_kwargs))
+    except TypeError as exc:
+        raise ValueError(f"config_kwargs: {exc}") from exc
+
+
+def run_d3rlpy(
+    out_dir: str | os.PathLike,
+    dataset: str | os.PathLike | OfflineDataset,
+    seed: int,
+    online_steps: int,
+    eval_seeds: Sequence[int],
+    eval_episodes: int,
+    algo: str = "iql",
+    offline_steps: int = 6000,
+    offline_ratio: float = 0.5,
+    batch_size: int = 256,
+    config_kwargs: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """One unit: d3rlpy IQL or Cal-QL fitted offline on the seed's dataset, evaluated, fine-tuned
+    online for ``online_steps`` env steps, evaluated again (see the module docstring).
+
+    :param out_dir: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``)
+    :param dataset: the seed's dataset directory (or a loaded dataset)
+    :param seed: seed of d3rlpy (networks, minibatches) and of the online env
+    :param online_steps: online environment steps
+    :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
+    :param eval_episodes: episodes per evaluation seed
+    :param algo: ``"iql"`` or ``"calql"``
+    :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``)
+    :param offline_ratio: fraction of each online minibatch drawn from the offline data
+    :param batch_size: minibatch size (the SAC zoo entry's 256)
+    :param config_kwargs: further ``IQLConfig`` / ``CalQLConfig`` arguments (d3rlpy's defaults otherwise)
+    :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
+    """
+    import torch as th
+
+    from envs.collection import make_env
+    from sb3_ua2c.pipeline import env_settings
+
+    for name, value in (("online_steps", online_steps), ("offline_steps", offline_steps), ("batch_size", batch_size)):
+        check_int(name, value)
+    if isinstance(offline_ratio, bool) or not isinstance(offline_ratio, int | float) or not 0.0 <= offline_ratio <= 1.0:
+        raise ValueError(f"offline_ratio must be a number in [0, 1], got {offline_ratio!r}")
+    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
+    ds = read_dataset(dataset)
+    d3rlpy = import_d3rlpy()
+    th.set_num_threads(1)
+    d3rlpy.seed(seed)
+    out = Path(out_dir)
+    logs = d3rlpy.logging.FileAdapterFactory(root_dir=str(out / "d3rlpy"))
+    settings = env_settings(ds)
+    config = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {})
+    learner = config.create(device="cpu:0")
+    offline = d3rlpy.dataset.create_infinite_replay_buffer(episodes=d3rlpy_episodes(ds.episodes))
+    clock = PhaseClock()
+    with clock.phase("offline"):
+        learner.fit(offline, n_steps=offline_steps, n_steps_per_epoch=offline_steps, experiment_name="offline",
+                    with_timestamp=False, logger_adapter=logs, show_progress=False)
+    policy = D3rlpyPolicy(learner, ds.observation_space, ds.action_space)
+    with clock.phase("evaluate_offline"):
+        offline_evaluation = evaluation_record(policy, settings, protocol)
+    env = make_env(**settings)
+    try:
+        ds.check_compatible(env)
+        env.reset(seed=seed)  # fit_online resets without a seed: the episodes continue this generator
+        env.action_space.seed(seed)
+        from stable_baselines3.common.monitor import Monitor
+
+        env = Monitor(env, str(out / "online"), info_keywords=("collision",))
+        online = d3rlpy.dataset.create_infinite_replay_buffer(env=env)
+        buffer = _mixed_buffer(d3rlpy, online, offline, float(offline_ratio))
+        with clock.phase("online"):
+            learner.fit_online(env, buffer, n_steps=online_steps, n_steps_per_epoch=online_steps,
+                               experiment_name="online", with_timestamp=False, logger_adapter=logs,
+                               show_progress=False)
+    finally:
+        env.close()
+    with clock.phase("evaluate"):
+        evaluation = evaluation_record(policy, settings, protocol)
+    hyper = {"algo": algo, "offline_ratio": float(offline_ratio), "d3rlpy": d3rlpy.__version__,
+             "config": learner.config.serialize_to_dict()}
+    notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with one update per env "
+             f"step and {offline_ratio:g} of each batch from the offline data; d3rlpy's default hyperparameters")
+    return unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
+                       clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)

@@ -1,0 +1,349 @@
+"""Aggregation and report of the head-to-head: ``peers.json``, ``peers.md`` and the PNGs.
+
+Per arm: every evaluation metric as an IQM with its 95 % stratified bootstrap CI over seeds ×
+evaluation episodes (:mod:`experiments.common.stats`), the offline-only score of the arms with an
+offline phase, the online learning curve, and the wall / CPU seconds. Per (UA2C arm, peer): the
+probability of improvement of the UA2C arm, per metric.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.stats import (
+    LOWER_IS_BETTER,
+    iqm_with_ci,
+    mean_with_ci,
+    probability_of_improvement,
+    score_matrix,
+)
+from experiments.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
+
+#: Evaluation metrics reported per arm (keys of the evaluation episodes).
+METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step")
+#: Metrics of the probability of improvement.
+POI_METRICS = ("reward", "collision", "merge_success", "jerk_per_step")
+CURVE_BINS = 20
+
+
+def _offline_score_records(records: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The records with their offline evaluation in place of the final one (for :func:`score_matrix`)."""
+    return [{"seed": r["seed"], "evaluation": r["offline_evaluation"]} for r in records]
+
+
+def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
+    """One seed's online returns on a grid of env steps: bin ``i`` covers steps
+    ``(i, i + 1] · online_steps / bins`` and holds the mean return of the episodes ending there; an empty
+    bin repeats the previous one (NaN before the first episode).
+
+    :return: ``(bins,)``
+    """
+    width = online_steps / bins
+    out = np.full(bins, np.nan)
+    ends = np.array([e["end_step"] for e in episodes], dtype=float)
+    rewards = np.array([e["reward"] for e in episodes], dtype=float)
+    for i in range(bins):
+        inside = (ends > i * width) & (ends <= (i + 1) * width)
+        if inside.any():
+            out[i] = rewards[inside].mean()
+        elif i > 0:
+            out[i] = out[i - 1]
+    return out
+
+
+def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[str, list[float]]:
+    """Mean over seeds of binned curves ``(n_seeds, bins)`` with a 95 % percentile bootstrap band over seeds
+    (NaN where no seed has an episode yet)."""
+    n = per_seed.shape[0]
+    rng = np.random.default_rng(seed)
+    with np.errstate(all="ignore"), warnings.catch_warnings():  # all-NaN columns before the first episode
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(per_seed, axis=0)
+        boot = np.nanmean(per_seed[rng.integers(0, n, size=(reps, n))], axis=1)  # (reps, bins)
+        low, high = np.nanpercentile(boot, [2.5, 97.5], axis=0)
+    return {"mean": mean.tolist(), "ci_low": low.tolist(), "ci_high": high.tolist()}
+
+
+def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
+    """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
+    seeds = sorted(r["seed"] for r in records)
+    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_seeds, n_episodes)
+    metrics = iqm_with_ci(scores, reps=reps)
+    means = mean_with_ci(scores, reps=reps)
+    offline = None
+    if all(r.get("offline_evaluation") for r in records):
+        off = _offline_score_records(records)
+        offline = {m: iqm_with_ci({"x": score_matrix(off, m)}, reps=reps)["x"] for m in METRICS}
+    online_steps = int(records[0]["online_steps"])
+    curves = np.array([binned_curve(r["online_episodes"], online_steps) for r in sorted(records, key=lambda r: r["seed"])])
+    band = curve_band(curves, reps=reps)
+    steps = [online_steps * (i + 1) / CURVE_BINS for i in range(CURVE_BINS)]
+    wall = [r["wall_seconds"]["total"] for r in records]
+    cpu = [r["cpu_seconds"]["total"] for r in records]
+    first = records[0]
+    return {
+        "label": ARM_LABELS.get(first["arm"], first["arm"]),
+        "seeds": seeds,
+        "eval_episodes_per_seed": len(first["evaluation"]["episodes"]),
+        "online_steps": online_steps,
+        "offline_steps": int(first["offline_steps"]),
+        "metrics": metrics,
+        "means": means,
+        "offline_metrics": offline,
+        "curve": {"env_steps": steps, **band},
+        "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
+        "cpu_seconds": {"mean_per_seed": float(np.mean(cpu)), "total": float(np.sum(cpu))},
+        "hyperparams": first["hyperparams"],
+        "notes": first["notes"],
+    }
+
+
+def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, peer: str,
+                 reps: int = 2000) -> dict[str, Any]:
+    """Probability that ``ours`` improves on ``peer``, per metric (lower-is-better metrics negated)."""
+    return {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
+                                          higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
+            for m in POI_METRICS}
+
+
+def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 2000) -> dict[str, Any]:
+    """``peers.json`` without its header: per arm (:func:`arm_summary`) and per (UA2C arm, peer) pair."""
+    arms = [a for a in ARMS if records.get(a)] + sorted(set(records) - set(ARMS))
+    if not arms:
+        raise ValueError("no arm records to aggregate: run the units first")
+    ours = [a for a in arms if a in UA2C_ARMS]
+    peers = [a for a in arms if a not in UA2C_ARMS]
+    return {
+        "arms": {a: arm_summary(records[a], reps) for a in arms},
+        "pairs": {f"{o}_vs_{p}": {"ua2c": o, "peer": p, **pair_summary(records, o, p, reps)} for o in ours for p in peers},
+    }
+
+
+def verdicts(summary: Mapping[str, Any]) -> list[str]:
+    """Plain sentences: for every (UA2C arm, peer), who has the higher IQM reward, by how much, and the
+    probability of improvement."""
+    arms, lines = summary["arms"], []
+    for pair in summary["pairs"].values():
+        o, p = pair["ua2c"], pair["peer"]
+        ro, rp = arms[o]["metrics"]["reward"]["iqm"], arms[p]["metrics"]["reward"]["iqm"]
+        gap, rel = ro - rp, 100.0 * (ro - rp) / abs(rp) if rp else float("nan")
+        poi = pair["reward"]
+        word = "beats" if gap > 0 else "LOSES to" if gap < 0 else "ties with"
+        lines.append(f"{ARM_LABELS.get(o, o)} {word} {ARM_LABELS.get(p, p)}: IQM reward {ro:.2f} vs {rp:.2f} "
+                     f"({gap:+.2f}, {rel:+.1f} % of |peer|); P(UA2C > peer) = {poi['probability']:.2f} "
+                     f"[{poi['ci_low']:.2f}, {poi['ci_high']:.2f}]")
+    return lines
+
+
+def headline(summary: Mapping[str, Any]) -> str:
+    """The best UA2C arm against the best peer by IQM reward (who leads, by how much), then their means."""
+    arms = summary["arms"]
+    reward = {a: arms[a]["metrics"]["reward"]["iqm"] for a in arms}
+    ours = [a for a in arms if a in UA2C_ARMS]
+    peers = [a for a in arms if a not in UA2C_ARMS]
+    if not ours or not peers:
+        return "Only one side was run: no head-to-head verdict."
+    o, p = max(ours, key=reward.get), max(peers, key=reward.get)
+    gap = reward[o] - reward[p]
+    side = "ahead of" if gap > 0 else "BEHIND" if gap < 0 else "level with"
+    return (f"Best UA2C arm, {ARM_LABELS.get(o, o)} (IQM reward {reward[o]:.2f}), is {side} the best peer, "
+            f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}), by {abs(gap):.2f}; P(UA2C > peer) = "
+            f"{summary['pairs'][f'{o}_vs_{p}']['reward']['probability']:.2f}. By the mean reward: "
+            f"{_mean(arms[o], 'reward'):.2f} vs {_mean(arms[p], 'reward'):.2f} "
+            f"({_mean(arms[o], 'reward') - _mean(arms[p], 'reward'):+.2f}); collision rate "
+            f"{_mean(arms[o], 'collision'):.2f} vs {_mean(arms[p], 'collision'):.2f}.")
+
+
+def _mean(arm: Mapping[str, Any], metric: str) -> float:
+    return arm["means"][metric]["mean"]
+
+
+def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
+    if stat is None:
+        return "–"
+    return f"{stat[key]:.{digits}f} [{stat['ci_low']:.{digits}f}, {stat['ci_high']:.{digits}f}]"
+
+
+def results_table(summary: Mapping[str, Any]) -> list[str]:
+    """The per-arm table (IQM [95 % CI]) in Markdown."""
+    lines = ["| arm | reward | collision | merge success | cum. jerk | jerk/step | offline reward | wall / CPU min per seed |",
+             "|---|---|---|---|---|---|---|---|"]
+    for arm in summary["arms"].values():
+        m = arm["metrics"]
+        offline = arm["offline_metrics"]["reward"] if arm["offline_metrics"] else None
+        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {_cell(m['collision'])} | {_cell(m['merge_success'])} "
+                     f"| {_cell(m['cumulative_jerk'], 1)} | {_cell(m['jerk_per_step'])} | {_cell(offline)} "
+                     f"| {arm['wall_seconds']['mean_per_seed'] / 60:.1f} / {arm['cpu_seconds']['mean_per_seed'] / 60:.1f} |")
+    return lines
+
+
+def means_table(summary: Mapping[str, Any]) -> list[str]:
+    """The per-arm means [95 % CI] in Markdown: collision and merge success as rates."""
+    lines = ["| arm | reward | collision rate | merge rate | cum. jerk | jerk/step |", "|---|---|---|---|---|---|"]
+    for arm in summary["arms"].values():
+        m = arm["means"]
+        lines.append(f"| {arm['label']} | {_cell(m['reward'], key='mean')} | {_cell(m['collision'], key='mean')} "
+                     f"| {_cell(m['merge_success'], key='mean')} | {_cell(m['cumulative_jerk'], 1, 'mean')} "
+                     f"| {_cell(m['jerk_per_step'], key='mean')} |")
+    return lines
+
+
+def readme_table(summary: Mapping[str, Any]) -> list[str]:
+    """The short table for the README: IQM and mean reward, collision and merge rates per arm."""
+    lines = ["| arm | reward (IQM [95 % CI]) | mean reward | collision rate | merge rate |", "|---|---|---|---|---|"]
+    for arm in summary["arms"].values():
+        m, mean = arm["metrics"], arm["means"]
+        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {mean['reward']['mean']:.2f} | "
+                     f"{mean['collision']['mean']:.2f} | {mean['merge_success']['mean']:.2f} |")
+    return lines
+
+
+def pairs_table(summary: Mapping[str, Any]) -> list[str]:
+    lines = ["| UA2C arm | peer | " + " | ".join(f"P(better) {m}" for m in POI_METRICS) + " |",
+             "|---|---|" + "---|" * len(POI_METRICS)]
+    for pair in summary["pairs"].values():
+        cells = [f"{pair[m]['probability']:.2f} [{pair[m]['ci_low']:.2f}, {pair[m]['ci_high']:.2f}]" for m in POI_METRICS]
+        lines.append(f"| {ARM_LABELS.get(pair['ua2c'])} | {ARM_LABELS.get(pair['peer'], pair['peer'])} | "
+                     + " | ".join(cells) + " |")
+    return lines
+
+
+def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
+    """``peers_curves.png`` (online return against env steps, mean over seeds with a 95 % band) and
+    ``peers_iqm.png`` (IQM bars with 95 % CIs: reward, collision, jerk per step)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    arms = summary["arms"]
+    fig = Figure(figsize=(7.5, 4.5), dpi=120)  # no pyplot: the caller's backend stays untouched
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for name, arm in arms.items():
+        c = arm["curve"]
+        (line,) = ax.plot(c["env_steps"], c["mean"], label=arm["label"], ls="-" if name in UA2C_ARMS else "--")
+        ax.fill_between(c["env_steps"], c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.15)
+    ax.set_xlabel("online env steps")
+    ax.set_ylabel("training episode return")
+    ax.set_title("Online learning curves (mean over seeds, 95 % bootstrap band)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    curves = out / "peers_curves.png"
+    fig.savefig(curves)
+
+    panels = (("reward", "return"), ("collision", "collision rate"), ("jerk_per_step", "jerk per step [m/s³]"))
+    fig = Figure(figsize=(11, 4.2), dpi=120)
+    FigureCanvasAgg(fig)
+    names = list(arms)
+    for j, (metric, ylabel) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), j + 1)
+        stats = [arms[n]["metrics"][metric] for n in names]
+        iqms = np.array([s["iqm"] for s in stats])
+        err = np.array([[s["iqm"] - s["ci_low"] for s in stats], [s["ci_high"] - s["iqm"] for s in stats]])
+        colors = ["#1f77b4" if n in UA2C_ARMS else "#9e9e9e" for n in names]
+        ax.bar(range(len(names)), iqms, yerr=np.clip(err, 0, None), capsize=4, color=colors)
+        ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+        ax.set_title(f"IQM {metric} (95 % CI)", fontsize=9)
+        ax.set_ylabel(ylabel)
+    fig.tight_layout()
+    bars = out / "peers_iqm.png"
+    fig.savefig(bars)
+    return [curves, bars]
+
+
+def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
+    b = summary["budget"]["ua2c"]
+    obs = summary["observation"]
+    calql = summary["budget"]["calql_offline_steps"]
+    return [
+        "## Protocol",
+        "",
+        f"- Online budget: **{b['finetune_steps']} env steps for every arm**; offline: {b['pretrain_steps']} gradient "
+        f"steps for UA2C, IQL and Cal-QL" + (f" (Cal-QL: {calql})" if calql else "") + f", on the seed's Figure-2 "
+        f"dataset ({b['dataset_episodes']} episodes of the behaviour policy, the same data for every arm).",
+        f"- Evaluation: {b['eval_episodes']} held-out episodes per seed (Figure 2's scenarios, the same for every "
+        "arm), deterministic actions; statistics are IQMs with 95 % stratified bootstrap CIs over seeds × episodes, "
+        "and P(UA2C > peer) is rliable's probability of improvement (0.5 = no difference).",
+        f"- Observation: {obs}. Action space: the same `Box` (acceleration, lane-change command with the env's "
+        "thresholds) for every arm.",
+        f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
+        "δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the offline data "
+        "in the buffer and one gradient step per k env steps (Figure 2's cadence): the chunk arms make about "
+        f"1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step), the one-step arm "
+        "as many.",
+        "- SAC and TQC: online from scratch, hyperparameters from `zoo_configs/sac.yml` / `zoo_configs/tqc.yml` "
+        "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
+                                            if summary["budget"]["sb3_hyperparams"] else "")
+        + "; the zoo's style-context wrapper is not applied, so they see the dataset's observation).",
+        f"- SAC + offline data: {summary['arms'].get('sac_offline_mix', {}).get('notes', 'not run')}.",
+        "- IQL and Cal-QL: d3rlpy 2.8.1 with its default hyperparameters, batch "
+        f"{summary['budget']['d3rlpy_batch_size']}, offline on the dataset, then `fit_online` with half of each "
+        "batch from the offline data.",
+    ]
+
+
+def format_markdown(summary: Mapping[str, Any]) -> str:
+    """``peers.md``: what ran, the verdicts, the tables and the plots."""
+    est = summary["estimate"]
+    lines = [
+        "# Head-to-head on MixedTraffic-v0: UA2C against SB3, sb3-contrib and d3rlpy",
+        "",
+        f"Command: `{summary['command']}` ({summary['date']}). Seeds: {summary['seeds']}. "
+        f"Estimated before the run: {est['cpu'] / 60:.0f} CPU-min, ~{est['wall'] / 60:.0f} min wall on "
+        f"{est['workers']} worker(s).",
+        "",
+        *_protocol_lines(summary),
+        "",
+        "## Verdict (IQM of the final evaluation reward)",
+        "",
+        f"**{headline(summary)}**",
+        "",
+        *(f"- {v}" for v in verdicts(summary)),
+        "",
+        "## Results (IQM [95 % CI] over seeds × evaluation episodes)",
+        "",
+        *results_table(summary),
+        "",
+        "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with an "
+        "offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared offline "
+        "checkpoint.",
+        "",
+        "For the 0/1 metrics (collision, merge success) the IQM trims the quarter of episodes at each end, so a "
+        "collision rate under 25 % reads 0: the rates are in the next table.",
+        "",
+        "## Means (95 % CI) over seeds × evaluation episodes",
+        "",
+        *means_table(summary),
+        "",
+        "## Probability of improvement of each UA2C arm over each peer",
+        "",
+        *pairs_table(summary),
+        "",
+        "Collision and jerk are costs: P(better) is the probability of a LOWER value.",
+        "",
+        "![online learning curves](peers_curves.png)",
+        "",
+        "![IQM bars](peers_iqm.png)",
+        "",
+        "## Short table (for the README)",
+        "",
+        *readme_table(summary),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
+    """Write ``peers.json``, ``peers.md`` and the PNGs into ``out``; return their paths."""
+    from experiments.common.records import strict_json
+    from sb3_ua2c.pipeline import write_json
+
+    out.mkdir(parents=True, exist_ok=True)
+    files = [write_json(out / "peers.json", strict_json(summary))]
+    md = out / "peers.md"
+    md.write_text(format_markdown(summary))
+    return [*files, md, *write_plots(summary, out)]

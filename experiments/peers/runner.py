@@ -1,0 +1,164 @@
+"""Units and stages of a head-to-head run, through :mod:`experiments.common.runner`.
+
+Three stages, each a list of units run with one executor (local processes or a Ray cluster):
+
+1. ``seed<s>/dataset``: the seed's Figure-2 dataset (``<work>/seed<s>/dataset``);
+2. ``seed<s>/pretrain_k<k>``: the UA2C checkpoints the UA2C arms start from (one-step and chunk);
+3. ``seed<s>/<arm>``: one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``.
+
+Every unit has a result file and is skipped when it exists: an interrupted run resumes, and deleting
+one arm's record (or ``--rerun``) runs that unit alone again. A run directory records its budget
+(``<work>/peers_budget.json``) and refuses to resume under another one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from experiments.common.budget import finetune_overrides
+from experiments.common.names import DATASET_SEED_BASE, EVAL_SEED_BASE
+from experiments.common.runner import Executor, Unit, UnitResult, run_units
+from experiments.peers.budget import D3RLPY_ARMS, UA2C_ARMS, PeersBudget, estimate_units
+
+MANIFEST = "peers_budget.json"
+
+
+@dataclass(frozen=True)
+class PeersPaths:
+    """Where a run keeps its files: the report in ``out``, one JSON record per (arm, seed) in ``raw``
+    (small, worth keeping with the report), datasets, checkpoints and models in ``work``."""
+
+    out: Path
+    raw: Path
+    work: Path
+
+    @classmethod
+    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
+              work: str | os.PathLike | None = None) -> PeersPaths:
+        """Default layout: ``<out>/peers_raw`` and ``<out>/peers_work`` unless given (absolute paths:
+        units on a Ray cluster read and write them)."""
+        out = Path(out).resolve()
+        return cls(out, Path(raw).resolve() if raw else out / "peers_raw",
+                   Path(work).resolve() if work else out / "peers_work")
+
+    def record(self, seed: int, arm: str) -> Path:
+        return self.raw / f"seed{seed}" / f"{arm}.json"
+
+    def seed_work(self, seed: int) -> Path:
+        return self.work / f"seed{seed}"
+
+
+def check_manifest(paths: PeersPaths, budget: PeersBudget) -> None:
+    """Record the budget on the first call; later calls must pass the same one (a stored unit of another
+    budget would be silently reused)."""
+    from experiments.common.records import strict_json
+    from sb3_ua2c.pipeline import write_json
+
+    path, now = paths.work / MANIFEST, strict_json(budget.to_dict())
+    if path.is_file():
+        recorded = json.loads(path.read_text())
+        if recorded != now:
+            differ = sorted(k for k in set(recorded) | set(now) if recorded.get(k) != now.get(k))
+            raise ValueError(f"the run in {paths.work} was made with another budget (differs in {differ}); pass the "
+                             "same budget (--quick, --online-steps) to resume it, or another --out/--work")
+        return
+    write_json(path, now)
+
+
+def read_manifest(paths: PeersPaths) -> PeersBudget | None:
+    path = paths.work / MANIFEST
+    if not path.is_file():
+        return None
+    values = json.loads(path.read_text())
+    delta = values["ua2c"].get("delta_sweep")
+    values["ua2c"]["delta_sweep"] = [math.inf if d == "inf" else d for d in delta or []]
+    return PeersBudget.from_dict(values)
+
+
+def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
+    """Figure 2's held-out scenarios of ``seed``: ``eval_seeds`` and ``eval_episodes`` of every unit."""
+    return {"eval_seeds": (EVAL_SEED_BASE + seed,), "eval_episodes": budget.ua2c.eval_episodes}
+
+
+def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
+    from experiments.peers.ua2c_arms import build_dataset
+
+    b = budget.ua2c
+    return [Unit(f"seed{s}/dataset", build_dataset,
+                 {"path": str(paths.seed_work(s) / "dataset"), "n_episodes": b.dataset_episodes,
+                  "seed": DATASET_SEED_BASE + 10_000 * s, "env_kwargs": dict(b.env_kwargs)},
+                 paths.seed_work(s) / "dataset.json") for s in seeds]
+
+
+def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
+    from experiments.peers.ua2c_arms import build_checkpoint
+
+    ks = sorted({budget.chunk_length(a) for a in arms if a in UA2C_ARMS})
+    b = budget.ua2c
+    return [Unit(f"seed{s}/pretrain_k{k}", build_checkpoint,
+                 {"dataset": str(paths.seed_work(s) / "dataset"), "out": str(paths.seed_work(s) / f"pretrain_k{k}.zip"),
+                  "pretrain_steps": b.pretrain_steps, "seed": s, "algo_kwargs": b.arm_kwargs(k)},
+                 paths.seed_work(s) / f"pretrain_k{k}.json") for s in seeds for k in ks]
+
+
+def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
+    """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
+    from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
+    from experiments.peers.ua2c_arms import run_ua2c_arm
+
+    common = {"out_dir": str(paths.seed_work(seed) / arm), "dataset": str(paths.seed_work(seed) / "dataset"),
+              "seed": seed, "online_steps": budget.online_steps, **eval_protocol(seed, budget)}
+    fn: Callable[..., Any]
+    if arm in UA2C_ARMS:
+        record = pretrained[f"seed{seed}/pretrain_k{budget.chunk_length(arm)}"]
+        fn, kwargs = run_ua2c_arm, {"arm": arm, "checkpoint": record["checkpoint"], "delta": budget.delta(arm),
+                                    "finetune_overrides": finetune_overrides(budget.ua2c), "pretrain_record": record}
+    elif arm in ("sac", "tqc"):
+        fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_hyperparams}
+    elif arm == "sac_offline_mix":
+        fn, kwargs = run_sb3_offline_mix, {"hyperparams": budget.sb3_hyperparams}
+    elif arm in D3RLPY_ARMS:
+        fn, kwargs = run_d3rlpy, {"algo": arm, "offline_steps": budget.offline_steps(arm),
+                                  "batch_size": budget.d3rlpy_batch_size}
+    else:
+        raise ValueError(f"arms: unknown arm {arm!r}")
+    return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))
+
+
+def run_peers(
+    seeds: Sequence[int],
+    arms: Sequence[str],
+    budget: PeersBudget,
+    paths: PeersPaths,
+    executor: Executor,
+    printer: Callable[[str], Any] | None = print,
+) -> list[UnitResult]:
+    """Run (or resume) the three stages; return the results of the arm units (in the order run).
+
+    Arm units are submitted most expensive first, so the cores stay busy to the end.
+    """
+    check_manifest(paths, budget)
+    for s in seeds:
+        paths.seed_work(s).mkdir(parents=True, exist_ok=True)
+    run_units(dataset_units(seeds, budget, paths), executor, printer)
+    pretrained = {r.name: r.value for r in run_units(pretrain_units(seeds, arms, budget, paths), executor, printer)}
+    cost = estimate_units(budget, arms, len(seeds))["arms"]
+    order = sorted(((a, s) for s in seeds for a in arms), key=lambda p: (-cost[p[0]], p[1]))
+    return run_units([arm_unit(a, s, budget, paths, pretrained) for a, s in order], executor, printer)
+
+
+def load_records(paths: PeersPaths, seeds: Sequence[int] | None = None) -> dict[str, list[dict[str, Any]]]:
+    """The stored arm records by arm (any arm, the given seeds or every ``seed<s>`` directory in ``raw``)."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    dirs = sorted(paths.raw.glob("seed*")) if seeds is None else [paths.raw / f"seed{s}" for s in seeds]
+    for d in dirs:
+        for f in sorted(d.glob("*.json")):
+            record = json.loads(f.read_text())
+            out.setdefault(record["arm"], []).append(record)
+    return out

@@ -1,0 +1,196 @@
+"""The head-to-head command (``python -m experiments.peers``): end to end at the quick budget, resuming and
+rerunning one unit, the report builders on hand-made records, the estimate, and bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from extras import require
+
+from experiments.common.names import DATASET_SEED_BASE
+from experiments.peers import cli
+from experiments.peers.budget import (
+    ARMS,
+    FULL_PEERS_BUDGET,
+    PEER_ARMS,
+    UA2C_ARMS,
+    estimate_units,
+    estimate_wall,
+    peer_unit_seconds,
+    stage_wall_seconds,
+)
+from experiments.peers.report import (
+    aggregate,
+    arm_summary,
+    binned_curve,
+    means_table,
+    readme_table,
+    results_table,
+    verdicts,
+)
+
+OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql"}
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    require("d3rlpy")
+    out = tmp_path_factory.mktemp("peers")
+    assert cli.main(["--quick", "--seeds", "0", "1", "--workers", "1", "--out", str(out)]) == 0
+    return out
+
+
+def _records(out: Path, arm: str) -> list[dict]:
+    return [json.loads((out / "peers_raw" / f"seed{s}" / f"{arm}.json").read_text()) for s in (0, 1)]
+
+
+def test_quick_run_writes_the_report_with_every_arm(quick_run):
+    for name in ("peers.md", "peers.json", "peers_curves.png", "peers_iqm.png"):
+        assert (quick_run / name).is_file(), name
+    summary = json.loads((quick_run / "peers.json").read_text())
+    assert sorted(summary["arms"]) == sorted(ARMS) and summary["seeds"] == [0, 1]
+    assert len(summary["pairs"]) == len(UA2C_ARMS) * len(PEER_ARMS)
+    assert summary["budget"]["ua2c"]["finetune_steps"] == 30 and "WITHOUT" in summary["observation"]
+    for arm, stats in summary["arms"].items():
+        assert set(stats["metrics"]) == {"reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step"}
+        assert (stats["offline_metrics"] is not None) == (arm in OFFLINE_ARMS), arm
+        rewards = [r["evaluation"]["episodes"][0]["reward"] for r in _records(quick_run, arm)]
+        # 2 seeds x 1 episode: the 25 % trimmed mean trims nothing, the IQM is the mean
+        assert stats["metrics"]["reward"]["iqm"] == pytest.approx(np.mean(rewards), abs=1e-9)
+        assert stats["metrics"]["reward"]["ci_low"] == pytest.approx(min(rewards))
+        assert stats["cpu_seconds"]["total"] > 0
+    pair = summary["pairs"]["ua2c_adaptive_vs_sac"]
+    assert set(pair) >= {"ua2c", "peer", "reward", "collision"} and 0.0 <= pair["reward"]["probability"] <= 1.0
+    md = (quick_run / "peers.md").read_text()
+    assert "zoo_configs/sac.yml" in md and "UNLIKE RLPD".lower() in md.lower() and "P(UA2C > peer)" in md
+
+
+def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
+    for s in (0, 1):
+        records = [json.loads((quick_run / "peers_raw" / f"seed{s}" / f"{a}.json").read_text()) for a in ARMS]
+        assert {r["dataset"]["path"] for r in records} == {str(quick_run / "peers_work" / f"seed{s}" / "dataset")}
+        assert {r["dataset"]["seed"] for r in records} == {DATASET_SEED_BASE + 10_000 * s}
+        assert {r["online_steps"] for r in records} == {30}
+        assert {tuple(e["seed"] for e in r["evaluation"]["episodes"]) for r in records} == {(2_000_000 + 1000 * s,)}
+    adaptive, fixed = _records(quick_run, "ua2c_adaptive")[0], _records(quick_run, "ua2c_fixed")[0]
+    assert adaptive["hyperparams"]["delta"] == 0.0 and fixed["hyperparams"]["delta"] == "inf"
+    assert adaptive["hyperparams"]["finetune_overrides"] == {"train_freq": 3, "gradient_steps": 1}
+    assert _records(quick_run, "iql")[0]["offline_steps"] == 8  # the UA2C arms' pretrain_steps
+
+
+def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run, capsys):
+    args = ["--quick", "--seeds", "0", "1", "--workers", "1", "--out", str(quick_run)]
+    sac = quick_run / "peers_raw" / "seed1" / "sac.json"
+    before = json.loads(sac.read_text())
+    capsys.readouterr()
+    assert cli.main(args) == 0
+    out = capsys.readouterr().out
+    assert "16 of 16 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 16 stored" in out
+    sac.unlink()
+    assert cli.main(args) == 0
+    out = capsys.readouterr().out
+    assert "15 of 16 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    again = json.loads(sac.read_text())
+    assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
+    # --rerun: the selected unit runs again without deleting anything by hand
+    assert cli.main(["--quick", "--seeds", "1", "--arms", "sac", "--rerun", "--workers", "1", "--out", str(quick_run)]) == 0
+    out = capsys.readouterr().out
+    assert "[1/1] unit seed1/sac:" in out and "0 arm unit(s) run, 1 stored" not in out
+    assert json.loads((quick_run / "peers.json").read_text())["seeds"] == [0, 1]  # the report keeps every record
+
+
+def test_a_run_under_another_budget_is_refused(quick_run, capsys):
+    args = ["--quick", "--online-steps", "40", "--seeds", "0", "--arms", "sac", "--workers", "1", "--out", str(quick_run)]
+    assert cli.main(args) == 2
+    assert "another budget" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--arms", "sac", "ppo"], "--arms: unknown arm(s) ['ppo']"),
+    (["--seeds", "-1"], "--seeds must be integers in [0, 100)"),
+    (["--seeds", "100"], "--seeds must be integers in [0, 100)"),
+    (["--workers", "0"], "--workers must be an integer >= 1"),
+    (["--online-steps", "0"], "--online-steps must be an integer >= 1"),
+])
+def test_bad_input_names_the_parameter(args, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*args, "--out", str(tmp_path)])
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "peers_work").exists()
+
+
+def _record(arm, seed, rewards, curve, offline=None):
+    episodes = [{"seed": i, "reward": r, "collision": i == 0, "merge_success": True, "cumulative_jerk": 10.0 * r,
+                 "jerk_per_step": r / 10} for i, r in enumerate(rewards)]
+    evaluation = {"episodes": episodes}
+    return {"arm": arm, "seed": seed, "online_steps": 100, "offline_steps": 0 if offline is None else 50,
+            "evaluation": evaluation, "offline_evaluation": None if offline is None else {"episodes": [
+                {**e, "reward": o} for e, o in zip(episodes, offline, strict=True)]},
+            "online_episodes": [{"end_step": s, "reward": r} for s, r in curve],
+            "wall_seconds": {"total": 60.0 * (seed + 1)}, "cpu_seconds": {"total": 30.0}, "hyperparams": {}, "notes": ""}
+
+
+def test_report_builders_on_hand_made_records():
+    require("rliable")
+    records = {
+        "ua2c_adaptive": [_record("ua2c_adaptive", 0, [1.0, 2.0], [(50, 1.0), (100, 3.0)], offline=[0.0, 1.0]),
+                          _record("ua2c_adaptive", 1, [3.0, 4.0], [(40, 2.0), (90, 5.0)], offline=[1.0, 2.0])],
+        "sac": [_record("sac", 0, [5.0, 6.0], [(60, 0.0)]), _record("sac", 1, [7.0, 8.0], [(100, 4.0)])],
+    }
+    adaptive = arm_summary(records["ua2c_adaptive"], reps=200)
+    # IQM of {1, 2, 3, 4}: the middle half {2, 3}
+    assert adaptive["metrics"]["reward"]["iqm"] == pytest.approx(2.5)
+    assert adaptive["metrics"]["collision"]["iqm"] == pytest.approx(0.5)
+    assert adaptive["offline_metrics"]["reward"]["iqm"] == pytest.approx(1.0)  # middle half of {0, 1, 1, 2}
+    assert adaptive["wall_seconds"] == {"mean_per_seed": 90.0, "total": 180.0}
+    summary = aggregate(records, reps=200)
+    assert summary["arms"]["sac"]["offline_metrics"] is None
+    # every adaptive episode scores below every SAC episode of the same column: P(UA2C > SAC) = 0
+    assert summary["pairs"]["ua2c_adaptive_vs_sac"]["reward"] == {"probability": 0.0, "ci_low": 0.0, "ci_high": 0.0}
+    # jerk is a cost: lower adaptive jerk is an improvement
+    assert summary["pairs"]["ua2c_adaptive_vs_sac"]["jerk_per_step"]["probability"] == 1.0
+    (line,) = verdicts(summary)
+    assert "UA2C adaptive chunks LOSES to SB3 SAC (online): IQM reward 2.50 vs 6.50 (-4.00, -61.5 % of |peer|)" in line
+    assert "| UA2C adaptive chunks | 2.50 [" in results_table(summary)[2]
+    row = readme_table(summary)[3]
+    assert row.startswith("| SB3 SAC (online) | 6.50 [") and row.endswith("] | 6.50 | 0.50 | 1.00 |")
+    # means over seeds x episodes: reward (1 + 2 + 3 + 4) / 4, one collision per seed in two episodes
+    assert adaptive["means"]["reward"]["mean"] == pytest.approx(2.5)
+    assert adaptive["means"]["collision"]["mean"] == pytest.approx(0.5)
+    assert adaptive["means"]["cumulative_jerk"]["mean"] == pytest.approx(25.0)
+    assert means_table(summary)[2].startswith("| UA2C adaptive chunks | 2.50 [")
+
+
+def test_binned_curve_carries_the_last_return_forward():
+    episodes = [{"end_step": 30, "reward": 1.0}, {"end_step": 40, "reward": 3.0}, {"end_step": 90, "reward": 5.0}]
+    np.testing.assert_allclose(binned_curve(episodes, 100, bins=4), [np.nan, 2.0, 2.0, 5.0])
+
+
+def test_estimate_reproduces_the_measured_peer_units_and_fits_two_hours():
+    at_10k = FULL_PEERS_BUDGET.with_online_steps(10_000)
+    measured = {"sac": 180, "tqc": 319, "sac_offline_mix": 180, "iql": 389, "calql": 2190}  # experiments/peers/measure_costs.py
+    for arm, seconds in measured.items():
+        assert peer_unit_seconds(arm, at_10k) == pytest.approx(seconds, rel=0.02), arm
+    # longest first on 2 workers: 5 | 4, then 3 -> the 4-worker, 3 -> the 5-worker, 3 -> the 7-worker
+    assert stage_wall_seconds([3, 5, 3, 4, 3], 2) == 10
+    assert stage_wall_seconds([3, 5], 4) == 5
+    full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
+    assert full["wall"] < 2 * 3600 and full["cpu"] > full["wall"]
+
+
+def test_headline_names_the_best_of_each_side():
+    require("rliable")
+    from experiments.peers.report import headline
+
+    records = {
+        "ua2c_adaptive": [_record("ua2c_adaptive", s, [1.0, 2.0], [(50, 1.0)]) for s in (0, 1)],
+        "ua2c_fixed": [_record("ua2c_fixed", s, [4.0, 4.0], [(50, 1.0)]) for s in (0, 1)],
+        "sac": [_record("sac", s, [3.0, 3.0], [(50, 1.0)]) for s in (0, 1)],
+    }
+    line = headline(aggregate(records, reps=50))
+    assert line == ("Best UA2C arm, UA2C fixed chunks (δ=inf) (IQM reward 4.00), is ahead of the best peer, "
+                    "SB3 SAC (online) (3.00), by 1.00; P(UA2C > peer) = 1.00. By the mean reward: 4.00 vs 3.00 "
+                    "(+1.00); collision rate 0.50 vs 0.50.")
