@@ -1,6 +1,7 @@
 """The documentation's links resolve: every relative link in README.md, docs/*.md and
 results/README.md names a file or directory of the repository, and an anchor (``page.md#section``)
-names a heading of that page. The README stays a short front page."""
+names a heading of that page. The README stays a short front page: at most 200 lines of at most 100
+characters, code blocks included."""
 
 from __future__ import annotations
 
@@ -12,10 +13,15 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = sorted([REPO / "README.md", REPO / "results" / "README.md", *(REPO / "docs").glob("*.md")])
-README_MAX_LINES = 300
+README_MAX_LINES = 200
+README_MAX_WIDTH = 100
+#: The one README block allowed past the width: ``make main``'s measured output table, kept verbatim.
+SAMPLE_OUTPUT_HEADER = re.compile(r"^\s*method \|\s+reward \|")
 
 # [text](target) and ![alt](target); the target stops at whitespace or ")" (no titles are used)
 LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?\s*\)")
+# a reference definition, [label]: target, on a line of its own
+REFERENCE = re.compile(r"^ {0,3}\[[^\]]+\]:\s*<?([^\s>]+)>?")
 FENCE = re.compile(r"^(```|~~~)")
 INLINE_CODE = re.compile(r"`[^`]*`")
 HEADING = re.compile(r"^#{1,6}\s+(.*?)\s*#*\s*$")
@@ -35,7 +41,14 @@ def prose_lines(text: str, keep_code: bool = False) -> list[str]:
 
 
 def links(text: str) -> list[str]:
-    return [m.group(1) for line in prose_lines(text) for m in LINK.finditer(line)]
+    """Inline links and the targets of reference definitions, outside code."""
+    out = []
+    for line in prose_lines(text):
+        out += [m.group(1) for m in LINK.finditer(line)]
+        ref = REFERENCE.match(line)
+        if ref:
+            out.append(ref.group(1))
+    return out
 
 
 def github_slug(heading: str) -> str:
@@ -85,7 +98,7 @@ def broken_links(page: Path) -> list[str]:
 
 def test_the_pages_exist() -> None:
     names = {p.relative_to(REPO).as_posix() for p in PAGES}
-    expected = {"algorithm", "environment", "style", "offline-to-online", "zoo", "benchmarks", "figure2"}
+    expected = {"algorithm", "environment", "style", "offline-to-online", "zoo", "benchmarks", "figure2", "layout"}
     assert {f"docs/{n}.md" for n in expected | {"README", "research-log"}} <= names
     assert {"README.md", "results/README.md"} <= names
 
@@ -99,6 +112,32 @@ def test_relative_links_resolve(page: Path) -> None:
 def test_readme_is_short() -> None:
     n_lines = len((REPO / "README.md").read_text(encoding="utf-8").splitlines())
     assert n_lines <= README_MAX_LINES, f"README.md has {n_lines} lines (at most {README_MAX_LINES})"
+
+
+def wide_lines(text: str, width: int) -> list[int]:
+    """Numbers of the lines longer than ``width`` characters, code blocks included, except the lines
+    of a fenced block that opens with the sample output table's header."""
+    out, fenced, exempt = [], False, False
+    lines = text.splitlines()
+    for i, line in enumerate(lines, 1):
+        if FENCE.match(line.lstrip()):
+            fenced = not fenced
+            exempt = fenced and i < len(lines) and bool(SAMPLE_OUTPUT_HEADER.match(lines[i]))
+            continue
+        if len(line) > width and not (fenced and exempt):
+            out.append(i)
+    return out
+
+
+def test_readme_lines_are_narrow() -> None:
+    wide = wide_lines((REPO / "README.md").read_text(encoding="utf-8"), README_MAX_WIDTH)
+    assert wide == [], f"README.md lines {wide} are longer than {README_MAX_WIDTH} characters"
+
+
+def test_the_width_check() -> None:
+    table = "      method |       reward |" + "x" * 90
+    text = f"short\n```\n{table}\n{'y' * 101}\n```\n```bash\n{'z' * 101}\n```\n{'w' * 101}\n"
+    assert wide_lines(text, 100) == [7, 9]  # the table block is exempt, the bash block is not
 
 
 def test_every_docs_page_is_in_the_index() -> None:
@@ -122,10 +161,12 @@ def test_the_checker_finds_broken_links(tmp_path: Path, monkeypatch) -> None:
         "[ok](other.md#offline--online) [web](https://example.org/x) ![img](other.md)\n"
         "[missing](nothing.md) [bad anchor](other.md#nowhere) `[code](nothing.md)`\n"
         "```\n[fenced](nothing.md)\n```\n"
+        "[ref]: other.md#make-main\n[bad ref]: gone.md\n"
     )
     assert broken_links(page) == [
         "nothing.md: no such file",
         "other.md#nowhere: no heading #nowhere in other.md",
+        "gone.md: no such file",
     ]
 
 
