@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.sb3-ua2c-installed
 
-.PHONY: main test bench install
+.PHONY: main test test-slow install
 
 $(STAMP): setup.cfg pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -20,4 +20,8 @@ main: $(STAMP)
 	$(PY) -m sb3_ua2c main
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# The tests over about 10 s (whole experiments in quick mode, Ray, PostgreSQL, torch.compile); CI runs them.
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow

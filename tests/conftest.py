@@ -29,3 +29,14 @@ def make_env():
     yield factory
     for env in created:
         env.close()
+
+
+#: Module-scoped fixtures that run a whole experiment (Figure 2, the head-to-head) in quick mode:
+#: 10-15 s on 2 cores, so every test that uses one is ``slow`` (``make test`` leaves them to CI).
+SLOW_FIXTURES = frozenset({"quick_run"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)

@@ -52,6 +52,7 @@ def test_a_failing_unit_does_not_stop_the_others(tmp_path):
     assert json.loads((tmp_path / "good.json").read_text())["square"] == 25
 
 
+@pytest.mark.slow
 def test_process_executor_gives_every_unit_a_fresh_process(tmp_path):
     units = [Unit(f"pid{i}", helpers.process_id) for i in range(2)] + [Unit("bad", helpers.fail, {"message": "child"})]
     with pytest.raises(UnitsFailedError) as info:
@@ -62,6 +63,7 @@ def test_process_executor_gives_every_unit_a_fresh_process(tmp_path):
     assert len(set(pids)) == 2 and os.getpid() not in pids  # one process per unit, none of them this one
 
 
+@pytest.mark.slow
 def test_process_executor_matches_serial_on_a_sumo_unit(tmp_path):
     units = [Unit(f"s{s}", helpers.sumo_episode, {"seed": s}) for s in (0, 1)]
     local = [r.value for r in run_units(units, ProcessExecutor(workers=2), printer=None)]

@@ -25,6 +25,8 @@ from extras import require, unavailable
 from envs.collection import collect_dataset
 from experiments.common.runner import SerialExecutor, run_units
 
+pytestmark = pytest.mark.slow  # starts a Ray head in a network namespace
+
 REPO = Path(__file__).resolve().parents[2]
 PORT = 6390
 

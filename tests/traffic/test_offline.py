@@ -341,6 +341,7 @@ def test_sampled_evaluation_is_seeded_per_episode(traffic_dataset, tmp_path: Pat
     assert run(True) != sampled
 
 
+@pytest.mark.slow
 def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
     from sb3_ua2c.__main__ import main
 
