@@ -14,11 +14,6 @@ when the first online step is stored: Eq. 8 if the batches mix in offline episod
 the paper's setting), windows otherwise (online-only training), the better of the two in each setting
 as measured (docs/benchmarks.md).
 
-For the prefix critic (``prefix_targets``, not in the paper) a sample also says which prefixes
-``u = 1..k`` have a target: ``"all"`` adds the histories ``h_{t+min(u, L)}`` of every prefix;
-``"sampled"`` draws one prefix ``u`` per sample (uniform over ``1..k`` for windows, the executed
-``L_t`` for online plans) and describes its target with the usual fields (horizon ``min(u, L)``), so
-it costs what the chunk critic's sample costs.
 """
 
 from __future__ import annotations
@@ -32,8 +27,6 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
-
-from sb3_ua2c.chunking import check_prefix_targets
 
 #: values of ``online_targets`` (:class:`ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
@@ -64,19 +57,6 @@ class ChunkReplaySamples(NamedTuple):
     next_observation_history: th.Tensor
     #: ``a_{t+L-ℓ:t+L-1}``, shape ``(B, ℓ, action_dim)``
     next_action_history: th.Tensor
-    #: 1 where ``chunks`` holds an action (executed or planned), 0 on the zeros that pad a window cut by
-    #: an episode end, shape ``(B, k)``
-    chunk_mask: th.Tensor | None = None
-    #: ``prefix_targets="sampled"``: the prefix ``u`` whose target the sample describes (its horizon is
-    #: ``min(u, L)``, its bootstrap mask 1 if ``u < L``), shape ``(B,)``
-    prefix_lengths: th.Tensor | None = None
-    #: ``prefix_targets="all"``: the prefixes ``u = 1..k`` that have a target (``u <= L``, or all of them
-    #: when an episode end cut the window), shape ``(B, k)``
-    prefix_mask: th.Tensor | None = None
-    #: ``prefix_targets="all"``: ``o``-histories at ``t + min(u, L)``, ``u = 1..k``, shape ``(B, k, ℓ, obs_dim)``
-    prefix_observation_history: th.Tensor | None = None
-    #: ``prefix_targets="all"``: ``a``-histories at ``t + min(u, L)``, shape ``(B, k, ℓ, action_dim)``
-    prefix_action_history: th.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -153,8 +133,6 @@ class _Steps:
         #: the plan selected at a plan start; when the plan closes, its first ``L`` entries become the
         #: executed actions: the sample's chunk (Eq. 8)
         self.plans = np.zeros((capacity, n_envs, chunk_size, action_dim), dtype=np.float32) if plans else None
-        #: at a closed plan's start: the episode ended at its last executed step (windows: ``horizon < k``)
-        self.ended = np.zeros((capacity, n_envs), dtype=bool) if plans else None
 
     def grow(self, capacity: int) -> None:
         for name in (
@@ -243,8 +221,6 @@ class ChunkReplayBuffer(BaseBuffer):
         end)``), i.e. the target of Eq. 4 as for the offline windows; ``"auto"``: ``"prefix"`` if,
         when the first online step is stored, the buffer holds offline episodes and
         ``offline_ratio > 0``, else ``"window"`` (:attr:`active_online_targets`)
-    :param prefix_targets: ``None`` (the chunk critic), ``"all"`` or ``"sampled"``: what a sample holds
-        for the prefix critic's targets (see :class:`ChunkReplaySamples`)
     """
 
     def __init__(
@@ -258,13 +234,9 @@ class ChunkReplayBuffer(BaseBuffer):
         history_len: int = 4,
         offline_ratio: float = 0.5,
         online_targets: str = "prefix",
-        prefix_targets: str | None = None,
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
         check_online_targets(online_targets)
-        if prefix_targets is not None:
-            check_prefix_targets(prefix_targets)
-        self.prefix_targets = prefix_targets
         if buffer_size < chunk_size + history_len:
             raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
         if not 0.0 <= offline_ratio <= 1.0:
@@ -302,19 +274,6 @@ class ChunkReplayBuffer(BaseBuffer):
         self._active_targets = "prefix" if mixed else "window"
         if mixed:  # the online part is empty: give it the plan storage
             self.online = self._online_steps(plans=True)
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self.__dict__.setdefault("prefix_targets", None)
-        self.__dict__.setdefault("_active_targets", self.online_targets)  # pickled before "auto" existed
-        if self.online.plans is not None and getattr(self.online, "ended", None) is None:
-            self.online.ended = np.zeros(self.online.horizon.shape, dtype=bool)  # pickled before it existed
-        if "_starts" not in state:  # pickled before the start index existed
-            self._starts = _StartIndex(self.buffer_size * self.n_envs)
-            self._rebuild_start_index()
-            if self.online.plans is not None:  # its plans hold the selected plan, not yet the chunk
-                slots, envs = np.nonzero(self.online.horizon)
-                self._write_chunks(slots, envs, self.online.horizon[slots, envs])
 
     # ------------------------------------------------------------------ online part
     def add(  # type: ignore[override]
@@ -363,8 +322,7 @@ class ChunkReplayBuffer(BaseBuffer):
                 )
         if s.plans is not None:
             # a plan left open (e.g. learn() restarted the episodes) closes with a bootstrap
-            no_end = np.zeros_like(new_plan)
-            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), no_end, no_end)
+            self._close_plans((new_plan | episode_start) & (self._plan_start >= 0), np.zeros_like(new_plan))
         s.obs[p] = np.reshape(obs, (n, -1))  # cast to float32 on assignment
         s.next_obs[p] = np.reshape(next_obs, (n, -1))
         s.actions[p] = np.reshape(action, (n, -1))
@@ -385,7 +343,7 @@ class ChunkReplayBuffer(BaseBuffer):
                 self._plan_count[new_plan] = 0
             has_plan = self._plan_start >= 0
             self._plan_count[has_plan] += 1
-            self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated, done)
+            self._close_plans(has_plan & (done | (self._plan_count >= self._plan_target)), terminated)
         self.pos += 1
         if self.pos == self.buffer_size:
             self.full = True
@@ -420,14 +378,13 @@ class ChunkReplayBuffer(BaseBuffer):
             age = np.where(starts <= self.pos, starts, -1)
         return np.minimum(self.online.episode_step[starts, envs], self.history_len) <= age
 
-    def _close_plans(self, mask: np.ndarray, terminated: np.ndarray, ended: np.ndarray) -> None:
+    def _close_plans(self, mask: np.ndarray, terminated: np.ndarray) -> None:
         if not mask.any():
             return
         s, envs = self.online, np.flatnonzero(mask)
         starts, executed = self._plan_start[envs], self._plan_count[envs]
         s.horizon[starts, envs] = executed
         s.bootstrap[starts, envs] = ~terminated[envs]
-        s.ended[starts, envs] = ended[envs]
         self._write_chunks(starts, envs, executed)
         self._plan_start[envs] = -1
         self._admit(starts, envs)
@@ -556,7 +513,7 @@ class ChunkReplayBuffer(BaseBuffer):
         return np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None]))
 
     def _rebuild_start_index(self) -> None:
-        """Rebuild the start index from a scan (a buffer pickled before the index existed)."""
+        """Rebuild the start index from a scan (after the ring was filled directly, as a benchmark does)."""
         self._starts.clear()
         self._starts.insert(self._scan_online_starts())
 
@@ -583,12 +540,9 @@ class ChunkReplayBuffer(BaseBuffer):
         else:
             n_off = int(round(self.offline_ratio * batch_size))
         k, ell, a_dim = self.chunk_size, self.history_len, self.action_dim
-        # the histories at t and at the bootstrap steps side by side, (1 + U, B, ℓ, dim): one read fills
-        # all; U = k next histories h_{t+min(u, L)} with prefix_targets="all", else U = 1 (h_{t+L})
-        n_next = k if self.prefix_targets == "all" else 1
-        obs_groups = np.empty((1 + n_next, batch_size, ell, self.obs_dim), dtype=np.float32)
-        action_groups = np.empty((1 + n_next, batch_size, ell, a_dim), dtype=np.float32)
-        every = self.prefix_targets == "all"
+        # the histories at t and at t + L side by side, (2, B, ℓ, dim): one read fills both
+        obs_groups = np.empty((2, batch_size, ell, self.obs_dim), dtype=np.float32)
+        action_groups = np.empty((2, batch_size, ell, a_dim), dtype=np.float32)
         out = ChunkReplaySamples(
             obs_groups[0],
             action_groups[0],
@@ -596,13 +550,8 @@ class ChunkReplayBuffer(BaseBuffer):
             np.empty((batch_size, k), dtype=np.float32),
             np.empty(batch_size, dtype=np.float32),
             np.empty(batch_size, dtype=np.float32),
-            obs_groups[-1],  # h_{t+L} (with "all" the last group, u = k, is h_{t+min(k, L)} = h_{t+L})
-            action_groups[-1],
-            np.empty((batch_size, k), dtype=np.float32),
-            np.empty(batch_size, dtype=np.float32) if self.prefix_targets == "sampled" else None,
-            np.empty((batch_size, k), dtype=np.float32) if every else None,
-            obs_groups[1:].swapaxes(0, 1) if every else None,  # (k, B, ℓ, obs) -> (B, k, ℓ, obs) view
-            action_groups[1:].swapaxes(0, 1) if every else None,
+            obs_groups[1],
+            action_groups[1],
         )
         if n_off > 0:
             rows = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
@@ -614,45 +563,16 @@ class ChunkReplayBuffer(BaseBuffer):
             inside = np.arange(k)[None, :] < out.horizons[:, None]  # (B, k)
             normalized = {
                 name: self._normalize_obs(getattr(out, name), env).astype(np.float32)
-                for name in ("observation_history", "next_observation_history", "prefix_observation_history")
-                if getattr(out, name) is not None
+                for name in ("observation_history", "next_observation_history")
             }
             out = out._replace(
                 **normalized, rewards=self._normalize_reward(out.rewards, env).astype(np.float32) * inside
             )
-        return ChunkReplaySamples(*(None if a is None else self.to_torch(a) for a in out))
+        return ChunkReplaySamples(*(self.to_torch(a) for a in out))
 
     def to_torch(self, array: np.ndarray, copy: bool = False) -> th.Tensor:
         """The sampled arrays are fresh: share their memory unless asked to copy."""
         return th.tensor(array, device=self.device) if copy else th.from_numpy(array).to(self.device)
-
-    def _sample_prefixes(self, s: _Steps, rows: np.ndarray, out: ChunkReplaySamples, sl: slice) -> np.ndarray:
-        """
-        Horizon, bootstrap mask and prefix fields of the samples at ``rows`` (written to ``out[sl]``).
-
-        :return: the step offsets ``(U, m)`` of the next histories to read (``h_{t+L}``; with
-            ``"all"`` ``h_{t+min(u, L)}`` for ``u = 1..k``; with ``"sampled"`` ``h_{t+min(u, L)}``)
-        """
-        k = self.chunk_size
-        horizon = s.horizon.reshape(-1).take(rows)  # (m,) L
-        bootstrap = s.bootstrap.reshape(-1).take(rows)
-        ahead = np.arange(k)
-        # windows are cut short by an episode end only; an online plan also by its L_t < k
-        ended = s.ended.reshape(-1).take(rows) if s.ended is not None else horizon < k
-        # padding: windows hold zeros after an episode end, plans their unexecuted tail
-        out.chunk_mask[sl] = (ahead < horizon[:, None]) if s.plans is None else 1.0
-        if self.prefix_targets == "sampled":
-            # one prefix u per window: the executed L_t of an online plan, uniform over 1..k otherwise
-            u = horizon if s.plans is not None else np.random.randint(1, k + 1, size=rows.size)  # noqa: NPY002
-            out.prefix_lengths[sl] = u
-            bootstrap = bootstrap | (u < horizon)  # h_{t+u} inside the episode: bootstrap
-            horizon = np.minimum(u, horizon)  # y_u = y_{min(u, L)} (prefix_bellman_targets)
-        out.horizons[sl] = horizon
-        out.bootstrap[sl] = bootstrap
-        if self.prefix_targets != "all":
-            return horizon[None, :]  # (1, m)
-        out.prefix_mask[sl] = (ahead + 1 <= horizon[:, None]) | ended[:, None]  # prefix_target_mask
-        return np.minimum(ahead[:, None] + 1, horizon[None, :])  # (k, m) min(u, L)
 
     def _gather(
         self,
@@ -673,12 +593,13 @@ class ChunkReplayBuffer(BaseBuffer):
         """
         k, ell, n = self.chunk_size, self.history_len, s.n_envs
         sl = slice(lo, lo + rows.size)
-        steps = np.zeros((obs_groups.shape[0], rows.size), dtype=np.intp)  # (1+U, m) 0, then next steps
-        steps[1:] = self._sample_prefixes(s, rows, out, sl)
-        horizon = out.horizons[sl].astype(np.intp)  # (m,) the horizon of the sample's rewards
+        horizon = s.horizon.reshape(-1).take(rows).astype(np.intp)  # (m,) L
+        out.horizons[sl] = horizon
+        out.bootstrap[sl] = s.bootstrap.reshape(-1).take(rows)
+        steps = np.stack([np.zeros_like(horizon), horizon])  # (2, m) offsets of t and t + L
         count = s.episode_step.reshape(-1).take(rows)  # (m,) steps before t in its episode
         base, first = rows[:, None], -count[:, None]  # (m, 1): row of t, offset of the episode start
-        # offsets from t of the action histories a_{t+j-ℓ:t+j-1}, (1+U, m, ℓ)
+        # offsets from t of the action histories a_{t+j-ℓ:t+j-1}, (2, m, ℓ)
         offsets = steps[..., None] + np.arange(-ell, 0)
         actions = s.actions.reshape(-1, self.action_dim)
         actions.take(base + offsets * n, axis=0, out=action_groups[:, sl], mode="wrap")
@@ -686,7 +607,7 @@ class ChunkReplayBuffer(BaseBuffer):
         # o_{t+j-ℓ+1:t+j}; before the episode start its first observation
         obs_rows = base + np.maximum(offsets + 1, first) * n
         s.obs.reshape(-1, self.obs_dim).take(obs_rows, axis=0, out=obs_groups[:, sl], mode="wrap")
-        last = rows + (steps[1:] - 1) * n  # (U, m) step t+j-1: o_{t+j} is its next observation
+        last = rows + (steps[1:] - 1) * n  # (1, m) step t+L-1: o_{t+L} is its next observation
         next_obs = s.next_obs.reshape(-1, self.obs_dim)
         next_obs.take(last, axis=0, out=obs_groups[1:, sl, -1], mode="wrap")
         ahead = np.arange(k)
@@ -698,9 +619,7 @@ class ChunkReplayBuffer(BaseBuffer):
             s.plans.reshape(-1, k, self.action_dim).take(rows, axis=0, out=out.chunks[sl])
         else:  # the next k executed actions, zeros after the episode end
             actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
-            np.copyto(
-                out.chunks[sl], 0.0, where=(ahead >= s.horizon.reshape(-1).take(rows)[:, None])[..., None]
-            )
+            np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
         raise NotImplementedError("use ChunkReplayBuffer.sample()")

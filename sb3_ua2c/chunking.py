@@ -178,22 +178,9 @@ def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -
     return th.cumprod(ok, dim=-1).sum(dim=-1).clamp_(min=1)
 
 
-#: values of ``execution`` (:class:`~sb3_ua2c.policies.UA2CPolicy`, ``UA2C``): how a replanning sets ``L_t``
-EXECUTION_RULES = ("entropy", "value", "fixed")
 #: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
 #: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
 AUTO_THRESHOLD_WINDOW = 50
-
-
-def check_execution(execution: object, critic_type: str) -> None:
-    """Raise ``ValueError`` naming ``execution`` unless it is one of :data:`EXECUTION_RULES`, and naming
-    ``execution`` and ``critic_type`` for ``"value"`` without the prefix critic (it reads ``Q_u``)."""
-    if not isinstance(execution, str) or execution not in EXECUTION_RULES:
-        raise ValueError(f"execution must be one of {list(EXECUTION_RULES)}, got {execution!r}")
-    if execution == "value" and critic_type != "prefix":
-        raise ValueError(
-            f'execution="value" chooses L_t by the prefix values Q_u: it needs critic_type="prefix", got {critic_type!r}'
-        )
 
 
 def check_entropy_threshold(
@@ -353,102 +340,6 @@ def pessimistic_q(q_values: th.Tensor) -> th.Tensor:
     :return: minimum over the critics, shape ``(*batch,)``
     """
     return q_values.min(dim=0).values  # (n_critics, *batch) -> (*batch)
-
-
-#: values of ``critic_type`` (:class:`~sb3_ua2c.policies.UA2CPolicy`, ``UA2C``)
-CRITIC_TYPES = ("chunk", "prefix")
-#: values of ``prefix_targets`` (``UA2C``, :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`)
-PREFIX_TARGETS = ("all", "sampled")
-
-
-def check_critic_type(value: object) -> None:
-    """Raise ``ValueError`` naming ``critic_type`` unless ``value`` is one of :data:`CRITIC_TYPES`."""
-    if not isinstance(value, str) or value not in CRITIC_TYPES:
-        raise ValueError(f"critic_type must be one of {list(CRITIC_TYPES)}, got {value!r}")
-
-
-def check_prefix_targets(value: object) -> None:
-    """Raise ``ValueError`` naming ``prefix_targets`` unless ``value`` is one of :data:`PREFIX_TARGETS`."""
-    if not isinstance(value, str) or value not in PREFIX_TARGETS:
-        raise ValueError(f"prefix_targets must be one of {list(PREFIX_TARGETS)}, got {value!r}")
-
-
-def q_at_length(q_prefixes: th.Tensor, lengths: th.Tensor) -> th.Tensor:
-    """
-    ``Q_L`` from the prefix critic's values ``Q_1..Q_k``: the value of executing the first ``L``
-    actions of a chunk (then acting on).
-
-    :param q_prefixes: shape ``(n_critics, *batch, k)``
-    :param lengths: ``L`` in ``[1, k]``, long tensor broadcastable to ``batch``
-    :return: shape ``(n_critics, *batch)``
-    """
-    index = (lengths - 1).expand(q_prefixes.shape[1:-1]).unsqueeze(-1)  # (*batch, 1)
-    index = index.unsqueeze(0).expand(q_prefixes.shape[0], *index.shape)  # (n, *batch, 1)
-    return q_prefixes.gather(-1, index).squeeze(-1)
-
-
-def max_prefix_value(q_prefixes: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-    """
-    Value of a chunk under ``execution="value"`` (as ACSAC: the prefix length chosen by Q):
-    ``max_u min_j Q_{j,u}(h, a_{t:t+u-1})``, and the ``u`` that attains it (the shortest on ties).
-
-    :param q_prefixes: the prefix critics' ``Q_1..Q_k``, shape ``(n_critics, *batch, k)``
-    :return: values, shape ``(*batch,)``, and lengths ``u`` in ``[1, k]`` (long), shape ``(*batch,)``
-    """
-    best = pessimistic_q(q_prefixes).max(dim=-1)  # (n, *batch, k) -> (*batch, k) -> (*batch,)
-    return best.values, best.indices + 1
-
-
-def prefix_bellman_targets(
-    rewards: th.Tensor,
-    horizon: th.Tensor,
-    bootstrap_mask: th.Tensor,
-    next_values: th.Tensor,
-    gamma: float,
-) -> th.Tensor:
-    """
-    n-step targets of every prefix ``u = 1..k`` of a window (the prefix critic, not in the paper):
-    ``y_u = sum_{i < v} gamma^i r_{t+i} + m_v gamma^v V(h_{t+v})`` with ``v = min(u, L)``, ``m_v = 1``
-    for ``v < L`` and ``m_L = m``. ``u = L`` is :func:`chunk_target`.
-
-    A window cut by an episode end after ``L < k`` steps gives the prefixes past it the target of
-    ``L``: after a termination the terminal return (``m = 0``, the rewards after the end are zero),
-    after a time-limit truncation the bootstrap from the last next history ``h_{t+L}``, discounted
-    by ``gamma^L`` (the steps that happened). Which prefixes have a target at all is
-    :func:`prefix_target_mask`.
-
-    :param rewards: window rewards, zero at ``i >= L``, shape ``(batch, k)``
-    :param horizon: ``L`` per sample, shape ``(batch,)``
-    :param bootstrap_mask: ``m`` in {0, 1} (0 iff the episode terminated at step ``L``), shape ``(batch,)``
-    :param next_values: ``V(h_{t+min(u, L)})`` for ``u = 1..k`` (:func:`bootstrap_value`), shape ``(batch, k)``
-    :param gamma: discount factor
-    :return: targets ``y_u``, shape ``(batch, k)``
-    """
-    k = rewards.shape[-1]
-    u = th.arange(1, k + 1, device=rewards.device)  # (k,)
-    steps = th.minimum(u.unsqueeze(0), horizon.unsqueeze(-1))  # (batch, k) v = min(u, L)
-    gamma_t = th.as_tensor(gamma, dtype=rewards.dtype, device=rewards.device)
-    discounts = th.pow(gamma_t, (u - 1).to(rewards.dtype))  # (k,) gamma^i
-    inside = (u - 1).unsqueeze(0) < horizon.unsqueeze(-1)  # (batch, k) i < L
-    returns = th.cumsum(rewards * discounts * inside, dim=-1)  # (batch, k) sum_{i < u}, flat after L
-    mask = th.where(steps < horizon.unsqueeze(-1), 1.0, bootstrap_mask.to(rewards.dtype).unsqueeze(-1))
-    return returns + mask * th.pow(gamma_t, steps.to(rewards.dtype)) * next_values
-
-
-def prefix_target_mask(horizon: th.Tensor, episode_end: th.Tensor, chunk_size: int) -> th.Tensor:
-    """
-    The prefixes ``u = 1..k`` of a window that have a target (:func:`prefix_bellman_targets`): those
-    of the executed steps, ``u <= L``, and, when an episode end cut the window, every prefix (the
-    actions after the end do not change the return). An online plan that stopped after ``L_t < k``
-    executed steps (Eq. 8) trains ``Q_1..Q_{L_t}`` only.
-
-    :param horizon: ``L``, shape ``(batch,)``
-    :param episode_end: the episode ended at step ``L`` (terminated or truncated), shape ``(batch,)``
-    :param chunk_size: ``k``
-    :return: boolean mask, shape ``(batch, k)``
-    """
-    u = th.arange(1, chunk_size + 1, device=horizon.device)
-    return (u.unsqueeze(0) <= horizon.unsqueeze(-1)) | episode_end.bool().unsqueeze(-1)
 
 
 def bootstrap_value(q_candidates: th.Tensor) -> th.Tensor:
@@ -663,18 +554,13 @@ class AdaptiveChunkExecutor:
         return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
 
 
-def chunk_critic_loss(q_values: th.Tensor, target: th.Tensor, mask: th.Tensor | None = None) -> th.Tensor:
+def chunk_critic_loss(q_values: th.Tensor, target: th.Tensor) -> th.Tensor:
     """
-    Chunk-level Bellman regression of Eq. 3: ``sum_j E[(Q_phi_j(o-history, a_{t:t+k-1}) - y_t)^2]``;
-    for the prefix critic, the mean over the prefixes that have a target.
+    Chunk-level Bellman regression of Eq. 3: ``sum_j E[(Q_phi_j(o-history, a_{t:t+k-1}) - y_t)^2]``.
 
-    :param q_values: predictions of every critic, shape ``(n_critics, batch)`` or ``(n_critics, batch, k)``
-    :param target: ``y_t`` (no gradient), shape ``(batch,)`` or ``(batch, k)``
-    :param mask: which entries count (:func:`prefix_target_mask`), shape of ``target``; ``None`` = all
+    :param q_values: predictions of every critic, shape ``(n_critics, batch)``
+    :param target: ``y_t`` (no gradient), shape ``(batch,)``
     :return: scalar loss
     """
-    error = (q_values - target.detach().unsqueeze(0)).pow(2)  # (n, batch[, k])
-    if mask is None:
-        return error.flatten(1).mean(dim=1).sum()
-    weight = mask.to(error.dtype)
-    return ((error * weight).flatten(1).sum(dim=1) / weight.sum().clamp_min(1.0)).sum()
+    error = (q_values - target.detach().unsqueeze(0)).pow(2)  # (n, batch)
+    return error.flatten(1).mean(dim=1).sum()

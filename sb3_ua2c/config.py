@@ -13,12 +13,7 @@ from gymnasium import spaces
 
 from sb3_ua2c.buffers import check_online_targets
 from sb3_ua2c.checks import check_bool, check_int
-from sb3_ua2c.chunking import (
-    check_critic_type,
-    check_entropy_threshold,
-    check_execution,
-    check_prefix_targets,
-)
+from sb3_ua2c.chunking import check_entropy_threshold
 from sb3_ua2c.policies import UA2CPolicy
 
 
@@ -36,8 +31,6 @@ class UA2CConfig:
     :param n_target_candidates: candidates ``Q`` for the target max (Eq. 4 / 8)
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = the whole chunk), or ``"auto"`` (δ set from
         recent replannings for a mean ``L_t`` of ``target_plan_length``)
-    :param execution: ``"entropy"`` (Eq. 7), ``"value"`` (the prefix with the highest ``min_j Q_u``;
-        ``critic_type="prefix"`` only) or ``"fixed"`` (``L_t = k``)
     :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in ``[1, k]``
         (``None`` = ``(k + 1) / 2``)
     :param q_weight: ``lambda`` of Eq. 2
@@ -49,12 +42,6 @@ class UA2CConfig:
     :param online_targets: ``"prefix"`` (Eq. 8), ``"window"`` (Eq. 4 on executed actions) or
         ``"auto"`` (Eq. 8 with offline data, windows without), see
         :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
-    :param critic_type: ``"chunk"`` (Eq. 3) or ``"prefix"`` (``Q_u`` of every prefix, not in the paper)
-    :param prefix_targets: the prefix critic's targets: ``"all"`` (every prefix of every window) or
-        ``"sampled"`` (one prefix per window: the chunk critic's cost)
-    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1] (not in the paper)
-    :param mask_flow_padding: the flow term of Eq. 2 ignores the zeros that pad windows cut by an
-        episode end (not in the paper)
     """
 
     chunk_size: int = 5
@@ -64,7 +51,6 @@ class UA2CConfig:
     n_candidates: int = 32
     n_target_candidates: int = 2
     entropy_threshold: float | str = 0.0
-    execution: str = "entropy"
     target_plan_length: float | None = None
     q_weight: float = 1.0
     smooth_weight: float = 0.0
@@ -72,10 +58,6 @@ class UA2CConfig:
     commit_discrete: bool = False
     offline_ratio: float = 0.5
     online_targets: str = "auto"
-    critic_type: str = "chunk"
-    prefix_targets: str = "all"
-    clip_actor_chunk: bool = False
-    mask_flow_padding: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -101,10 +83,7 @@ class UA2CConfig:
         if not 0.0 <= self.offline_ratio <= 1.0:
             raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
         check_online_targets(self.online_targets)
-        check_critic_type(self.critic_type)
-        check_execution(self.execution, self.critic_type)
-        check_prefix_targets(self.prefix_targets)
-        for name in ("discrete_entropy", "commit_discrete", "clip_actor_chunk", "mask_flow_padding"):
+        for name in ("discrete_entropy", "commit_discrete"):
             check_bool(name, getattr(self, name))
             object.__setattr__(self, name, bool(getattr(self, name)))
 
@@ -115,12 +94,10 @@ _POLICY_KWARGS_SET_BY_UA2C = {
     "flow_steps",
     "n_candidates",
     "entropy_threshold",
-    "execution",
     "target_plan_length",
     "discrete_dims",
     "discrete_entropy",
     "commit_discrete",
-    "critic_type",
 }
 
 

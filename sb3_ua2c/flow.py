@@ -61,28 +61,19 @@ def estimate_terminal(x_tau: th.Tensor, tau: th.Tensor, velocity: th.Tensor) -> 
     return x_tau + (1.0 - _expand_tau(tau, x_tau)) * velocity
 
 
-def flow_matching_loss(
-    velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor, mask: th.Tensor | None = None
-) -> th.Tensor:
+def flow_matching_loss(velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor) -> th.Tensor:
     """
     First term of Eq. 2, ``E ||v_theta(x_tau, tau | h_t) - (x1 - x0)||^2``.
 
     The squared norm is averaged over the ``k * action_dim`` chunk entries (instead of summed) so
-    that the weight ``lambda`` of the value term does not change meaning with the chunk size. With
-    ``mask``, the mean runs over the chunk positions that hold an action: the zeros that pad a window
-    cut by an episode end are not imitated.
+    that the weight ``lambda`` of the value term does not change meaning with the chunk size.
 
     :param velocity: predicted velocities, shape ``(batch, k, action_dim)``
     :param x0: noise chunks, same shape
     :param x1: data chunks, same shape
-    :param mask: 1 for the positions to imitate, 0 for padding, shape ``(batch, k)``; ``None`` = all
     :return: scalar loss
     """
-    error = (velocity - target_velocity(x0, x1)).pow(2)  # (batch, k, action_dim)
-    if mask is None:
-        return error.mean()
-    weight = mask.to(error.dtype).unsqueeze(-1)  # (batch, k, 1)
-    return (error * weight).sum() / (weight.sum() * error.shape[-1]).clamp_min(1.0)
+    return (velocity - target_velocity(x0, x1)).pow(2).mean()  # mean over (batch, k, action_dim)
 
 
 def euler_times(n_steps: int, dtype: th.dtype = th.float32, device: th.device | str = "cpu") -> th.Tensor:
@@ -145,7 +136,6 @@ def actor_loss(
     q_weight: float,
     roughness: th.Tensor | None = None,
     smooth_weight: float = 0.0,
-    mask: th.Tensor | None = None,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
     Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``,
@@ -163,11 +153,10 @@ def actor_loss(
     :param q_weight: ``lambda`` (>= 0)
     :param roughness: :func:`chunk_roughness` of ``x̂1`` (scalar), needed when ``smooth_weight > 0``
     :param smooth_weight: ``mu`` (>= 0)
-    :param mask: chunk positions the flow term imitates (:func:`flow_matching_loss`), shape ``(batch, k)``
     :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``, and
         ``roughness`` when ``mu > 0``)
     """
-    flow = flow_matching_loss(velocity, x0, x1, mask)
+    flow = flow_matching_loss(velocity, x0, x1)
     q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
     q_term = -q_values.mean() / q_scale
     loss = flow + q_weight * q_term

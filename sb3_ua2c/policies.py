@@ -23,17 +23,13 @@ from sb3_ua2c.chunking import (
     ChunkExecutorState,
     EntropyWindow,
     PlanResult,
-    check_critic_type,
     check_entropy_threshold,
-    check_execution,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
     default_target_plan_length,
     executable_prefix_length,
-    max_prefix_value,
     pessimistic_q,
-    q_at_length,
     select_chunk,
 )
 from sb3_ua2c.flow import euler_sample, euler_times
@@ -197,11 +193,9 @@ class _EnsembleBlock(nn.Module):
         self.act = activation_fn()
         self.ff2 = _EnsembleLinear(n, ff_dim, dim)
 
-    def forward(self, x: th.Tensor, mask: th.Tensor | None = None) -> th.Tensor:
+    def forward(self, x: th.Tensor) -> th.Tensor:
         """
         :param x: tokens, shape ``(n, B, T, d)``
-        :param mask: additive attention mask (0 = may attend, ``-inf`` = may not), shape ``(T, T)``,
-            row = query token; ``None`` = full attention
         :return: shape ``(n, B, T, d)``
         """
         n, b, t, d = x.shape
@@ -218,8 +212,6 @@ class _EnsembleBlock(nn.Module):
                 .reshape(3, n * b, self.n_heads, t, h)
             )
         scores = th.matmul(q, k.transpose(-1, -2)) * (1.0 / math.sqrt(h))  # (n*B, [heads,] T, T)
-        if mask is not None:
-            scores = scores + mask  # masked keys get exp(-inf) = 0 weight, exactly
         att = th.matmul(_softmax(scores), v)
         if self.n_heads == 1:
             att = att.reshape(n, b * t, d)
@@ -228,35 +220,6 @@ class _EnsembleBlock(nn.Module):
         flat = flat + self.out(att)
         flat = flat + self.ff2(self.act(self.ff1(self.norm2(flat))))
         return flat.reshape(n, b, t, d)
-
-
-def causal_action_mask(chunk_size: int) -> th.Tensor:
-    """
-    Additive attention mask of the prefix critic over the tokens ``[history, a_1, ..., a_k]``: token
-    ``i`` may attend to token ``j`` iff ``j <= max(i, 1)`` (the history token sees ``a_1``, which every
-    prefix ``u >= 1`` contains). Empty (all zeros) for ``k = 1``.
-
-    :param chunk_size: ``k``
-    :return: 0 where allowed, ``-inf`` elsewhere, shape ``(1+k, 1+k)`` (row = query token)
-    """
-    i = th.arange(chunk_size + 1)
-    allowed = i.unsqueeze(0) <= i.clamp(min=1).unsqueeze(1)  # (query, key)
-    return th.zeros(chunk_size + 1, chunk_size + 1).masked_fill(~allowed, -math.inf)
-
-
-def prefix_readout_mask(chunk_size: int, embed_dim: int) -> th.Tensor:
-    """
-    Mask of the prefix critic's read-out weight: ``Q_u`` reads the output tokens ``0..u`` (history
-    and ``a_1..a_u``) with the chunk critic's linear weight; column ``u - 1`` keeps the rows of the
-    tokens ``0..u``. All ones for ``k = 1``.
-
-    :param chunk_size: ``k``
-    :param embed_dim: token width ``d``
-    :return: 0/1 mask, shape ``((1+k)*d, k)``
-    """
-    token = th.arange(chunk_size + 1).repeat_interleave(embed_dim)  # ((1+k)*d,) token of each row
-    u = th.arange(1, chunk_size + 1)
-    return (token.unsqueeze(1) <= u.unsqueeze(0)).float()  # ((1+k)*d, k)
 
 
 class ChunkCritics(nn.Module):
@@ -269,14 +232,6 @@ class ChunkCritics(nn.Module):
     embedding; the value is a learned linear read-out of all ``1 + k`` output tokens, so that every
     action position keeps its own non-linear path (a chunk return is a sum over its steps).
 
-    ``prefix=True`` (the prefix critic, not in the paper) reads out ``Q_u(h, a_{t:t+u-1})`` for every
-    prefix ``u = 1..k`` in the same pass: a causal mask lets action token ``u`` attend to the history
-    token and the action tokens ``<= u`` only (the history token attends to itself and to the first
-    action token, which every prefix contains), and ``Q_u`` is the same linear read-out restricted
-    to the tokens ``0..u`` (:func:`prefix_readout_mask`). So ``Q_u`` does not depend on the actions
-    after ``u``, the parameters are those of the chunk critic, and at ``k = 1`` both critics compute
-    the same function (the mask is empty and ``Q_1`` is the whole read-out).
-
     :param obs_history_dim: ``ℓ * obs_dim``
     :param chunk_size: ``k``
     :param action_dim: action size
@@ -286,7 +241,6 @@ class ChunkCritics(nn.Module):
     :param n_heads: attention heads (must divide ``embed_dim``)
     :param ff_dim: hidden width of the feed-forward sublayer
     :param activation_fn: activation class
-    :param prefix: read out every prefix value ``Q_1..Q_k`` (``False``: the whole-chunk value, Eq. 3)
     """
 
     def __init__(
@@ -300,10 +254,9 @@ class ChunkCritics(nn.Module):
         n_heads: int = 1,
         ff_dim: int = 128,
         activation_fn: type[nn.Module] = nn.SiLU,
-        prefix: bool = False,
     ) -> None:
         super().__init__()
-        self.n_critics, self.embed_dim, self.prefix = n_critics, embed_dim, prefix
+        self.n_critics, self.embed_dim = n_critics, embed_dim
         self.obs_token = _EnsembleLinear(n_critics, obs_history_dim, embed_dim)
         self.action_token = _EnsembleLinear(n_critics, action_dim, embed_dim)
         self.position = nn.Parameter(th.randn(n_critics, 1, chunk_size + 1, embed_dim) * 0.02)
@@ -312,18 +265,11 @@ class ChunkCritics(nn.Module):
         )
         self.norm = _EnsembleRMSNorm(n_critics, embed_dim)
         self.head = _EnsembleLinear(n_critics, (chunk_size + 1) * embed_dim, 1)
-        # not in the state dict: chunk and prefix critics share their parameters (and checkpoints)
-        self.register_buffer("attention_mask", causal_action_mask(chunk_size) if prefix else None, False)
-        self.register_buffer(
-            "readout_mask", prefix_readout_mask(chunk_size, embed_dim) if prefix else None, False
-        )
-
     def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
         """
         :param obs_history: flattened observation histories, shape ``(B, ℓ*obs_dim)``
         :param chunks: ``C`` candidate chunks per history, shape ``(B, C, k, action_dim)``
-        :return: Q-values, shape ``(n_critics, B, C)``; with ``prefix``, ``Q_u`` for ``u = 1..k``,
-            shape ``(n_critics, B, C, k)``
+        :return: Q-values, shape ``(n_critics, B, C)``
         """
         b, c, k, a = chunks.shape
         n, d = self.n_critics, self.embed_dim
@@ -332,13 +278,9 @@ class ChunkCritics(nn.Module):
         act_tok = self.action_token(chunks.reshape(b * c * k, a)).reshape(n, b, c, k, d)
         x = th.cat([obs_tok, act_tok], dim=3).reshape(n, b * c, k + 1, d) + self.position  # (n, B*C, 1+k, d)
         for block in self.blocks:
-            x = block(x, self.attention_mask)
+            x = block(x)
         x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, (k + 1) * d)  # (n, B*C, (1+k)*d)
-        if not self.prefix:
-            return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
-        # column u-1 of the weight keeps the blocks of tokens 0..u: ((1+k)*d, 1) -> ((1+k)*d, k)
-        weight = self.head.weight * self.readout_mask  # (n, (1+k)*d, k)
-        return th.baddbmm(self.head.bias, x, weight).reshape(n, b, c, k)  # (n, B*C, k) -> (n, B, C, k)
+        return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
 
 
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
@@ -359,9 +301,6 @@ class UA2CPolicy(BasePolicy):
     :param n_candidates: chunks ``S`` sampled per replanning
     :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution), or ``"auto"``: δ set
         from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
-    :param execution: how a replanning sets ``L_t``: ``"entropy"`` (Eq. 7 with δ), ``"value"`` (the prefix
-        with the highest ``min_j Q_u``, prefix critic only; :func:`~sb3_ua2c.chunking.max_prefix_value`)
-        or ``"fixed"`` (``L_t = k``); δ matters for ``"entropy"`` only
     :param target_plan_length: with ``entropy_threshold="auto"``, the mean ``L_t`` over the window that δ
         is set for, in ``[1, k]`` (``None`` = ``(k + 1) / 2``)
     :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
@@ -377,9 +316,6 @@ class UA2CPolicy(BasePolicy):
     :param critic_n_heads: attention heads
     :param critic_ff_dim: feed-forward width
     :param n_critics: number of critics
-    :param critic_type: ``"chunk"`` (Eq. 3, the value of the whole chunk) or ``"prefix"`` (``Q_u`` of
-        every prefix ``u = 1..k``, not in the paper; see :class:`ChunkCritics`): a replanning then
-        ranks its candidates by ``Q`` at the length ``L_t`` it will execute
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (default for Adam/AdamW: ``{"fused": True}``)
@@ -410,8 +346,6 @@ class UA2CPolicy(BasePolicy):
         critic_n_heads: int = 1,
         critic_ff_dim: int = 64,
         n_critics: int = 2,
-        critic_type: str = "chunk",
-        execution: str = "entropy",
         target_plan_length: float | None = None,
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
@@ -454,7 +388,6 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(
                 f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
             )
-        check_critic_type(critic_type)
         if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
             raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
         self.chunk_size, self.history_len = chunk_size, history_len
@@ -474,9 +407,8 @@ class UA2CPolicy(BasePolicy):
             ff_dim=critic_ff_dim,
             activation_fn=activation_fn,
         )
-        self.critic_type = critic_type
         self.entropy_window: EntropyWindow | None = None  # the rows that set δ under "auto"
-        self.set_execution_rule(execution, entropy_threshold, target_plan_length)
+        self.set_entropy_threshold(entropy_threshold, target_plan_length)
         self.activation_fn = activation_fn
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
@@ -496,9 +428,8 @@ class UA2CPolicy(BasePolicy):
             history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn
         )
         critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
-        prefix = self.critic_type == "prefix"
-        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
-        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs, prefix=prefix)
+        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
+        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
@@ -528,8 +459,6 @@ class UA2CPolicy(BasePolicy):
             critic_n_heads=self.critic_kwargs["n_heads"],
             critic_ff_dim=self.critic_kwargs["ff_dim"],
             n_critics=self.critic_kwargs["n_critics"],
-            critic_type=self.critic_type,
-            execution=self.execution,
             target_plan_length=self.target_plan_length,
             activation_fn=self.activation_fn,
             optimizer_class=self.optimizer_class,
@@ -560,16 +489,13 @@ class UA2CPolicy(BasePolicy):
             raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
         self.n_elite = int(n_elite)
 
-    def set_execution_rule(
-        self, execution: str, entropy_threshold: float | str, target_plan_length: float | None = None
-    ) -> None:
+    def set_entropy_threshold(self, entropy_threshold: float | str, target_plan_length: float | None = None) -> None:
         """
-        Validate and set how a replanning chooses ``L_t`` (execution only: the losses do not read it).
-        ``entropy_threshold="auto"`` keeps the current window, or starts an empty one; a number drops it.
+        Validate and set δ of Eq. 7 (execution only: the losses do not read it). ``entropy_threshold="auto"``
+        keeps the current window, or starts an empty one; a number drops it.
         """
-        check_execution(execution, self.critic_type)
         delta, target = check_entropy_threshold(entropy_threshold, target_plan_length, self.chunk_size)
-        self.execution, self.entropy_threshold, self.target_plan_length = execution, delta, target
+        self.entropy_threshold, self.target_plan_length = delta, target
         if delta != "auto":
             self.entropy_window = None
         elif self.entropy_window is None:
@@ -643,9 +569,7 @@ class UA2CPolicy(BasePolicy):
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
         One replanning: sample S chunks, measure the per-position entropy of the S samples, keep the
-        chunk with the highest ``min_j Q_j`` and set the executed length ``L_t`` by the ``execution`` rule:
-        Eq. 7 (``"entropy"``; with the prefix critic the candidates are ranked by ``Q_{L_t}``), ``k``
-        (``"fixed"``), or the best prefix of the selected chunk (``"value"``, :meth:`_select_by_value`).
+        chunk with the highest ``min_j Q_j`` and set the executed length ``L_t`` by Eq. 7;
         ``commit_discrete`` then extends ``L_t`` through the first categorical switch.
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
@@ -653,7 +577,7 @@ class UA2CPolicy(BasePolicy):
         :param generator: optional random generator for the noise
         :param shared_noise: the same S noises for every history (see :meth:`sample_chunks`)
         :param record_entropy: add the entropies to :attr:`entropy_window` (``entropy_threshold="auto"``
-            with ``execution="entropy"``; training rollouts)
+            only; training rollouts)
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
@@ -663,44 +587,14 @@ class UA2CPolicy(BasePolicy):
         entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         clipped = samples.clamp(-1.0, 1.0)
         obs_flat = obs_history.reshape(m, -1)
-        q = self.critic(obs_flat, clipped)  # (n, m, S) or, prefix critic, (n, m, S, k)
-        if self.execution == "value":
-            chunks, lengths = self._select_by_value(obs_flat, clipped, q)
-        else:
-            if self.execution == "fixed":
-                lengths = th.full((m,), self.chunk_size, dtype=th.long, device=entropy.device)
-            else:
-                lengths = executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
-            if self.critic_type == "prefix":
-                q = q_at_length(q, lengths.unsqueeze(-1))  # Q_{L_t}: (n, m, S, k) -> (n, m, S)
-            chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
-            if record_entropy and self.entropy_window is not None and self.execution == "entropy":
-                self.entropy_window.add(entropy)
+        q = self.critic(obs_flat, clipped)  # (n, m, S)
+        lengths = executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
+        chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+        if record_entropy and self.entropy_window is not None:
+            self.entropy_window.add(entropy)
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
         return chunks, lengths, entropy
-
-    def _select_by_value(
-        self, obs_flat: th.Tensor, candidates: th.Tensor, q_prefixes: th.Tensor
-    ) -> tuple[th.Tensor, th.Tensor]:
-        """
-        ``execution="value"``: every candidate is worth ``max_u min_j Q_{j,u}``
-        (:func:`~sb3_ua2c.chunking.max_prefix_value`), the chunk is selected on that worth
-        (:func:`~sb3_ua2c.chunking.select_chunk`), and ``L_t`` is the ``u`` that attains it for the
-        selected chunk; an elite mean (``n_elite > 1``) is not one of the candidates, so the critics
-        score it once more and ``L_t`` is its own best prefix.
-
-        :param obs_flat: ``(m, ℓ*obs_dim)``
-        :param candidates: clipped candidates, ``(m, S, k, A)``
-        :param q_prefixes: their ``Q_1..Q_k``, ``(n, m, S, k)``
-        :return: chunks ``(m, k, A)`` and lengths ``(m,)``
-        """
-        values, best_u = max_prefix_value(q_prefixes)  # (m, S), (m, S)
-        chunks = select_chunk(candidates, values, self.n_elite, self.discrete_dims)  # (m, k, A)
-        if self.n_elite == 1:
-            return chunks, best_u.gather(1, values.argmax(dim=1, keepdim=True)).squeeze(1)
-        _, lengths = max_prefix_value(self.critic(obs_flat, chunks.unsqueeze(1)))  # (n, m, 1, k) -> (m, 1)
-        return chunks, lengths.squeeze(1)
 
     def plan(
         self,
@@ -716,7 +610,7 @@ class UA2CPolicy(BasePolicy):
         with a fixed seed (:func:`deterministic_generator`): a row's plan is a function of its own
         history, whatever the batch it is planned in and its position there (up to the last-bit
         rounding of batched matrix products, which depends on the batch size as in any SB3 policy);
-        the selection and prefix rules are unchanged. ``False``: fresh noise for every history.
+        the selection and the rule of Eq. 7 are unchanged. ``False``: fresh noise for every history.
         ``record_entropy``: see :meth:`plan_tensors` (``predict`` never records: it does not change δ).
         """
         generator = deterministic_generator(self.device) if deterministic else None

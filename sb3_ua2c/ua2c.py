@@ -44,8 +44,6 @@ from sb3_ua2c.chunking import (
     chunk_target,
     normalize_discrete_dims,
     pessimistic_q,
-    prefix_bellman_targets,
-    q_at_length,
 )
 from sb3_ua2c.config import UA2CConfig, check_policy_kwargs, check_spaces
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
@@ -101,9 +99,6 @@ class UA2C(OffPolicyAlgorithm):
     :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = the whole chunk), or ``"auto"``: δ set
         after each training replanning from the entropies of the last ones, for a mean ``L_t`` of
         ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`)
-    :param execution: how a replanning sets ``L_t``: ``"entropy"`` (default, Eq. 7 with δ), ``"value"``
-        (the prefix with the highest ``min_j Q_u``, as ACSAC; needs ``critic_type="prefix"``) or
-        ``"fixed"`` (``L_t = k``, δ ignored)
     :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in
         ``[1, k]`` (``None`` = ``(k + 1) / 2``)
     :param q_weight: ``lambda``, weight of the value term in Eq. 2
@@ -128,15 +123,6 @@ class UA2C(OffPolicyAlgorithm):
         the first online step is stored, ``"prefix"`` if the buffer holds offline episodes (and
         ``offline_ratio > 0``: offline-to-online, the paper's setting), ``"window"`` otherwise
         (online-only training); ``model.replay_buffer.active_online_targets`` says which
-    :param critic_type: ``"chunk"`` (default, Eq. 3) or ``"prefix"`` (not in the paper): ``Q_u`` of every
-        prefix ``u = 1..k`` with its own n-step target (:func:`~sb3_ua2c.chunking.prefix_bellman_targets`);
-        replanning ranks candidates by ``Q_{L_t}``, the actor's value term reads ``Q_k``
-    :param prefix_targets: ``"all"`` (every prefix of every sample, ``k`` times the target cost) or
-        ``"sampled"`` (one prefix per sample: uniform for windows, ``L_t`` for online plans)
-    :param clip_actor_chunk: the value term of Eq. 2 scores x̂1 clamped to [-1, 1], the chunks the
-        critics are trained on (not in the paper; default ``False``: the unclipped x̂1 of Eq. 2)
-    :param mask_flow_padding: the flow term of Eq. 2 ignores the zeros that pad offline windows cut
-        by an episode end (not in the paper; default ``False``: those zeros are imitated)
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
@@ -174,7 +160,6 @@ class UA2C(OffPolicyAlgorithm):
         n_candidates: int = 32,
         n_target_candidates: int = 2,
         entropy_threshold: float | str = 0.0,
-        execution: str = "entropy",
         target_plan_length: float | None = None,
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
@@ -183,10 +168,6 @@ class UA2C(OffPolicyAlgorithm):
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         online_targets: str = "auto",
-        critic_type: str = "chunk",
-        prefix_targets: str = "all",
-        clip_actor_chunk: bool = False,
-        mask_flow_padding: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -239,7 +220,7 @@ class UA2C(OffPolicyAlgorithm):
             supported_action_spaces=None,
             support_multi_env=True,
         )
-        self.__dict__.update(asdict(self.config))  # chunk_size, ..., execution: see UA2CConfig
+        self.__dict__.update(asdict(self.config))  # chunk_size, ..., online_targets: see UA2CConfig
         self.discrete_action_dims = (
             None
             if discrete_action_dims is None
@@ -272,7 +253,6 @@ class UA2C(OffPolicyAlgorithm):
                 history_len=self.history_len,
                 offline_ratio=self.offline_ratio,
                 online_targets=self.online_targets,
-                prefix_targets=self.prefix_targets if self.critic_type == "prefix" else None,
                 **self.replay_buffer_kwargs,
             )
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -284,12 +264,10 @@ class UA2C(OffPolicyAlgorithm):
             flow_steps=self.flow_steps,
             n_candidates=self.n_candidates,
             entropy_threshold=self.entropy_threshold,
-            execution=self.execution,
             target_plan_length=self.target_plan_length,
             discrete_dims=discrete_dims,
             discrete_entropy=self.discrete_entropy,
             commit_discrete=self.commit_discrete,
-            critic_type=self.critic_type,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
@@ -620,25 +598,11 @@ class UA2C(OffPolicyAlgorithm):
         :param entropy_threshold: the new threshold (validated like the constructor argument)
         :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
         """
-        self.set_execution(self.execution, entropy_threshold, target_plan_length)
-
-    def set_execution(
-        self, execution: str, entropy_threshold: float | str | None = None, target_plan_length: float | None = None
-    ) -> None:
-        """
-        Change how a replanning sets ``L_t`` (``"entropy"``, ``"value"``, ``"fixed"``; execution only, kept
-        by :meth:`save`), and δ with it unless ``entropy_threshold`` is ``None`` (the model's δ and target).
-        """
-        if entropy_threshold is None:
-            entropy_threshold, target_plan_length = self.entropy_threshold, self.target_plan_length
         self.config = replace(
-            self.config,
-            execution=execution,
-            entropy_threshold=entropy_threshold,
-            target_plan_length=target_plan_length,
+            self.config, entropy_threshold=entropy_threshold, target_plan_length=target_plan_length
         )
         self.__dict__.update(asdict(self.config))
-        self.policy.set_execution_rule(self.execution, self.entropy_threshold, self.target_plan_length)
+        self.policy.set_entropy_threshold(self.entropy_threshold, self.target_plan_length)
 
     def set_n_elite(self, n_elite: int) -> None:
         """
@@ -692,11 +656,10 @@ class UA2C(OffPolicyAlgorithm):
         """One update of the critics (Eq. 3 with the target of Eq. 4 / 8), the actor (Eq. 2) and the targets."""
         obs_flat = data.observation_history.flatten(1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
         with th.no_grad():
-            target, mask = self._critic_targets(data)  # (B,) or (B, k)
-        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(2)  # (n, B, 1[, k]) -> (n, B[, k])
-        if data.prefix_lengths is not None:  # prefix_targets="sampled": Q_u of the sampled u
-            q = q_at_length(q, data.prefix_lengths.long())  # (n, B, k) -> (n, B)
-        critic_loss = chunk_critic_loss(q, target, mask)
+            next_value = self._next_values(data.next_observation_history, data.next_action_history)
+            target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)  # (B,)
+        q = self.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(2)  # (n, B, 1) -> (n, B)
+        critic_loss = chunk_critic_loss(q, target)
         self.critic.optimizer.zero_grad()
         critic_loss.backward()
         self.critic.optimizer.step()
@@ -715,7 +678,7 @@ class UA2C(OffPolicyAlgorithm):
     def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
         """
         ``V(h) = max_q min_j Q̄_j(h, â^(q))`` (:func:`~sb3_ua2c.chunking.bootstrap_value`) over
-        ``n_target_candidates`` chunks of the current actor; the prefix critic is read at ``k``.
+        ``n_target_candidates`` chunks of the current actor.
 
         :param obs_history: ``(M, ℓ, obs_dim)``
         :param action_history: ``(M, ℓ, action_dim)``
@@ -724,35 +687,14 @@ class UA2C(OffPolicyAlgorithm):
         m = obs_history.shape[0]
         cond = self.actor.condition(self.policy.flatten_history(obs_history, action_history))
         candidates = self.policy.sample_chunks(cond, self.n_target_candidates, self.target_flow_steps)
-        next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))
-        if next_q.ndim == 4:  # prefix critic: Q_k, (n, M, Q, k) -> (n, M, Q)
-            next_q = next_q[..., -1]
+        next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
         return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
-
-    def _critic_targets(self, data: ChunkReplaySamples) -> tuple[th.Tensor, th.Tensor | None]:
-        """
-        Targets of the critic loss and which of them count: ``y`` of Eq. 4 / 8 ``(B,)`` (also the
-        sampled prefix of ``prefix_targets="sampled"``), or ``y_u`` of every prefix ``(B, k)`` and
-        their mask with ``prefix_targets="all"``.
-        """
-        if data.prefix_mask is None:
-            next_value = self._next_values(data.next_observation_history, data.next_action_history)
-            return chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma), None
-        b, k = data.prefix_mask.shape
-        # the k next histories h_{t+min(u, L)}: (B, k, ℓ, dim) -> (B*k, ℓ, dim)
-        next_value = self._next_values(
-            data.prefix_observation_history.flatten(0, 1), data.prefix_action_history.flatten(0, 1)
-        ).reshape(b, k)
-        target = prefix_bellman_targets(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)
-        return target, data.prefix_mask
 
     def _actor_loss(
         self, data: ChunkReplaySamples, obs_flat: th.Tensor
     ) -> tuple[th.Tensor, dict[str, float]]:
         """
-        Eq. 2 on the batch: flow matching on the sampled chunks (with ``mask_flow_padding``, the padding
-        after an episode end left out) and the value of the terminal estimate x̂1, with ``clip_actor_chunk`` clamped to the
-        action bounds the critics are trained on (entries outside get no value gradient).
+        Eq. 2 on the batch: flow matching on the sampled chunks and the value of the terminal estimate x̂1.
         """
         x1 = data.chunks
         x0 = th.randn_like(x1)
@@ -765,14 +707,12 @@ class UA2C(OffPolicyAlgorithm):
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
         try:
-            scored = x_hat.clamp(-1.0, 1.0) if self.clip_actor_chunk else x_hat
-            q_pi = self.critic(obs_flat, scored.unsqueeze(1))[:, :, 0]  # (n, B[, k])
+            q_pi = self.critic(obs_flat, x_hat.unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
         finally:
             self.critic.requires_grad_(True)
-        q = pessimistic_q(q_pi[..., -1] if q_pi.ndim == 3 else q_pi)  # prefix critic: Q_k; (B,)
+        q = pessimistic_q(q_pi)  # (n, B) -> (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        mask = data.chunk_mask if self.mask_flow_padding else None
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, mask)
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight)
 
     def learn(
         self: SelfUA2C,

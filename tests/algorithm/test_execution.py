@@ -1,9 +1,7 @@
-"""Execution rules side by side: ``execution="entropy"`` (Eq. 7), ``"value"`` (the prefix of highest
-``min_j Q_u``), ``"fixed"``, and ``entropy_threshold="auto"`` (δ set for a target mean ``L_t``)."""
+"""The execution rule of Eq. 7 with a numeric δ and with ``entropy_threshold="auto"`` (δ set for a target
+mean ``L_t``)."""
 
-import json
 import math
-import zipfile
 
 import numpy as np
 import pytest
@@ -18,22 +16,11 @@ from sb3_ua2c.chunking import (
     auto_entropy_threshold,
     chunk_entropy,
     executable_prefix_length,
-    max_prefix_value,
 )
 from sb3_ua2c.config import UA2CConfig
 from sb3_ua2c.policies import UA2CPolicy
 
 T = th.tensor
-
-
-# ------------------------------------------------------------------------------ "value": max_u min_j Q_u
-def test_max_prefix_value_hand_computed():
-    # 2 critics, 1 history, 2 candidates, k = 3
-    q = T([[[[1.0, 5.0, 2.0], [4.0, 3.0, 0.0]]], [[[2.0, 4.0, 3.0], [3.0, 6.0, 1.0]]]])
-    values, lengths = max_prefix_value(q)
-    # min over critics: candidate 0 [1, 4, 2] -> 4 at u = 2; candidate 1 [3, 3, 0] -> 3 at u = 1 (tie: shortest)
-    assert values.tolist() == [[4.0, 3.0]]
-    assert lengths.tolist() == [[2, 1]]
 
 
 # ------------------------------------------------------------------------------ "auto": δ from a window
@@ -89,27 +76,21 @@ def test_entropy_window_is_a_ring_of_the_last_rows():
     assert set(window.state_dict()) == {"rows", "count"}
 
 
-# ------------------------------------------------------------------------------ the rules in a replanning
-# S = 3 fixed candidates, k = 3, one action dim; the fake prefix critics give Q_u = sum_{i<u} a_i (and
-# that + 1, so min_j Q_u = the cumulative sum):
-#   c0 [0.5, -0.2, 0.4]  -> [0.5, 0.3, 0.7]   best 0.7 at u = 3
-#   c1 [0.9, -0.3, 0.0]  -> [0.9, 0.6, 0.6]   best 0.9 at u = 1
-#   c2 [0.0, 0.6, 0.25]  -> [0.0, 0.6, 0.85]  best 0.85 at u = 3
-# the elite mean of c1 and c2 is [0.45, 0.15, 0.125] -> [0.45, 0.6, 0.725]: best at u = 3
+# ------------------------------------------------------------------------------ Eq. 7 in a replanning
+# S = 3 fixed candidates, k = 3, one action dim; the critics rank them c1 > c0 > c2 (fake min_j Q_j)
 CANDIDATES = T([[0.5, -0.2, 0.4], [0.9, -0.3, 0.0], [0.0, 0.6, 0.25]]).reshape(1, 3, 3, 1)
 
 
-class _CumulativeCritic(nn.Module):
-    def forward(self, obs_history, chunks):  # (m, C, k, 1) -> (2, m, C, k)
-        q = chunks[..., 0].cumsum(dim=-1)
+class _FirstActionCritic(nn.Module):
+    def forward(self, obs_history, chunks):  # (m, C, k, 1) -> (2, m, C): Q = a_0 and a_0 + 1
+        q = chunks[..., 0, 0]
         return th.stack([q, q + 1.0])
 
 
 def fixed_policy(**kwargs):
     policy = UA2CPolicy(OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, n_candidates=3, **kwargs)
     policy.sample_chunks = lambda *args, **kw: CANDIDATES.clone()
-    if policy.critic_type == "prefix":
-        policy.critic = _CumulativeCritic()
+    policy.critic = _FirstActionCritic()
     return policy
 
 
@@ -119,22 +100,10 @@ def replan(policy, record=False):
     return chunks[0, :, 0], lengths.item(), entropy
 
 
-@pytest.mark.parametrize(
-    ("kwargs", "chunk", "length"),
-    [
-        # "value": best-of-S by max_u min_j Q_u = c1, executed up to its best prefix u = 1
-        (dict(execution="value"), [0.9, -0.3, 0.0], 1),
-        # the elite mean of c1, c2 is re-scored: its own best prefix is u = 3 (c1's would be 1)
-        (dict(execution="value", n_elite=2), [0.45, 0.15, 0.125], 3),
-        # "fixed": L_t = k whatever δ (δ = -10 gives L_t = 1 under Eq. 7), ranked by Q_k: c2
-        (dict(execution="fixed", entropy_threshold=-10.0), [0.0, 0.6, 0.25], 3),
-        # "entropy" with δ = -10: L_t = 1, ranked by Q_1: c1
-        (dict(execution="entropy", entropy_threshold=-10.0), [0.9, -0.3, 0.0], 1),
-    ],
-)
-def test_each_rule_sets_the_length_of_the_selected_chunk(kwargs, chunk, length):
-    chunks, lengths, _ = replan(fixed_policy(critic_type="prefix", **kwargs))
-    assert chunks.tolist() == pytest.approx(chunk)
+@pytest.mark.parametrize(("delta", "length"), [(-10.0, 1), (math.inf, 3)])
+def test_the_best_candidate_runs_for_its_prefix_length(delta, length):
+    chunks, lengths, _ = replan(fixed_policy(entropy_threshold=delta))
+    assert chunks.tolist() == pytest.approx([0.9, -0.3, 0.0])  # c1: the highest min_j Q_j
     assert lengths == length
 
 
@@ -145,13 +114,6 @@ def test_entropy_rule_is_eq7_on_the_candidates_entropies():
     assert entropy.tolist() == pytest.approx([0.6225, 0.7122, -0.1802], abs=1e-4)
     for delta, length in [(0.5, 1), (0.65, 1), (0.7, 1), (0.72, 3), (math.inf, 3)]:
         assert replan(fixed_policy(entropy_threshold=delta))[1] == length
-
-
-def test_value_rule_needs_the_prefix_critic():
-    with pytest.raises(ValueError, match=r"execution=\"value\".*critic_type=\"prefix\".*'chunk'"):
-        UA2CPolicy(OBS, ACT, lambda _: 1e-3, execution="value")
-    with pytest.raises(ValueError, match="execution.*critic_type"):
-        UA2C("MlpPolicy", "Pendulum-v1", execution="value")
 
 
 # ------------------------------------------------------------------------------ "auto" in a replanning
@@ -183,15 +145,6 @@ def test_target_plan_length_defaults_to_the_middle_of_1_and_k():
 def weights(model):
     return {k: v.clone() for k, v in model.policy.state_dict().items()}
 
-
-
-def test_fixed_execution_is_delta_inf_bit_for_bit():
-    fixed = UA2C("MlpPolicy", "Pendulum-v1", seed=2, execution="fixed", entropy_threshold=-3.0, **FAST).learn(150)
-    inf = UA2C("MlpPolicy", "Pendulum-v1", seed=2, entropy_threshold=math.inf, **FAST).learn(150)
-    assert set(fixed._plan_lengths) == {5.0}
-    for key, value in weights(inf).items():
-        assert th.equal(value, fixed.policy.state_dict()[key]), key
-    np.testing.assert_array_equal(rollout_actions(fixed), rollout_actions(inf))
 
 
 def test_auto_threshold_in_training_and_save_load(tmp_path):
@@ -238,56 +191,9 @@ def test_auto_threshold_runs_are_bit_identical():
     assert int(runs[0].policy.entropy_window.count) > 0
 
 
-def test_value_execution_save_load_and_load_override(tmp_path):
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, critic_type="prefix", execution="value", **FAST)
-    model.learn(120)
-    assert model.policy.execution == "value"
-    before = rollout_actions(model)
-    model.save(tmp_path / "value.zip")
-    loaded = UA2C.load(tmp_path / "value.zip")
-    assert loaded.execution == loaded.config.execution == loaded.policy.execution == "value"
-    np.testing.assert_array_equal(rollout_actions(loaded), before)
-    # overrides at load time reach the config and the policy
-    fixed = UA2C.load(tmp_path / "value.zip", execution="fixed")
-    assert fixed.config.execution == fixed.policy.execution == "fixed"
-    assert UA2C.load(tmp_path / "value.zip", execution="entropy").policy.execution == "entropy"
-    with pytest.raises(ValueError, match="execution"):
-        UA2C.load(tmp_path / "value.zip", execution="greedy")
-    # set_execution changes a trained model's rule and is kept by save
-    model.set_execution("fixed")
-    assert model.policy.execution == model.config.execution == "fixed"
-    model.save(tmp_path / "fixed.zip")
-    assert UA2C.load(tmp_path / "fixed.zip").policy.execution == "fixed"
-
-
-def test_value_execution_override_needs_the_prefix_critic(tmp_path):
-    UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).save(tmp_path / "chunk.zip")
-    with pytest.raises(ValueError, match="execution.*critic_type"):
-        UA2C.load(tmp_path / "chunk.zip", execution="value")
-
-
-def strip_new_keys(path, out):
-    """A copy of a saved model as the code before ``execution`` wrote it: no such attributes."""
-    with zipfile.ZipFile(path) as src, zipfile.ZipFile(out, "w") as dst:
-        for item in src.infolist():
-            content = src.read(item.filename)
-            if item.filename == "data":
-                data = json.loads(content)
-                for key in ("execution", "target_plan_length", "config"):
-                    data.pop(key, None)
-                content = json.dumps(data).encode()
-            dst.writestr(item, content)
-
-
-def test_checkpoints_without_the_new_arguments_load(tmp_path):
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, entropy_threshold=-0.5, **FAST)
-    model.save(tmp_path / "new.zip")
-    strip_new_keys(tmp_path / "new.zip", tmp_path / "old.zip")
-    old = UA2C.load(tmp_path / "old.zip")
-    assert (old.execution, old.entropy_threshold, old.target_plan_length) == ("entropy", -0.5, None)
-    np.testing.assert_array_equal(rollout_actions(old), rollout_actions(model))
-    # an "auto" override starts with an empty window: each plan's own δ until training fills it
-    auto = UA2C.load(tmp_path / "old.zip", entropy_threshold="auto", target_plan_length=1.0)
+def test_auto_override_of_a_numeric_checkpoint_starts_with_an_empty_window(tmp_path):
+    UA2C("MlpPolicy", "Pendulum-v1", seed=0, entropy_threshold=-0.5, **FAST).save(tmp_path / "numeric.zip")
+    auto = UA2C.load(tmp_path / "numeric.zip", entropy_threshold="auto", target_plan_length=1.0)
     assert int(auto.policy.entropy_window.count) == 0
     assert math.isnan(auto.policy.current_entropy_threshold())
     auto.predict(np.zeros(3, np.float32), deterministic=True)
@@ -310,8 +216,6 @@ def test_set_entropy_threshold_to_auto_and_back():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        (dict(execution="greedy"), "execution must be one of"),
-        (dict(execution=None), "execution must be one of"),
         (dict(entropy_threshold="Auto"), "entropy_threshold must be a number or 'auto'"),
         (dict(entropy_threshold=None), "entropy_threshold must be a number or 'auto'"),
         (dict(entropy_threshold=True), "entropy_threshold must be a number or 'auto'"),
