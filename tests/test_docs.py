@@ -1,10 +1,12 @@
 """The documentation's links resolve: every relative link in README.md, docs/*.md and
 results/README.md names a file or directory of the repository, and an anchor (``page.md#section``)
 names a heading of that page. The README stays a short front page: at most 200 lines of at most 100
-characters, code blocks included."""
+characters, code blocks included. docs/api.md documents every constructor argument of ``UA2C`` and
+``UA2CPolicy`` and names none they lack, so a changed signature fails here until the page follows."""
 
 from __future__ import annotations
 
+import inspect
 import re
 import unicodedata
 from pathlib import Path
@@ -98,7 +100,9 @@ def broken_links(page: Path) -> list[str]:
 
 def test_the_pages_exist() -> None:
     names = {p.relative_to(REPO).as_posix() for p in PAGES}
-    expected = {"algorithm", "environment", "style", "offline-to-online", "zoo", "benchmarks", "figure2", "layout"}
+    expected = {
+        "algorithm", "api", "environment", "style", "offline-to-online", "zoo", "benchmarks", "figure2", "layout",
+    }
     assert {f"docs/{n}.md" for n in expected | {"README", "research-log"}} <= names
     assert {"README.md", "results/README.md"} <= names
 
@@ -145,6 +149,89 @@ def test_every_docs_page_is_in_the_index() -> None:
     for page in (REPO / "docs").glob("*.md"):
         if page.name != "README.md":
             assert page.name in index, f"docs/README.md does not link {page.name}"
+
+
+# docs/api.md against the signatures
+
+API = REPO / "docs" / "api.md"
+#: Constructor parameters the reference need not document: plumbing that SB3 or UA2C passes itself.
+NOT_DOCUMENTED = {"self", "policy", "env", "observation_space", "action_space", "lr_schedule", "_init_setup_model"}
+TABLE_NAME = re.compile(r"^\|\s*`([A-Za-z_]\w*)`")
+TABLE_CELL_NAMES = re.compile(r"`([A-Za-z_]\w*)`")
+CALL_NAME = re.compile(r"^\|\s*`(?:\w+\.)?([A-Za-z_]\w*)\(")
+
+
+def section(text: str, heading: str) -> str:
+    """The lines after the heading line ``heading`` up to the next heading of the same or a higher
+    level (fenced code included)."""
+    lines = text.splitlines()
+    level = len(heading) - len(heading.lstrip("#"))
+    start = lines.index(heading) + 1
+    for end in range(start, len(lines)):
+        match = re.match(r"^(#{1,6})\s", lines[end])
+        if match and len(match.group(1)) <= level:
+            return "\n".join(lines[start:end])
+    return "\n".join(lines[start:])
+
+
+def table_names(text: str, pattern: re.Pattern = TABLE_NAME) -> list[str]:
+    """The name in the first cell of every table row (a backticked identifier, or a call)."""
+    return [m.group(1) for line in text.splitlines() if (m := pattern.match(line))]
+
+
+def first_cell_names(text: str) -> list[str]:
+    """Every backticked identifier in the first cell of a table row (``| `a`, `b` | ...``)."""
+    rows = [line.split("|")[1] for line in text.splitlines() if line.startswith("|") and line.count("|") > 2]
+    return [name for cell in rows for name in TABLE_CELL_NAMES.findall(cell)]
+
+
+def parameters(function) -> set[str]:
+    """Named parameters of ``function`` (no ``*args`` / ``**kwargs``)."""
+    kinds = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+    return {n for n, p in inspect.signature(function).parameters.items() if p.kind not in kinds}
+
+
+def test_api_documents_every_ua2c_argument() -> None:
+    from sb3_ua2c import UA2C
+
+    table = table_names(section(API.read_text(encoding="utf-8"), "### UA2C arguments"))
+    signature = parameters(UA2C.__init__)
+    assert len(table) == len(set(table)), f"docs/api.md lists an argument twice: {sorted(table)}"
+    assert sorted(signature - NOT_DOCUMENTED - set(table)) == [], "UA2C arguments missing from docs/api.md"
+    assert sorted(set(table) - signature) == [], "docs/api.md documents UA2C arguments the signature lacks"
+
+
+def test_api_documents_every_policy_argument() -> None:
+    from sb3_ua2c import MlpPolicy, UA2CPolicy
+
+    assert MlpPolicy is UA2CPolicy
+    text = section(API.read_text(encoding="utf-8"), "## `sb3_ua2c.UA2CPolicy`, `MlpPolicy`")
+    signature = parameters(UA2CPolicy.__init__)
+    table = first_cell_names(text)
+    assert len(table) == len(set(table)), f"docs/api.md lists a policy argument twice: {sorted(table)}"
+    assert sorted(signature - NOT_DOCUMENTED - set(table)) == [], "UA2CPolicy arguments missing from docs/api.md"
+    assert sorted(set(table) - signature) == [], "docs/api.md documents policy arguments the signature lacks"
+
+
+def test_api_names_only_existing_ua2c_methods() -> None:
+    from sb3_ua2c import UA2C
+
+    methods = table_names(section(API.read_text(encoding="utf-8"), "### UA2C methods"), CALL_NAME)
+    assert methods, "no UA2C methods table in docs/api.md"
+    assert [m for m in methods if not callable(getattr(UA2C, m, None))] == []
+
+
+def test_the_api_table_reader() -> None:
+    page = (
+        "# API\n\n## `A`\n\n### A arguments\n\n| argument | default |\n|---|---|\n"
+        "| `alpha` | 1 |\n| `beta_2` | `None` |\n| not code | x |\n\n### A methods\n\n"
+        "| method | meaning |\n|---|---|\n| `learn(n)` | x |\n| `A.load(path)` | x |\n\n## `B`\n\n| `gamma` | 2 |\n"
+    )
+    assert table_names(section(page, "### A arguments")) == ["alpha", "beta_2"]
+    assert table_names(section(page, "### A methods"), CALL_NAME) == ["learn", "load"]
+    assert first_cell_names("| `a`, `b_1` | `c` |\n|---|---|\n| `d` | x |\nnot | a `row`\n") == ["a", "b_1", "d"]
+    assert "gamma" not in section(page, "## `A`")
+    assert parameters(lambda self, a, *args, b=1, **kwargs: None) == {"self", "a", "b"}
 
 
 # the checker itself, on hand-made pages: a broken file, a broken anchor and a link in code
