@@ -28,14 +28,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-#: values of ``online_targets`` (:class:`ChunkReplayBuffer`, ``UA2C``)
-ONLINE_TARGETS = ("auto", "prefix", "window")
-
-
-def check_online_targets(value: Any) -> None:
-    """Raise ``ValueError`` naming ``online_targets`` unless ``value`` is one of :data:`ONLINE_TARGETS`."""
-    if not isinstance(value, str) or value not in ONLINE_TARGETS:
-        raise ValueError(f"online_targets must be one of {list(ONLINE_TARGETS)}, got {value!r}")
+from sb3_ua2c.config import check_arguments, hyperparameters
 
 
 class ChunkReplaySamples(NamedTuple):
@@ -236,13 +229,13 @@ class ChunkReplayBuffer(BaseBuffer):
         online_targets: str = "prefix",
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
-        check_online_targets(online_targets)
+        self.chunk_size = chunk_size
+        self.history_len = history_len
+        self.offline_ratio = offline_ratio
+        self.online_targets = online_targets
+        check_arguments(**hyperparameters(self, ChunkReplayBuffer))
         if buffer_size < chunk_size + history_len:
             raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
-        if not 0.0 <= offline_ratio <= 1.0:
-            raise ValueError(f"offline_ratio must be in [0, 1], got {offline_ratio!r}")
-        self.chunk_size, self.history_len, self.offline_ratio = chunk_size, history_len, offline_ratio
-        self.online_targets = online_targets
         self.obs_dim = int(np.prod(self.obs_shape))
         #: ``"prefix"`` or ``"window"``; ``None`` while ``online_targets="auto"`` waits for the first step
         self._active_targets: str | None = None if online_targets == "auto" else online_targets

@@ -8,7 +8,7 @@ statistics have shape ``(*batch, k)``; actions live in SB3's normalised action s
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -19,44 +19,9 @@ ENTROPY_EPS = 1e-6
 
 
 def continuous_dims(action_dim: int, discrete_dims: Mapping[int, int] | None) -> list[int]:
-    """The action dims that are not categorical, in order (``discrete_dims`` as ``normalize_discrete_dims`` returns)."""
+    """The action dims that are not categorical, in order (``discrete_dims`` as
+    :func:`~sb3_ua2c.config.normalize_discrete_dims` returns)."""
     return [d for d in range(action_dim) if d not in (discrete_dims or {})]
-
-
-def normalize_discrete_dims(
-    discrete_action_dims: Mapping[int, Sequence[float]] | None, action_dim: int
-) -> dict[int, int]:
-    """
-    Validate ``discrete_action_dims`` and return ``{dim: n_categories}``.
-
-    A categorical action dimension with ``n`` values is encoded, like the traffic environment's lane
-    change, by ``n`` equal-width bins over its Box bounds (3 values over [-1, 1] -> thresholds ±1/3);
-    the i-th value corresponds to the i-th bin.
-
-    :param discrete_action_dims: mapping ``action index -> increasing category values`` (or ``None``)
-    :param action_dim: number of action dimensions
-    :return: mapping ``action index -> number of categories``
-    """
-    if discrete_action_dims is None:
-        return {}
-    if not isinstance(discrete_action_dims, Mapping):
-        raise ValueError(
-            "discrete_action_dims must be a mapping {action index: category values}, "
-            f"got {type(discrete_action_dims).__name__}"
-        )
-    out: dict[int, int] = {}
-    for dim, values in discrete_action_dims.items():
-        if isinstance(dim, str) and dim.isdigit():  # JSON (saved models, CLI) turns int keys into strings
-            dim = int(dim)
-        if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or not 0 <= int(dim) < action_dim:
-            raise ValueError(f"discrete_action_dims: action index {dim!r} is not in [0, {action_dim})")
-        vals = [float(v) for v in values]
-        if len(vals) < 2:
-            raise ValueError(f"discrete_action_dims[{dim}] needs at least 2 category values, got {vals}")
-        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
-            raise ValueError(f"discrete_action_dims[{dim}] values must be strictly increasing, got {vals}")
-        out[int(dim)] = len(vals)
-    return out
 
 
 def categorize(actions: th.Tensor, n_categories: int) -> th.Tensor:
@@ -113,7 +78,7 @@ def chunk_entropy(
     categorical dims out (``H_u`` of the continuous dims alone).
 
     :param samples: candidate chunks, shape ``(*batch, S, k, action_dim)``
-    :param discrete_dims: ``{dim: n_categories}`` for categorical dims (see ``normalize_discrete_dims``)
+    :param discrete_dims: ``{dim: n_categories}`` for categorical dims (see :func:`~sb3_ua2c.config.normalize_discrete_dims`)
     :param eps: variance floor of the Gaussian entropy
     :param discrete: add the entropies of the categorical dims
     :return: ``H_u`` for ``u = 1..k``, shape ``(*batch, k)``
@@ -181,42 +146,6 @@ def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -
 #: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
 #: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
 AUTO_THRESHOLD_WINDOW = 50
-
-
-def check_entropy_threshold(
-    entropy_threshold: object, target_plan_length: object, chunk_size: int
-) -> tuple[float | str, float | None]:
-    """
-    Validate δ of Eq. 7 and ``target_plan_length`` together; a bad value raises ``ValueError`` naming it.
-
-    :param entropy_threshold: a number (``inf`` = the whole chunk; not NaN, not ``-inf``) or ``"auto"``
-    :param target_plan_length: ``None``, or with ``"auto"`` only, the target mean ``L_t`` in ``[1, k]``
-    :param chunk_size: ``k``
-    :return: ``(delta, target)``: ``delta`` as a ``float`` or ``"auto"``, ``target`` as a ``float`` or ``None``
-    """
-
-    def is_number(value: object) -> bool:
-        return not isinstance(value, bool) and isinstance(value, int | float | np.number) and not math.isnan(value)
-
-    if isinstance(entropy_threshold, str):
-        if entropy_threshold != "auto":
-            raise ValueError(f"entropy_threshold must be a number or 'auto', got {entropy_threshold!r}")
-    elif not is_number(entropy_threshold):
-        raise ValueError(f"entropy_threshold must be a number or 'auto', got {entropy_threshold!r}")
-    elif entropy_threshold == -math.inf:
-        raise ValueError(
-            "entropy_threshold must not be -inf (it would execute one action per plan: use chunk_size=1)"
-        )
-    if target_plan_length is None:
-        return (entropy_threshold if isinstance(entropy_threshold, str) else float(entropy_threshold)), None
-    if entropy_threshold != "auto":
-        raise ValueError(
-            f"target_plan_length applies to entropy_threshold='auto' only, got it with "
-            f"entropy_threshold={entropy_threshold!r} (pass target_plan_length=None)"
-        )
-    if not is_number(target_plan_length) or not 1 <= target_plan_length <= chunk_size:
-        raise ValueError(f"target_plan_length must be a number in [1, chunk_size={chunk_size}], got {target_plan_length!r}")
-    return "auto", float(target_plan_length)
 
 
 def default_target_plan_length(chunk_size: int) -> float:

@@ -1,107 +1,239 @@
-"""UA2C's validated configuration: the chunking hyperparameters (:class:`UA2CConfig`) and the checks of
-the spaces and ``policy_kwargs`` that :class:`~sb3_ua2c.ua2c.UA2C` accepts."""
+"""UA2C's hyperparameters: the one validator of every argument of :class:`~sb3_ua2c.ua2c.UA2C`,
+:class:`~sb3_ua2c.policies.UA2CPolicy` and :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
+(:func:`check_arguments`), the list of the policy's chunking arguments that UA2C forwards to it
+(:data:`POLICY_CHUNKING_ARGUMENTS`), and the checks of the spaces and of ``policy_kwargs``.
+
+Each hyperparameter is declared once, as a constructor argument; its check lives here, once.
+"""
 
 from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
 
-from sb3_ua2c.buffers import check_online_targets
 from sb3_ua2c.checks import check_bool, check_int
-from sb3_ua2c.chunking import check_entropy_threshold
-from sb3_ua2c.policies import UA2CPolicy
 
-
-@dataclass(frozen=True)
-class UA2CConfig:
-    """
-    Chunking hyperparameters of UA2C (validated; a bad value raises ``ValueError`` naming it; numbers are
-    stored as ``float``).
-
-    :param chunk_size: chunk length ``k`` (1 = one-step baseline)
-    :param history_len: history length ``ℓ``
-    :param flow_steps: Euler steps ``N`` when acting
-    :param target_flow_steps: Euler steps for the target candidates of Eq. 4 / 8
-    :param n_candidates: chunks ``S`` sampled per replanning (Eq. 7)
-    :param n_target_candidates: candidates ``Q`` for the target max (Eq. 4 / 8)
-    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = the whole chunk), or ``"auto"`` (δ set from
-        recent replannings for a mean ``L_t`` of ``target_plan_length``)
-    :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in ``[1, k]``
-        (``None`` = ``(k + 1) / 2``)
-    :param q_weight: ``lambda`` of Eq. 2
-    :param smooth_weight: ``mu`` of the in-chunk smoothness term added to Eq. 2 (0 = the paper)
-    :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical action dims
-    :param commit_discrete: ``L_t`` extends through the first switch of a categorical action in the
-        selected chunk (not in the paper)
-    :param offline_ratio: fraction of each batch drawn from offline episodes when both parts hold data
-    :param online_targets: ``"prefix"`` (Eq. 8), ``"window"`` (Eq. 4 on executed actions) or
-        ``"auto"`` (Eq. 8 with offline data, windows without), see
-        :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
-    """
-
-    chunk_size: int = 5
-    history_len: int = 4
-    flow_steps: int = 10
-    target_flow_steps: int = 2
-    n_candidates: int = 32
-    n_target_candidates: int = 2
-    entropy_threshold: float | str = 0.0
-    target_plan_length: float | None = None
-    q_weight: float = 1.0
-    smooth_weight: float = 0.0
-    discrete_entropy: bool = True
-    commit_discrete: bool = False
-    offline_ratio: float = 0.5
-    online_targets: str = "auto"
-
-    def __post_init__(self) -> None:
-        for name in (
-            "chunk_size",
-            "history_len",
-            "flow_steps",
-            "target_flow_steps",
-            "n_candidates",
-            "n_target_candidates",
-        ):
-            check_int(name, getattr(self, name))
-        for name in ("q_weight", "smooth_weight", "offline_ratio"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or math.isnan(value):
-                raise ValueError(f"{name} must be a number, got {value!r}")
-            object.__setattr__(self, name, float(value))
-        delta, target = check_entropy_threshold(self.entropy_threshold, self.target_plan_length, self.chunk_size)
-        object.__setattr__(self, "entropy_threshold", delta)
-        object.__setattr__(self, "target_plan_length", target)
-        for name in ("q_weight", "smooth_weight"):
-            if not 0.0 <= getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        if not 0.0 <= self.offline_ratio <= 1.0:
-            raise ValueError(f"offline_ratio must be in [0, 1], got {self.offline_ratio!r}")
-        check_online_targets(self.online_targets)
-        for name in ("discrete_entropy", "commit_discrete"):
-            check_bool(name, getattr(self, name))
-            object.__setattr__(self, name, bool(getattr(self, name)))
-
-
-_POLICY_KWARGS_SET_BY_UA2C = {
+#: The chunking arguments of :class:`~sb3_ua2c.policies.UA2CPolicy`. UA2C takes each of them as a
+#: constructor argument of its own and forwards it to the policy; ``policy_kwargs`` may not set them.
+POLICY_CHUNKING_ARGUMENTS = (
     "chunk_size",
     "history_len",
     "flow_steps",
     "n_candidates",
     "entropy_threshold",
     "target_plan_length",
-    "discrete_dims",
+    "discrete_action_dims",
     "discrete_entropy",
     "commit_discrete",
+)
+
+#: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
+ONLINE_TARGETS = ("auto", "prefix", "window")
+
+#: arguments of a policy class that are not hyperparameters (the spaces, and what SB3 passes itself)
+_POLICY_PLUMBING = ("self", "observation_space", "action_space", "lr_schedule")
+
+
+def _is_number(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | float | np.number) and not math.isnan(value)
+
+
+def _positive_int(name: str, value: Any) -> None:
+    check_int(name, value)
+
+
+def _non_negative_int(name: str, value: Any) -> None:
+    check_int(name, value, low=0)
+
+
+def _non_negative_number(name: str, value: Any) -> None:
+    if not _is_number(value) or not 0.0 <= value < math.inf:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def _fraction(name: str, value: Any) -> None:
+    if not _is_number(value) or not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
+
+
+def _tau(name: str, value: Any) -> None:
+    if not _is_number(value) or not 0.0 < value <= 1.0:
+        raise ValueError(f"{name} must be a number in (0, 1], got {value!r}")
+
+
+def _learning_rate(name: str, value: Any) -> None:
+    if not callable(value) and (not _is_number(value) or not 0.0 <= value < math.inf):
+        raise ValueError(f"{name} must be a finite number >= 0 or a schedule, got {value!r}")
+
+
+def _entropy_threshold(name: str, value: Any) -> None:
+    if not (value == "auto" if isinstance(value, str) else _is_number(value)):
+        raise ValueError(f"{name} must be a number or 'auto', got {value!r}")
+    if value == -math.inf:
+        raise ValueError(f"{name} must not be -inf (it would execute one action per plan: use chunk_size=1)")
+
+
+def _optional_number(name: str, value: Any) -> None:
+    if value is not None and not _is_number(value):
+        raise ValueError(f"{name} must be a number or None, got {value!r}")
+
+
+def _online_targets(name: str, value: Any) -> None:
+    if not isinstance(value, str) or value not in ONLINE_TARGETS:
+        raise ValueError(f"{name} must be one of {list(ONLINE_TARGETS)}, got {value!r}")
+
+
+def _net_arch(name: str, value: Any) -> None:
+    if value is None:
+        return
+    if not isinstance(value, Sequence) or not value or any(not _is_number(h) or int(h) != h or h < 1 for h in value):
+        raise ValueError(f"{name} must be a non-empty list of positive integers, got {value!r}")
+
+
+def _must_be_false(name: str, value: Any) -> None:
+    if value is not False:
+        raise ValueError(f"{name} must be False (UA2C flattens Box observations as they are), got {value!r}")
+
+
+def _discrete_action_dims(name: str, value: Any) -> None:
+    normalize_discrete_dims(value, action_dim=None)
+
+
+def _subclass_of(base: type) -> Callable[[str, Any], None]:
+    def check(name: str, value: Any) -> None:
+        if not (isinstance(value, type) and issubclass(value, base)):
+            raise ValueError(f"{name} must be a subclass of {base.__module__}.{base.__qualname__}, got {value!r}")
+
+    return check
+
+
+def _optional_dict(name: str, value: Any) -> None:
+    if value is not None and not isinstance(value, Mapping):
+        raise ValueError(f"{name} must be a dict or None, got {value!r}")
+
+
+#: the check of every hyperparameter, by name (each raises ``ValueError`` naming it)
+_CHECKS: dict[str, Callable[[str, Any], None]] = {
+    # SB3's arguments of UA2C
+    "learning_rate": _learning_rate,
+    "buffer_size": _positive_int,
+    "learning_starts": _non_negative_int,
+    "batch_size": _positive_int,
+    "tau": _tau,
+    "gamma": _fraction,
+    # UA2C
+    "chunk_size": _positive_int,
+    "history_len": _positive_int,
+    "flow_steps": _positive_int,
+    "target_flow_steps": _positive_int,
+    "n_candidates": _positive_int,
+    "n_target_candidates": _positive_int,
+    "entropy_threshold": _entropy_threshold,
+    "target_plan_length": _optional_number,
+    "q_weight": _non_negative_number,
+    "smooth_weight": _non_negative_number,
+    "discrete_entropy": check_bool,
+    "commit_discrete": check_bool,
+    "discrete_action_dims": _discrete_action_dims,
+    "offline_ratio": _fraction,
+    "online_targets": _online_targets,
+    # UA2CPolicy's networks and acting rule
+    "n_elite": _positive_int,
+    "net_arch": _net_arch,
+    "critic_embed_dim": _positive_int,
+    "critic_n_layers": _positive_int,
+    "critic_n_heads": _positive_int,
+    "critic_ff_dim": _positive_int,
+    "n_critics": _positive_int,
+    "activation_fn": _subclass_of(th.nn.Module),
+    "optimizer_class": _subclass_of(th.optim.Optimizer),
+    "optimizer_kwargs": _optional_dict,
+    "torch_compile": check_bool,
+    "normalize_images": _must_be_false,
 }
 
 
+def check_arguments(**arguments: Any) -> None:
+    """
+    The one validator of UA2C's hyperparameters: check every argument given (by name, as the
+    constructors spell them) and the constraints between those given together. A bad value raises a
+    ``ValueError`` that names the parameter.
+
+    Constraints between arguments: ``target_plan_length`` (not ``None``) needs
+    ``entropy_threshold="auto"`` and lies in ``[1, chunk_size]``; ``n_elite <= n_candidates``;
+    ``critic_n_heads`` divides ``critic_embed_dim``.
+
+    :param arguments: hyperparameters by name (any subset of the constructors' arguments)
+    """
+    for name, value in arguments.items():
+        if name not in _CHECKS:
+            raise ValueError(f"unknown UA2C hyperparameter {name!r}")
+        _CHECKS[name](name, value)
+    target = arguments.get("target_plan_length")
+    if target is not None:
+        delta = arguments.get("entropy_threshold")
+        if delta != "auto":
+            raise ValueError(
+                f"target_plan_length applies to entropy_threshold='auto' only, got it with "
+                f"entropy_threshold={delta!r} (pass target_plan_length=None)"
+            )
+        k = arguments.get("chunk_size", math.inf)
+        if not 1 <= target <= k:
+            raise ValueError(f"target_plan_length must be a number in [1, chunk_size={k}], got {target!r}")
+    if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
+        raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
+    if "critic_embed_dim" in arguments and arguments["critic_embed_dim"] % arguments.get("critic_n_heads", 1):
+        raise ValueError(
+            f"critic_n_heads={arguments['critic_n_heads']} must divide critic_embed_dim={arguments['critic_embed_dim']}"
+        )
+
+
+def normalize_discrete_dims(
+    discrete_action_dims: Mapping[int, Sequence[float]] | None, action_dim: int | None
+) -> dict[int, int]:
+    """
+    Validate ``discrete_action_dims`` and return ``{dim: n_categories}``.
+
+    A categorical action dimension with ``n`` values is encoded, like the traffic environment's lane
+    change, by ``n`` equal-width bins over its Box bounds (3 values over [-1, 1] -> thresholds ±1/3);
+    the i-th value corresponds to the i-th bin.
+
+    :param discrete_action_dims: mapping ``action index -> increasing category values`` (or ``None``);
+        an index may be a string of digits (JSON, as in a saved model, turns integer keys into strings)
+    :param action_dim: number of action dimensions (``None``: the indices are not bounded above)
+    :return: mapping ``action index -> number of categories``
+    """
+    if discrete_action_dims is None:
+        return {}
+    if not isinstance(discrete_action_dims, Mapping):
+        raise ValueError(
+            "discrete_action_dims must be a mapping {action index: category values}, "
+            f"got {type(discrete_action_dims).__name__}"
+        )
+    out: dict[int, int] = {}
+    for dim, values in discrete_action_dims.items():
+        if isinstance(dim, str) and dim.isdigit():
+            dim = int(dim)
+        upper = math.inf if action_dim is None else action_dim
+        if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or not 0 <= int(dim) < upper:
+            raise ValueError(f"discrete_action_dims: action index {dim!r} is not in [0, {upper})")
+        vals = [float(v) for v in values]
+        if len(vals) < 2:
+            raise ValueError(f"discrete_action_dims[{dim}] needs at least 2 category values, got {vals}")
+        if any(b <= a for a, b in zip(vals, vals[1:], strict=False)):
+            raise ValueError(f"discrete_action_dims[{dim}] values must be strictly increasing, got {vals}")
+        out[int(dim)] = len(vals)
+    return out
+
+
 def check_spaces(observation_space: spaces.Space | None, action_space: spaces.Space | None) -> None:
+    """Raise ``ValueError`` unless both spaces are ``Box`` spaces and the action space is bounded."""
     if action_space is not None and not isinstance(action_space, spaces.Box):
         raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
     if observation_space is not None and not isinstance(observation_space, spaces.Box):
@@ -112,24 +244,40 @@ def check_spaces(observation_space: spaces.Space | None, action_space: spaces.Sp
         raise ValueError("UA2C needs a bounded Box action space (finite low and high)")
 
 
-def check_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> None:
-    if not policy_kwargs:
-        return
-    allowed = set(inspect.signature(UA2CPolicy.__init__).parameters) - {
-        "self",
-        "observation_space",
-        "action_space",
-        "lr_schedule",
-    }
-    for key in policy_kwargs:
-        if key in _POLICY_KWARGS_SET_BY_UA2C:
-            raise ValueError(
-                f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead"
-            )
-        if key not in allowed - _POLICY_KWARGS_SET_BY_UA2C:
-            raise ValueError(
-                f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed - _POLICY_KWARGS_SET_BY_UA2C)}"
-            )
+def hyperparameters(obj: Any, cls: type | None = None) -> dict[str, Any]:
+    """
+    The hyperparameters of ``cls`` (default ``type(obj)``) as ``obj`` holds them: every constructor
+    argument that :func:`check_arguments` knows, read from the attribute of the same name.
+    """
+    names = inspect.signature((cls or type(obj)).__init__).parameters
+    return {name: getattr(obj, name) for name in names if name in _CHECKS}
 
 
-__all__ = ["UA2CConfig", "check_policy_kwargs", "check_spaces"]
+def policy_arguments(policy_class: type) -> tuple[str, ...]:
+    """The hyperparameters of a policy class: its constructor's arguments without the spaces and the schedule."""
+    return tuple(p for p in inspect.signature(policy_class.__init__).parameters if p not in _POLICY_PLUMBING)
+
+
+def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: type) -> None:
+    """
+    Raise ``ValueError`` naming a key of ``policy_kwargs`` that is not an argument of ``policy_class``,
+    or that UA2C sets from its own argument (:data:`POLICY_CHUNKING_ARGUMENTS`).
+    """
+    allowed = [p for p in policy_arguments(policy_class) if p not in POLICY_CHUNKING_ARGUMENTS]
+    for key in policy_kwargs or {}:
+        if key in POLICY_CHUNKING_ARGUMENTS:
+            raise ValueError(f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead")
+        if key not in allowed:
+            raise ValueError(f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed)}")
+
+
+__all__ = [
+    "ONLINE_TARGETS",
+    "POLICY_CHUNKING_ARGUMENTS",
+    "check_arguments",
+    "check_policy_kwargs",
+    "check_spaces",
+    "hyperparameters",
+    "normalize_discrete_dims",
+    "policy_arguments",
+]

@@ -7,6 +7,7 @@ Mixed Traffic", §2.3 and §3.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -17,13 +18,11 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_ua2c.checks import check_bool, check_int
 from sb3_ua2c.chunking import (
     AdaptiveChunkExecutor,
     ChunkExecutorState,
     EntropyWindow,
     PlanResult,
-    check_entropy_threshold,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
@@ -31,6 +30,13 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     pessimistic_q,
     select_chunk,
+)
+from sb3_ua2c.config import (
+    check_arguments,
+    check_spaces,
+    hyperparameters,
+    normalize_discrete_dims,
+    policy_arguments,
 )
 from sb3_ua2c.flow import euler_sample, euler_times
 
@@ -303,7 +309,8 @@ class UA2CPolicy(BasePolicy):
         from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
     :param target_plan_length: with ``entropy_threshold="auto"``, the mean ``L_t`` over the window that δ
         is set for, in ``[1, k]`` (``None`` = ``(k + 1) / 2``)
-    :param discrete_dims: ``{action index: n_categories}`` of categorical action dims
+    :param discrete_action_dims: ``{action index: category values}`` of categorical action dims
+        (:func:`~sb3_ua2c.config.normalize_discrete_dims`)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
         continuous dims alone; see :func:`~sb3_ua2c.chunking.chunk_entropy`)
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
@@ -336,33 +343,24 @@ class UA2CPolicy(BasePolicy):
         flow_steps: int = 10,
         n_candidates: int = 32,
         entropy_threshold: float | str = 0.0,
-        discrete_dims: dict[int, int] | None = None,
+        target_plan_length: float | None = None,
+        discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         discrete_entropy: bool = True,
-        n_elite: int = 1,
         commit_discrete: bool = False,
+        n_elite: int = 1,
         net_arch: list[int] | None = None,
         critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
         critic_n_heads: int = 1,
         critic_ff_dim: int = 64,
         n_critics: int = 2,
-        target_plan_length: float | None = None,
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
         torch_compile: bool = False,
     ) -> None:
-        if normalize_images is not False:
-            raise ValueError(
-                f"normalize_images must be False (UA2C flattens Box observations as they are), got {normalize_images!r}"
-            )
-        if not isinstance(action_space, spaces.Box):
-            raise ValueError(f"UA2C supports Box action spaces only, got {type(action_space).__name__}")
-        if not isinstance(observation_space, spaces.Box):
-            raise ValueError(
-                f"UA2C supports Box observation spaces only, got {type(observation_space).__name__}"
-            )
+        check_spaces(observation_space, action_space)
         if optimizer_kwargs is None and optimizer_class in (th.optim.Adam, th.optim.AdamW):
             # the fused kernel updates all parameters at once: ~6x faster than the per-tensor loop on CPU
             optimizer_kwargs = {"fused": True}
@@ -372,52 +370,38 @@ class UA2CPolicy(BasePolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
             squash_output=True,
-            normalize_images=False,
+            normalize_images=normalize_images,
         )
-        net_arch = list(DEFAULT_NET_ARCH if net_arch is None else net_arch)
-        for name, value in [
-            ("critic_embed_dim", critic_embed_dim),
-            ("critic_n_layers", critic_n_layers),
-            ("critic_n_heads", critic_n_heads),
-            ("critic_ff_dim", critic_ff_dim),
-            ("n_critics", n_critics),
-        ]:
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if critic_embed_dim % critic_n_heads:
-            raise ValueError(
-                f"critic_n_heads={critic_n_heads} must divide critic_embed_dim={critic_embed_dim}"
-            )
-        if any(int(h) != h or h < 1 for h in net_arch) or not net_arch:
-            raise ValueError(f"net_arch must be a non-empty list of positive integers, got {net_arch!r}")
-        self.chunk_size, self.history_len = chunk_size, history_len
-        self.flow_steps, self.n_candidates = flow_steps, n_candidates
-        self.discrete_dims = dict(discrete_dims or {})
-        check_bool("discrete_entropy", discrete_entropy)
-        self.discrete_entropy = bool(discrete_entropy)
-        check_bool("commit_discrete", commit_discrete)
-        self.commit_discrete = bool(commit_discrete)
-        self.set_n_elite(n_elite)
-        self.net_arch = net_arch
-        self.critic_kwargs = dict(
-            n_critics=n_critics,
-            embed_dim=critic_embed_dim,
-            n_layers=critic_n_layers,
-            n_heads=critic_n_heads,
-            ff_dim=critic_ff_dim,
-            activation_fn=activation_fn,
-        )
-        self.entropy_window: EntropyWindow | None = None  # the rows that set δ under "auto"
-        self.set_entropy_threshold(entropy_threshold, target_plan_length)
+        self.chunk_size = chunk_size
+        self.history_len = history_len
+        self.flow_steps = flow_steps
+        self.n_candidates = n_candidates
+        self.entropy_threshold = entropy_threshold
+        self.target_plan_length = target_plan_length
+        self.discrete_action_dims = discrete_action_dims
+        self.discrete_entropy = discrete_entropy
+        self.commit_discrete = commit_discrete
+        self.n_elite = n_elite
+        self.net_arch = list(DEFAULT_NET_ARCH) if net_arch is None else net_arch
+        self.critic_embed_dim = critic_embed_dim
+        self.critic_n_layers = critic_n_layers
+        self.critic_n_heads = critic_n_heads
+        self.critic_ff_dim = critic_ff_dim
+        self.n_critics = n_critics
         self.activation_fn = activation_fn
+        self.torch_compile = torch_compile
+        check_arguments(**hyperparameters(self, UA2CPolicy))
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
-        self.continuous_dims = continuous_dims(self.action_dim, self.discrete_dims)  # non-categorical dims
+        #: ``{action index: n_categories}`` of the categorical action dims, and the other (continuous) dims
+        self.discrete_dims = normalize_discrete_dims(discrete_action_dims, self.action_dim)
+        self.continuous_dims = continuous_dims(self.action_dim, self.discrete_dims)
+        #: the entropies that set δ under ``entropy_threshold="auto"`` (``None`` for a numeric δ)
+        self.entropy_window: EntropyWindow | None = None
+        self._follow_entropy_threshold()
         #: ``L_t`` and ``H_u`` of the last replanning done by ``predict`` (one row per env)
         self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
         self.last_plan_entropy: np.ndarray = np.zeros((0, chunk_size), dtype=np.float32)
-        check_bool("torch_compile", torch_compile)
-        self.torch_compile = bool(torch_compile)
         self._build(lr_schedule)
         if self.torch_compile:
             self.compile_networks()
@@ -425,11 +409,19 @@ class UA2CPolicy(BasePolicy):
     def _build(self, lr_schedule: Schedule) -> None:
         history_dim = self.history_len * (self.obs_dim + self.action_dim)
         self.actor = VelocityField(
-            history_dim, self.chunk_size, self.action_dim, self.net_arch, self.activation_fn
+            history_dim, self.chunk_size, self.action_dim, list(self.net_arch), self.activation_fn
         )
         critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
-        self.critic = ChunkCritics(*critic_args, **self.critic_kwargs)
-        self.critic_target = ChunkCritics(*critic_args, **self.critic_kwargs)
+        critic_kwargs = dict(
+            n_critics=self.n_critics,
+            embed_dim=self.critic_embed_dim,
+            n_layers=self.critic_n_layers,
+            n_heads=self.critic_n_heads,
+            ff_dim=self.critic_ff_dim,
+            activation_fn=self.activation_fn,
+        )
+        self.critic = ChunkCritics(*critic_args, **critic_kwargs)
+        self.critic_target = ChunkCritics(*critic_args, **critic_kwargs)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
@@ -442,30 +434,9 @@ class UA2CPolicy(BasePolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()  # spaces and normalize_images
-        data.update(
-            lr_schedule=self._dummy_schedule,  # as SB3's policies: no learning rate to act with
-            chunk_size=self.chunk_size,
-            history_len=self.history_len,
-            flow_steps=self.flow_steps,
-            n_candidates=self.n_candidates,
-            entropy_threshold=self.entropy_threshold,
-            discrete_dims=self.discrete_dims,
-            discrete_entropy=self.discrete_entropy,
-            n_elite=self.n_elite,
-            commit_discrete=self.commit_discrete,
-            net_arch=self.net_arch,
-            critic_embed_dim=self.critic_kwargs["embed_dim"],
-            critic_n_layers=self.critic_kwargs["n_layers"],
-            critic_n_heads=self.critic_kwargs["n_heads"],
-            critic_ff_dim=self.critic_kwargs["ff_dim"],
-            n_critics=self.critic_kwargs["n_critics"],
-            target_plan_length=self.target_plan_length,
-            activation_fn=self.activation_fn,
-            optimizer_class=self.optimizer_class,
-            optimizer_kwargs=self.optimizer_kwargs,
-            torch_compile=self.torch_compile,
-        )
-        return data
+        # as SB3's policies: no learning rate to act with
+        arguments = {name: getattr(self, name) for name in policy_arguments(type(self))}
+        return {**data, **arguments, "lr_schedule": self._dummy_schedule}
 
     def compile_networks(self) -> None:
         """
@@ -484,19 +455,23 @@ class UA2CPolicy(BasePolicy):
 
     def set_n_elite(self, n_elite: int) -> None:
         """Validate and set how many best candidates a replanning averages (1 = best-of-S)."""
-        check_int("n_elite", n_elite)
-        if n_elite > self.n_candidates:
-            raise ValueError(f"n_elite={n_elite} must not exceed n_candidates={self.n_candidates}")
-        self.n_elite = int(n_elite)
+        check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
+        self.n_elite = n_elite
 
     def set_entropy_threshold(self, entropy_threshold: float | str, target_plan_length: float | None = None) -> None:
         """
         Validate and set δ of Eq. 7 (execution only: the losses do not read it). ``entropy_threshold="auto"``
         keeps the current window, or starts an empty one; a number drops it.
         """
-        delta, target = check_entropy_threshold(entropy_threshold, target_plan_length, self.chunk_size)
-        self.entropy_threshold, self.target_plan_length = delta, target
-        if delta != "auto":
+        check_arguments(
+            entropy_threshold=entropy_threshold, target_plan_length=target_plan_length, chunk_size=self.chunk_size
+        )
+        self.entropy_threshold, self.target_plan_length = entropy_threshold, target_plan_length
+        self._follow_entropy_threshold()
+
+    def _follow_entropy_threshold(self) -> None:
+        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``; drop it for a numeric δ."""
+        if self.entropy_threshold != "auto":
             self.entropy_window = None
         elif self.entropy_window is None:
             self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
@@ -516,8 +491,9 @@ class UA2CPolicy(BasePolicy):
         return self.entropy_window.threshold(target, entropy)
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """``nn.Module.load_state_dict``; ``entropy_window.*`` follows this policy's δ: a checkpoint without a
-        window (numeric δ, or older) loads into an ``"auto"`` policy with an empty one; a numeric δ ignores it."""
+        """``nn.Module.load_state_dict``; ``entropy_window.*`` follows this policy's δ, which a load may
+        override: a checkpoint with a numeric δ loads into an ``"auto"`` policy with an empty window, and a
+        numeric δ ignores a saved window."""
         own = {k: v for k, v in self.state_dict().items() if k.startswith("entropy_window.")}
         state_dict = {k: v for k, v in state_dict.items() if not k.startswith("entropy_window.") or k in own}
         return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)

@@ -12,7 +12,6 @@ import math
 import pathlib
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, fields, replace
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -42,10 +41,16 @@ from sb3_ua2c.chunking import (
     bootstrap_value,
     chunk_critic_loss,
     chunk_target,
-    normalize_discrete_dims,
     pessimistic_q,
 )
-from sb3_ua2c.config import UA2CConfig, check_policy_kwargs, check_spaces
+from sb3_ua2c.config import (
+    POLICY_CHUNKING_ARGUMENTS,
+    check_arguments,
+    check_policy_kwargs,
+    check_spaces,
+    hyperparameters,
+    policy_arguments,
+)
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 
@@ -176,23 +181,10 @@ class UA2C(OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        arguments = locals()  # the chunking hyperparameters, validated together
-        self.config = UA2CConfig(**{f.name: arguments[f.name] for f in fields(UA2CConfig)})
         if replay_buffer_class not in (None, ChunkReplayBuffer):
             raise ValueError(
                 f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}"
             )
-        check_policy_kwargs(policy_kwargs)
-        for name, value, low in [
-            ("batch_size", batch_size, 1),
-            ("buffer_size", buffer_size, 1),
-            ("learning_starts", learning_starts, 0),
-        ]:
-            check_int(name, value, low)
-        if not 0.0 <= gamma <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {gamma!r}")
-        if not 0.0 < tau <= 1.0:
-            raise ValueError(f"tau must be in (0, 1], got {tau!r}")
         env = maybe_make_env(env, verbose)
         if env is not None:
             check_spaces(env.observation_space, env.action_space)
@@ -220,28 +212,41 @@ class UA2C(OffPolicyAlgorithm):
             supported_action_spaces=None,
             support_multi_env=True,
         )
-        self.__dict__.update(asdict(self.config))  # chunk_size, ..., online_targets: see UA2CConfig
-        self.discrete_action_dims = (
-            None
-            if discrete_action_dims is None
-            else {int(k): [float(v) for v in vals] for k, vals in dict(discrete_action_dims).items()}
-        )
+        self.chunk_size = chunk_size
+        self.history_len = history_len
+        self.flow_steps = flow_steps
+        self.target_flow_steps = target_flow_steps
+        self.n_candidates = n_candidates
+        self.n_target_candidates = n_target_candidates
+        self.entropy_threshold = entropy_threshold
+        self.target_plan_length = target_plan_length
+        self.q_weight = q_weight
+        self.smooth_weight = smooth_weight
+        self.discrete_entropy = discrete_entropy
+        self.commit_discrete = commit_discrete
+        self.discrete_action_dims = discrete_action_dims
+        self.offline_ratio = offline_ratio
+        self.online_targets = online_targets
         if _init_setup_model:
             self._setup_model()
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
-        # the attributes win over the config (``UA2C.load(path, flow_steps=2)`` sets attributes only);
-        # a model saved before an argument existed gets its default
-        self.config = replace(
-            self.config, **{f.name: getattr(self, f.name, f.default) for f in fields(UA2CConfig)}
-        )
-        self.__dict__.update(asdict(self.config))
+        # the policy and the replay buffer check the arguments they take; UA2C checks the others
+        delegated = {*policy_arguments(self.policy_class), *policy_arguments(ChunkReplayBuffer)}
+        check_arguments(**{k: v for k, v in hyperparameters(self).items() if k not in delegated})
         check_spaces(self.observation_space, self.action_space)
+        check_policy_kwargs(self.policy_kwargs, self.policy_class)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
-        action_dim = int(np.prod(self.action_space.shape))
-        discrete_dims = normalize_discrete_dims(self.discrete_action_dims, action_dim)
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space,
+            self.action_space,
+            self.lr_schedule,
+            **{name: getattr(self, name) for name in POLICY_CHUNKING_ARGUMENTS},
+            **self.policy_kwargs,
+        )
+        self.policy = self.policy.to(self.device)
         if self.replay_buffer is None:
             self.replay_buffer = ChunkReplayBuffer(
                 self.buffer_size,
@@ -255,22 +260,6 @@ class UA2C(OffPolicyAlgorithm):
                 online_targets=self.online_targets,
                 **self.replay_buffer_kwargs,
             )
-        self.policy = self.policy_class(  # type: ignore[assignment]
-            self.observation_space,
-            self.action_space,
-            self.lr_schedule,
-            chunk_size=self.chunk_size,
-            history_len=self.history_len,
-            flow_steps=self.flow_steps,
-            n_candidates=self.n_candidates,
-            entropy_threshold=self.entropy_threshold,
-            target_plan_length=self.target_plan_length,
-            discrete_dims=discrete_dims,
-            discrete_entropy=self.discrete_entropy,
-            commit_discrete=self.commit_discrete,
-            **self.policy_kwargs,
-        )
-        self.policy = self.policy.to(self.device)
         self._create_aliases()
         self._convert_train_freq()
         self._executor: AdaptiveChunkExecutor | None = None
@@ -598,11 +587,8 @@ class UA2C(OffPolicyAlgorithm):
         :param entropy_threshold: the new threshold (validated like the constructor argument)
         :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
         """
-        self.config = replace(
-            self.config, entropy_threshold=entropy_threshold, target_plan_length=target_plan_length
-        )
-        self.__dict__.update(asdict(self.config))
-        self.policy.set_entropy_threshold(self.entropy_threshold, self.target_plan_length)
+        self.policy.set_entropy_threshold(entropy_threshold, target_plan_length)
+        self.entropy_threshold, self.target_plan_length = entropy_threshold, target_plan_length
 
     def set_n_elite(self, n_elite: int) -> None:
         """
@@ -622,8 +608,8 @@ class UA2C(OffPolicyAlgorithm):
 
         :param flow_steps: >= 1
         """
-        self.config = replace(self.config, flow_steps=flow_steps)
-        self.flow_steps = self.policy.flow_steps = self.config.flow_steps
+        check_arguments(flow_steps=flow_steps)
+        self.flow_steps = self.policy.flow_steps = flow_steps
 
     @property
     def last_executed_length(self) -> float:
@@ -733,4 +719,4 @@ class UA2C(OffPolicyAlgorithm):
         )
 
 
-__all__ = ["UA2C", "UA2CConfig"]
+__all__ = ["UA2C"]

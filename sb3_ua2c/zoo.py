@@ -54,7 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_ua2c.buffers import ONLINE_TARGETS
+from sb3_ua2c.config import POLICY_CHUNKING_ARGUMENTS, check_arguments, policy_arguments
+from sb3_ua2c.policies import UA2CPolicy
 
 if TYPE_CHECKING:
     import optuna
@@ -113,35 +114,14 @@ example: ua2c-zoo train --env Pendulum-v1 --conf-file zoo_configs/ua2c.yml
 @dataclass(frozen=True)
 class UA2CSearchSpace:
     """
-    Ranges of the UA2C Optuna sampler (``--optimize``). Intervals are ``(low, high)``; tuples of
-    choices are categorical. Every name is a UA2C constructor argument except ``gamma``, which is
-    sampled as ``one_minus_gamma`` on a log scale (as rl-zoo3 does for SAC/TD3/TQC).
-
-    :param gamma: discount interval, inside (0, 1)
-    :param learning_rate: log-uniform interval
-    :param batch_size: choices
-    :param tau: Polyak coefficient, log-uniform interval
-    :param chunk_size: choices of k (Eq. 2-4); 1 gives the one-step baseline
-    :param history_len: choices of the history length l of h_t
-    :param flow_steps: integer interval of Euler steps N of the flow sampler when acting
-    :param target_flow_steps: integer interval of Euler steps for the target candidates
-    :param n_candidates: choices of S, chunks sampled per replanning (Eq. 7, 8)
-    :param n_target_candidates: choices of Q, chunks sampled per target (Eq. 4)
-    :param entropy_threshold: uniform interval of delta (Eq. 7), in nats; may be negative
-        (differential entropy)
-    :param q_weight: log-uniform interval of lambda (Eq. 2)
-    :param smooth_weight: choices of mu, the in-chunk smoothness term added to Eq. 2 (0 = the paper)
-    :param discrete_entropy: choices of ``discrete_entropy`` (``H_u`` with or without the
-        categorical dims)
-    :param commit_discrete: choices of ``commit_discrete`` (``L_t`` through the first categorical
-        switch of the selected chunk, or Eq. 7 alone)
-    :param online_targets: choices among ``"prefix"`` (Eq. 8) and ``"window"`` (Eq. 4 on executed
-        actions)
-    :param n_elite: choices of m, candidates averaged per replanning, stored in ``policy_kwargs``
-        (each at most ``min(n_candidates)``)
-    :param net_arch: choices among ``NET_ARCHS`` (velocity-field MLP), stored in ``policy_kwargs``
-    :param critic_embed_dim: choices of the critics' token width, stored in ``policy_kwargs``
-        (must be divisible by the policy's ``critic_n_heads``, 4 by default)
+    Ranges of the UA2C Optuna sampler (``--optimize``). Every field is named after the UA2C constructor
+    argument it samples, or the :class:`~sb3_ua2c.policies.UA2CPolicy` argument (``net_arch``,
+    ``critic_embed_dim``, ``n_elite``, which go into ``policy_kwargs``), and every value is checked by
+    UA2C's own validator (:func:`~sb3_ua2c.config.check_arguments`). ``gamma`` is sampled as
+    ``one_minus_gamma`` on a log scale (as rl-zoo3 does for SAC/TD3/TQC); the other intervals are
+    :data:`LOG_INTERVALS` (log scale), :data:`INT_INTERVALS` (integers) and :data:`INTERVALS`, given as
+    ``(low, high)``; every other field is a tuple of choices. ``net_arch`` holds names of
+    :data:`NET_ARCHS`; ``n_elite`` must not exceed ``min(n_candidates)``.
     """
 
     gamma: tuple[float, float] = (0.95, 0.9999)
@@ -157,81 +137,27 @@ class UA2CSearchSpace:
     entropy_threshold: tuple[float, float] = (-3.0, 1.5)
     q_weight: tuple[float, float] = (0.01, 3.0)
     smooth_weight: tuple[float, ...] = (0.0, 10.0, 100.0, 300.0)
+    net_arch: tuple[str, ...] = ("small", "medium", "large")
+    critic_embed_dim: tuple[int, ...] = (32, 64)
     discrete_entropy: tuple[bool, ...] = (True, False)
     commit_discrete: tuple[bool, ...] = (False, True)
     online_targets: tuple[str, ...] = ("prefix", "window")
     n_elite: tuple[int, ...] = (1, 4, 8)
-    net_arch: tuple[str, ...] = ("small", "medium", "large")
-    critic_embed_dim: tuple[int, ...] = (32, 64)
 
     def __post_init__(self) -> None:
-        # name -> (interval, exclusive lower bound of low, exclusive upper bound of high)
-        intervals = {
-            "gamma": (self.gamma, 0.0, 1.0),
-            "learning_rate": (self.learning_rate, 0.0, math.inf),
-            "tau": (self.tau, 0.0, 1.0),
-            "flow_steps": (self.flow_steps, 0, math.inf),
-            "target_flow_steps": (self.target_flow_steps, 0, math.inf),
-            "entropy_threshold": (self.entropy_threshold, -math.inf, math.inf),
-            "q_weight": (self.q_weight, 0.0, math.inf),
-        }
-        for name, (interval, lower, upper) in intervals.items():
-            if not (isinstance(interval, tuple) and len(interval) == 2):
-                raise ValueError(f"{name} must be a (low, high) tuple, got {interval!r}")
-            low, high = interval
-            if not (lower < low < high < upper):
-                raise ValueError(f"{name} must satisfy {lower} < low < high < {upper}, got {interval!r}")
-        for name in ("flow_steps", "target_flow_steps"):
-            if not all(isinstance(v, int) and not isinstance(v, bool) for v in getattr(self, name)):
-                raise ValueError(f"{name} must hold integers, got {getattr(self, name)!r}")
-        if not (
-            isinstance(self.smooth_weight, tuple)
-            and self.smooth_weight
-            and all(
-                isinstance(c, int | float) and not isinstance(c, bool) and 0.0 <= c < math.inf
-                for c in self.smooth_weight
-            )
-        ):
-            raise ValueError(
-                f"smooth_weight must be a non-empty tuple of finite numbers >= 0, got {self.smooth_weight!r}"
-            )
-        if not (isinstance(self.net_arch, tuple) and self.net_arch and set(self.net_arch) <= set(NET_ARCHS)):
-            raise ValueError(
-                f"net_arch must be a non-empty tuple of names among {sorted(NET_ARCHS)}, got {self.net_arch!r}"
-            )
-        for name in (
-            "batch_size",
-            "chunk_size",
-            "history_len",
-            "n_candidates",
-            "n_target_candidates",
-            "critic_embed_dim",
-            "n_elite",
-        ):
-            choices = getattr(self, name)
-            if not (
-                isinstance(choices, tuple)
-                and choices
-                and all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in choices)
-            ):
-                raise ValueError(f"{name} must be a non-empty tuple of integers >= 1, got {choices!r}")
-        if max(self.n_elite) > min(self.n_candidates):
-            raise ValueError(
-                f"n_elite must not exceed min(n_candidates)={min(self.n_candidates)}, got {self.n_elite!r}"
-            )
-        for name in ("discrete_entropy", "commit_discrete"):
-            choices = getattr(self, name)
-            if not (isinstance(choices, tuple) and choices and all(isinstance(c, bool) for c in choices)):
-                raise ValueError(f"{name} must be a non-empty tuple of bools, got {choices!r}")
-        if not (
-            isinstance(self.online_targets, tuple)
-            and self.online_targets
-            and set(self.online_targets) <= set(ONLINE_TARGETS)
-        ):
-            raise ValueError(
-                f"online_targets must be a non-empty tuple of values among {list(ONLINE_TARGETS)}, "
-                f"got {self.online_targets!r}"
-            )
+        for field in fields(self):
+            name, value = field.name, getattr(self, field.name)
+            if name in LOG_INTERVALS or name in INT_INTERVALS or name in INTERVALS:
+                _check_interval(name, value)
+            elif not (isinstance(value, tuple) and value):
+                raise ValueError(f"{name} must be a non-empty tuple of choices, got {value!r}")
+            elif name == "net_arch":
+                if not set(value) <= set(NET_ARCHS):
+                    raise ValueError(f"net_arch must be names among {sorted(NET_ARCHS)}, got {value!r}")
+            else:
+                for choice in value:
+                    check_arguments(**{name: choice})
+        check_arguments(n_elite=max(self.n_elite), n_candidates=min(self.n_candidates))
 
     @classmethod
     def from_dict(cls, config: dict[str, Any]) -> UA2CSearchSpace:
@@ -246,6 +172,42 @@ class UA2CSearchSpace:
         if unknown:
             raise ValueError(f"Unknown UA2C search-space key(s) {unknown}; known: {sorted(known)}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
+
+
+#: Intervals of :class:`UA2CSearchSpace` sampled on a log scale (``gamma`` through ``1 - gamma``).
+LOG_INTERVALS = ("gamma", "learning_rate", "tau", "q_weight")
+#: Integer intervals of :class:`UA2CSearchSpace`.
+INT_INTERVALS = ("flow_steps", "target_flow_steps")
+#: Uniform intervals of :class:`UA2CSearchSpace`.
+INTERVALS = ("entropy_threshold",)
+
+
+def _check_interval(name: str, interval: Any) -> None:
+    """A ``(low, high)`` interval with ``low < high``, both ends valid values of ``name``; a log scale
+    needs ``low > 0`` (``gamma``: ``high < 1``); an integer interval holds integers."""
+    if not (isinstance(interval, tuple) and len(interval) == 2):
+        raise ValueError(f"{name} must be a (low, high) tuple, got {interval!r}")
+    low, high = interval
+    if name in INT_INTERVALS and not all(isinstance(v, int) and not isinstance(v, bool) for v in interval):
+        raise ValueError(f"{name} must hold integers, got {interval!r}")
+    lower, upper = (0.0, 1.0) if name == "gamma" else (0.0 if name in LOG_INTERVALS else -math.inf, math.inf)
+    if not lower < low < high < upper:
+        raise ValueError(f"{name} must satisfy {lower} < low < high < {upper}, got {interval!r}")
+    check_arguments(**{name: low})
+    check_arguments(**{name: high})
+
+
+def _suggest(trial: optuna.Trial, name: str, choices: tuple) -> Any:
+    """One draw of field ``name`` of :class:`UA2CSearchSpace` (``gamma`` as ``one_minus_gamma``)."""
+    if name == "gamma":
+        return trial.suggest_float("one_minus_gamma", 1.0 - choices[1], 1.0 - choices[0], log=True)
+    if name in LOG_INTERVALS:
+        return trial.suggest_float(name, *choices, log=True)
+    if name in INT_INTERVALS:
+        return trial.suggest_int(name, *choices)
+    if name in INTERVALS:
+        return trial.suggest_float(name, *choices)
+    return trial.suggest_categorical(name, choices)
 
 
 def sample_ua2c_params(
@@ -271,27 +233,8 @@ def sample_ua2c_params(
     """
     space = UA2CSearchSpace() if space is None else space
     sampled = {
-        "one_minus_gamma": trial.suggest_float(
-            "one_minus_gamma", 1.0 - space.gamma[1], 1.0 - space.gamma[0], log=True
-        ),
-        "learning_rate": trial.suggest_float("learning_rate", *space.learning_rate, log=True),
-        "batch_size": trial.suggest_categorical("batch_size", space.batch_size),
-        "tau": trial.suggest_float("tau", *space.tau, log=True),
-        "chunk_size": trial.suggest_categorical("chunk_size", space.chunk_size),
-        "history_len": trial.suggest_categorical("history_len", space.history_len),
-        "flow_steps": trial.suggest_int("flow_steps", *space.flow_steps),
-        "target_flow_steps": trial.suggest_int("target_flow_steps", *space.target_flow_steps),
-        "n_candidates": trial.suggest_categorical("n_candidates", space.n_candidates),
-        "n_target_candidates": trial.suggest_categorical("n_target_candidates", space.n_target_candidates),
-        "entropy_threshold": trial.suggest_float("entropy_threshold", *space.entropy_threshold),
-        "q_weight": trial.suggest_float("q_weight", *space.q_weight, log=True),
-        "smooth_weight": trial.suggest_categorical("smooth_weight", space.smooth_weight),
-        "net_arch": trial.suggest_categorical("net_arch", space.net_arch),
-        "critic_embed_dim": trial.suggest_categorical("critic_embed_dim", space.critic_embed_dim),
-        "discrete_entropy": trial.suggest_categorical("discrete_entropy", space.discrete_entropy),
-        "commit_discrete": trial.suggest_categorical("commit_discrete", space.commit_discrete),
-        "online_targets": trial.suggest_categorical("online_targets", space.online_targets),
-        "n_elite": trial.suggest_categorical("n_elite", space.n_elite),
+        "one_minus_gamma" if f.name == "gamma" else f.name: _suggest(trial, f.name, getattr(space, f.name))
+        for f in fields(space)
     }
     trial.set_user_attr("gamma", 1.0 - sampled["one_minus_gamma"])
     return convert_ua2c_params(sampled)
@@ -302,23 +245,21 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
     Turn sampled Optuna parameters into UA2C constructor arguments (rl-zoo3 ``HYPERPARAMS_CONVERTER``).
 
     :param sampled: ``trial.params`` of a UA2C trial
-    :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the policy's
-        ``net_arch`` (a ``NET_ARCHS`` name), ``critic_embed_dim`` and ``n_elite`` moved into
-        ``policy_kwargs``.
+    :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the arguments of
+        :class:`~sb3_ua2c.policies.UA2CPolicy` that UA2C does not take itself (``net_arch``, a
+        :data:`NET_ARCHS` name, ``critic_embed_dim``, ``n_elite``) moved into ``policy_kwargs``.
         As for every rl-zoo3 algorithm, a sampled ``policy_kwargs`` replaces the YAML one.
     """
     params = dict(sampled)
     if "one_minus_gamma" in params:
         params["gamma"] = 1.0 - params.pop("one_minus_gamma")
-    policy_kwargs = {}
     if "net_arch" in params:
-        name = params.pop("net_arch")
+        name = params["net_arch"]
         if name not in NET_ARCHS:
             raise ValueError(f"net_arch must be one of {sorted(NET_ARCHS)}, got {name!r}")
-        policy_kwargs["net_arch"] = list(NET_ARCHS[name])
-    for name in ("critic_embed_dim", "n_elite"):
-        if name in params:
-            policy_kwargs[name] = params.pop(name)
+        params["net_arch"] = list(NET_ARCHS[name])
+    policy_only = [p for p in policy_arguments(UA2CPolicy) if p not in POLICY_CHUNKING_ARGUMENTS]
+    policy_kwargs = {name: params.pop(name) for name in policy_only if name in params}
     if policy_kwargs:
         params["policy_kwargs"] = policy_kwargs
     return params

@@ -259,9 +259,11 @@ def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, A
 def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> dict[str, Any]:
     """``acting_sweep``: the offline one-step and chunk checkpoints acting with each other rule (Euler
     steps N, elite size m) and the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
-    from sb3_ua2c.ua2c import UA2CConfig
+    import inspect
 
-    default_n = int(budget.algo_kwargs.get("flow_steps", UA2CConfig.flow_steps))
+    from sb3_ua2c import UA2C
+
+    default_n = int(budget.algo_kwargs.get("flow_steps", inspect.signature(UA2C).parameters["flow_steps"].default))
     default_elite = budget.default_elite
     rows = []
     for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints

@@ -20,10 +20,10 @@ from sb3_ua2c.chunking import (
     discounted_chunk_return,
     executable_prefix_length,
     gaussian_entropy,
-    normalize_discrete_dims,
     pessimistic_q,
     select_chunk,
 )
+from sb3_ua2c.config import normalize_discrete_dims
 
 LOG_2PIE = math.log(2 * math.pi * math.e)
 

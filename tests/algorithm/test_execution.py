@@ -17,7 +17,7 @@ from sb3_ua2c.chunking import (
     chunk_entropy,
     executable_prefix_length,
 )
-from sb3_ua2c.config import UA2CConfig
+from sb3_ua2c.config import check_arguments
 from sb3_ua2c.policies import UA2CPolicy
 
 T = th.tensor
@@ -229,15 +229,15 @@ def test_set_entropy_threshold_to_auto_and_back():
 )
 def test_bad_execution_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        UA2CConfig(**kwargs)
+        check_arguments(chunk_size=5, **{"entropy_threshold": 0.0, **kwargs})
     with pytest.raises(ValueError, match=match):
         UA2C("MlpPolicy", "Pendulum-v1", **kwargs)
     with pytest.raises(ValueError, match=match):
         UA2CPolicy(OBS, ACT, lambda _: 1e-3, **kwargs)
 
 
-def test_config_normalises_the_execution_arguments():
-    config = UA2CConfig(entropy_threshold="auto", target_plan_length=3, chunk_size=5)
-    assert config.target_plan_length == 3.0 and isinstance(config.target_plan_length, float)
-    assert UA2CConfig(entropy_threshold=1).entropy_threshold == 1.0
-    assert UA2CConfig(chunk_size=1, entropy_threshold="auto", target_plan_length=1).target_plan_length == 1.0
+def test_execution_arguments_are_kept_as_given():
+    model = UA2C("MlpPolicy", "Pendulum-v1", entropy_threshold="auto", target_plan_length=3, **FAST)
+    assert model.target_plan_length == model.policy.target_plan_length == 3
+    assert model.policy.current_entropy_threshold(th.zeros(1, 5)).shape == (1, 1)
+    assert UA2C("MlpPolicy", "Pendulum-v1", entropy_threshold=1, **FAST).policy.current_entropy_threshold() == 1.0

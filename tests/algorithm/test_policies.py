@@ -42,7 +42,7 @@ def test_plan_executes_the_best_candidate_by_default():
 
 def test_plan_with_elite_mean():
     th.manual_seed(0)
-    policy = make_policy(n_elite=3, discrete_dims={1: 3})
+    policy = make_policy(n_elite=3, discrete_action_dims={1: [-1.0, 0.0, 1.0]})
     obs_h, act_h = th.randn(2, 2, 3), th.zeros(2, 2, 2)
     chunks, _, _ = policy.plan_tensors(obs_h, act_h, th.Generator().manual_seed(5))
     samples, q = candidates_and_values(policy, obs_h, act_h, 5)
@@ -55,8 +55,8 @@ def test_plan_with_elite_mean():
 def test_discrete_entropy_flag_changes_only_the_prefix_length():
     """H_u with and without the categorical dim: same chunks, entropies differ by the categorical part."""
     th.manual_seed(0)
-    with_cat = make_policy(discrete_dims={1: 3})
-    without = make_policy(discrete_dims={1: 3}, discrete_entropy=False)
+    with_cat = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]})
+    without = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, discrete_entropy=False)
     without.load_state_dict(with_cat.state_dict())
     obs_h, act_h = th.randn(4, 2, 3), th.zeros(4, 2, 2)
     g = lambda: th.Generator().manual_seed(3)  # noqa: E731
@@ -82,8 +82,8 @@ def test_commit_discrete_extends_only_the_prefix_length():
     from sb3_ua2c.chunking import commit_through_switch
 
     th.manual_seed(0)
-    plain = make_policy(discrete_dims={1: 3}, entropy_threshold=-10.0)  # Eq. 7 alone gives L_t = 1
-    commit = make_policy(discrete_dims={1: 3}, entropy_threshold=-10.0, commit_discrete=True)
+    plain = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, entropy_threshold=-10.0)  # Eq. 7 alone gives L_t = 1
+    commit = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, entropy_threshold=-10.0, commit_discrete=True)
     commit.load_state_dict(plain.state_dict())
     obs_h, act_h = th.randn(16, 2, 3), th.zeros(16, 2, 2)
     g = lambda: th.Generator().manual_seed(3)  # noqa: E731

@@ -75,7 +75,7 @@ def lane_change_policy() -> UA2CPolicy:
         flow_steps=2,
         n_candidates=6,
         entropy_threshold=1.42,
-        discrete_dims={1: 3},
+        discrete_action_dims={1: [-1.0, 0.0, 1.0]},
         discrete_entropy=False,
         n_elite=3,
         commit_discrete=True,
@@ -126,9 +126,8 @@ def test_policy_checkpoint_keeps_the_acting_rule(tmp_path):
     assert got == {"chunk_size": 3, "history_len": 2, "flow_steps": 5, "n_candidates": 6}
     assert (loaded.entropy_threshold, loaded.n_elite, loaded.discrete_dims) == (1.42, 3, {1: 3})
     assert (loaded.discrete_entropy, loaded.commit_discrete, loaded.net_arch) == (False, True, [16, 8])
-    assert loaded.critic_kwargs == dict(
-        n_critics=3, embed_dim=8, n_layers=1, n_heads=2, ff_dim=16, activation_fn=nn.Tanh
-    )
+    critic = ("n_critics", "critic_embed_dim", "critic_n_layers", "critic_n_heads", "critic_ff_dim", "activation_fn")
+    assert [getattr(loaded, name) for name in critic] == [3, 8, 1, 2, 16, nn.Tanh]
     assert loaded.action_space == policy.action_space and loaded.observation_space == policy.observation_space
     assert loaded.normalize_images is False
     assert isinstance(loaded.actor.optimizer, th.optim.AdamW)

@@ -30,7 +30,7 @@ def test_save_load_same_actions_and_hyperparameters(tmp_path):
     loaded = UA2C.load(tmp_path / "ua2c.zip")
     assert (loaded.chunk_size, loaded.history_len, loaded.entropy_threshold) == (4, 3, -0.5)
     assert loaded.smooth_weight == 2.5
-    assert loaded.policy.critic_kwargs["embed_dim"] == 16
+    assert loaded.policy.critic_embed_dim == 16
     for k, v in params(model).items():
         assert th.equal(v, loaded.policy.state_dict()[k]), k
     np.testing.assert_array_equal(rollout_actions(loaded), before)
@@ -262,7 +262,7 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
     policy = model.policy
     obs = th.tensor([[0.3, -0.2, 0.5]])
     model.set_flow_steps(1)
-    assert model.flow_steps == policy.flow_steps == model.config.flow_steps == 1
+    assert model.flow_steps == policy.flow_steps == 1
     with th.no_grad():
         got = policy._predict(obs, deterministic=True)  # (1, action_dim), first action of the plan
         # by hand: one Euler step x1 = x0 + v(x0, 0 | h), then best-of-S by min_j Q_j
@@ -276,9 +276,9 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
     assert th.allclose(got[0], expected, atol=1e-6)
     model.save(tmp_path / "m.zip")
     loaded = UA2C.load(tmp_path / "m.zip")
-    assert loaded.policy.flow_steps == loaded.config.flow_steps == 1
+    assert loaded.policy.flow_steps == loaded.flow_steps == 1
     # a load override reaches the policy and the config, and is validated like the constructor argument
-    assert UA2C.load(tmp_path / "m.zip", flow_steps=3).config.flow_steps == 3
+    assert UA2C.load(tmp_path / "m.zip", flow_steps=3).policy.flow_steps == 3
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="flow_steps"):
             model.set_flow_steps(bad)
@@ -291,11 +291,11 @@ def test_discrete_entropy_is_validated_saved_and_overridable(tmp_path):
     with pytest.raises(ValueError, match="discrete_entropy"):
         UA2C("MlpPolicy", env, discrete_entropy="no", **FAST)
     model = UA2C("MlpPolicy", env, seed=0, discrete_entropy=False, **FAST)
-    assert model.policy.discrete_entropy is False and model.config.discrete_entropy is False
+    assert model.policy.discrete_entropy is False and model.discrete_entropy is False
     model.save(tmp_path / "m.zip")
     assert UA2C.load(tmp_path / "m.zip").policy.discrete_entropy is False
     loaded = UA2C.load(tmp_path / "m.zip", discrete_entropy=True)  # a Phase-2 override reaches the policy
-    assert loaded.policy.discrete_entropy is True and loaded.config.discrete_entropy is True
+    assert loaded.policy.discrete_entropy is True and loaded.discrete_entropy is True
 
 
 def test_online_targets_is_validated_saved_and_overridable(tmp_path):
@@ -303,14 +303,14 @@ def test_online_targets_is_validated_saved_and_overridable(tmp_path):
     with pytest.raises(ValueError, match="online_targets"):
         UA2C("MlpPolicy", env, online_targets="windows", **FAST)
     model = UA2C("MlpPolicy", env, seed=0, online_targets="window", **FAST)
-    assert model.replay_buffer.online_targets == model.config.online_targets == "window"
+    assert model.replay_buffer.online_targets == model.online_targets == "window"
     model.learn(80)
     # every executed step of the 80 starts a sample once its k = 5 next steps are stored
     assert model.replay_buffer.n_samples() == (80 - 4, 0)
     model.save(tmp_path / "m.zip")
     assert UA2C.load(tmp_path / "m.zip").replay_buffer.online_targets == "window"
     loaded = UA2C.load(tmp_path / "m.zip", online_targets="prefix")  # e.g. a Phase-2 override
-    assert loaded.replay_buffer.online_targets == loaded.config.online_targets == "prefix"
+    assert loaded.replay_buffer.online_targets == loaded.online_targets == "prefix"
     with pytest.raises(ValueError, match="online_targets"):
         UA2C.load(tmp_path / "m.zip", online_targets="eq4")
 
@@ -345,10 +345,10 @@ def test_commit_discrete_is_validated_saved_and_overridable(tmp_path):
     with pytest.raises(ValueError, match="commit_discrete"):
         UA2C("MlpPolicy", env, commit_discrete="yes", **FAST)
     model = UA2C("MlpPolicy", env, seed=0, commit_discrete=True, discrete_action_dims={0: [-1, 1]}, **FAST)
-    assert model.policy.commit_discrete is True and model.config.commit_discrete is True
+    assert model.policy.commit_discrete is True and model.commit_discrete is True
     model.save(tmp_path / "m.zip")
     assert UA2C.load(tmp_path / "m.zip").policy.commit_discrete is True
     loaded = UA2C.load(tmp_path / "m.zip", commit_discrete=False)  # e.g. a Phase-2 override
-    assert loaded.policy.commit_discrete is False and loaded.config.commit_discrete is False
+    assert loaded.policy.commit_discrete is False and loaded.commit_discrete is False
     with pytest.raises(ValueError, match="commit_discrete"):
         UA2C.load(tmp_path / "m.zip", commit_discrete=0)

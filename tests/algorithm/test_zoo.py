@@ -529,16 +529,18 @@ def test_custom_search_space_restricts_the_sampler():
         ({"learning_rate": (1e-3, 1e-4)}, "learning_rate must satisfy"),
         ({"q_weight": (0.0, 1.0)}, "q_weight must satisfy"),
         ({"chunk_size": ()}, "chunk_size must be a non-empty tuple"),
-        ({"n_candidates": (0, 8)}, "n_candidates must be a non-empty tuple of integers >= 1"),
+        ({"n_candidates": (0, 8)}, "n_candidates must be an integer >= 1, got 0"),
         ({"flow_steps": (2.0, 5.0)}, "flow_steps must hold integers"),
+        ({"batch_size": (64, True)}, "batch_size must be an integer >= 1, got True"),
+        ({"net_arch": ("small", "huge")}, "net_arch must be names among"),
         ({"tau": (0.01,)}, r"tau must be a \(low, high\) tuple"),
-        ({"smooth_weight": (-1.0, 10.0)}, "smooth_weight must be a non-empty tuple of finite numbers >= 0"),
+        ({"smooth_weight": (-1.0, 10.0)}, "smooth_weight must be a finite number >= 0, got -1.0"),
         ({"smooth_weight": ()}, "smooth_weight must be a non-empty tuple"),
-        ({"n_elite": (1, 16), "n_candidates": (8, 32)}, r"n_elite must not exceed min\(n_candidates\)=8"),
-        ({"n_elite": (0,)}, "n_elite must be a non-empty tuple of integers >= 1"),
-        ({"discrete_entropy": (True, "no")}, "discrete_entropy must be a non-empty tuple of bools"),
-        ({"commit_discrete": ()}, "commit_discrete must be a non-empty tuple of bools"),
-        ({"online_targets": ("prefix", "plan")}, "online_targets must be a non-empty tuple of values"),
+        ({"n_elite": (1, 16), "n_candidates": (8, 32)}, "n_elite=16 must not exceed n_candidates=8"),
+        ({"n_elite": (0,)}, "n_elite must be an integer >= 1, got 0"),
+        ({"discrete_entropy": (True, "no")}, "discrete_entropy must be a bool, got 'no'"),
+        ({"commit_discrete": ()}, "commit_discrete must be a non-empty tuple"),
+        ({"online_targets": ("prefix", "plan")}, r"online_targets must be one of \['auto', 'prefix', 'window'\], got 'plan'"),
     ],
 )
 def test_search_space_rejects_bad_values(config, message):
@@ -558,3 +560,12 @@ def test_register_installs_the_sampler_in_rl_zoo():
     assert np.isfinite(
         hyperparams_opt.HYPERPARAMS_SAMPLER["ua2c"](optuna.create_study().ask(), 1, 1, {})["gamma"]
     )
+
+
+def test_search_space_fields_are_constructor_arguments():
+    """The sampler's names are UA2C's (or, into ``policy_kwargs``, UA2CPolicy's): none is declared anew."""
+    from sb3_ua2c import UA2C, UA2CPolicy
+    from sb3_ua2c.config import policy_arguments
+
+    known = set(inspect.signature(UA2C.__init__).parameters) | set(policy_arguments(UA2CPolicy))
+    assert {f.name for f in dataclasses.fields(zoo.UA2CSearchSpace)} <= known
