@@ -106,13 +106,82 @@ class OfflineEpisode:
             raise ValueError(f"not an offline episode: {type(episode).__name__} lacks {exc.name!r}") from exc
 
 
+def episode_arrays(ep: OfflineEpisode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
+    """
+    The checked per-step arrays of a logged episode, named as the fields of the buffer's storage.
+
+    :param ep: the episode (actions normalised to [-1, 1])
+    :param index: its position in the added sequence (named in the errors)
+    :param obs_dim: flattened observation size
+    :param action_dim: action size
+    :return: ``obs``, ``next_obs`` ``(T, obs_dim)``, ``actions`` ``(T, action_dim)``, ``rewards``,
+        ``terminated`` ``(T,)``
+    :raises ValueError: naming the episode and the field, on an empty episode, a shape that does not
+        fit, actions outside [-1, 1] or an episode end before the last step
+    """
+    actions = np.asarray(ep.actions, dtype=np.float32)
+    t_len = actions.shape[0]
+    if t_len == 0:
+        raise ValueError(f"offline episode {index} is empty")
+    obs = np.asarray(ep.observations, dtype=np.float32)
+    if ep.next_observations is None:
+        if obs.shape[0] != t_len + 1:
+            raise ValueError(
+                f"offline episode {index}: observations must have T+1={t_len + 1} rows when "
+                f"next_observations is omitted, got {obs.shape[0]}"
+            )
+        next_obs, obs = obs[1:], obs[:-1]
+    else:
+        next_obs = np.asarray(ep.next_observations, dtype=np.float32)
+    fields = {
+        "observations": (obs.reshape(obs.shape[0], -1).shape, (t_len, obs_dim)),
+        "next_observations": (next_obs.reshape(next_obs.shape[0], -1).shape, (t_len, obs_dim)),
+        "actions": (actions.reshape(t_len, -1).shape, (t_len, action_dim)),
+        "rewards": (np.shape(ep.rewards), (t_len,)),
+        "terminations": (np.shape(ep.terminations), (t_len,)),
+        "truncations": (np.shape(ep.truncations), (t_len,)),
+    }
+    for name, (got, want) in fields.items():
+        if got != want:
+            raise ValueError(f"offline episode {index}: {name} has shape {got}, expected {want}")
+    if np.abs(actions).max() > 1.0 + 1e-6:
+        raise ValueError(f"offline episode {index}: actions must be normalised to [-1, 1]")
+    term = np.asarray(ep.terminations, dtype=bool)
+    trunc = np.asarray(ep.truncations, dtype=bool)
+    if (term[:-1] | trunc[:-1]).any():
+        raise ValueError(f"offline episode {index}: only the last step may be terminated or truncated")
+    return {
+        "obs": obs.reshape(t_len, -1),  # (T, *obs_shape) -> (T, obs_dim)
+        "next_obs": next_obs.reshape(t_len, -1),
+        "actions": actions.reshape(t_len, -1),  # (T, *action_shape) -> (T, action_dim)
+        "rewards": np.asarray(ep.rewards, dtype=np.float32),
+        "terminated": term,
+    }
+
+
+def offline_windows(t_len: int, terminated: bool, chunk_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    The windows of Eq. 4 that start at every step of a logged episode of ``T`` steps:
+    ``L = min(k, steps to the episode end)``, bootstrap unless the window ends at a termination.
+
+    :param t_len: ``T``
+    :param terminated: the episode terminated at its last step (else it was truncated)
+    :param chunk_size: ``k``
+    :return: the step index ``t``, the horizon ``L`` and the bootstrap mask, each of shape ``(T,)``
+    """
+    steps = np.arange(t_len)
+    horizon = np.minimum(chunk_size, t_len - steps)
+    # the window ends at the last step of the episode iff steps + horizon == t_len
+    return steps, horizon, ~((steps + horizon == t_len) & terminated)
+
+
 class _Steps:
     """Per-step storage with shape ``(capacity, n_envs, ...)``."""
 
     def __init__(
         self, capacity: int, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, plans: bool
     ):
-        self.capacity, self.n_envs = capacity, n_envs
+        self.capacity, self.n_envs, self.chunk_size = capacity, n_envs, chunk_size
         self.obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
         self.next_obs = np.zeros((capacity, n_envs, obs_dim), dtype=np.float32)
         self.actions = np.zeros((capacity, n_envs, action_dim), dtype=np.float32)
@@ -143,6 +212,55 @@ class _Steps:
             new[: old.shape[0]] = old
             setattr(self, name, new)
         self.capacity = capacity
+
+    def gather(
+        self,
+        rows: np.ndarray,
+        history_len: int,
+        out: ChunkReplaySamples,
+        obs_groups: np.ndarray,
+        action_groups: np.ndarray,
+        lo: int,
+    ) -> None:
+        """
+        Write the samples starting at the flat rows ``rows = slot * n_envs + env`` into
+        ``out[lo : lo + len(rows)]`` (see :class:`ChunkReplaySamples`), with histories of
+        ``history_len`` steps. Before the episode start the histories repeat its first observation and
+        hold zero actions.
+
+        Step ``t + j`` of a sample's env is the flat row ``rows + j * n_envs``, taken modulo the ring
+        (``mode="wrap"``); rows outside the sample's episode are only read where they are masked.
+        """
+        s, k, ell, n = self, self.chunk_size, history_len, self.n_envs
+        obs_dim, a_dim = self.obs.shape[-1], self.actions.shape[-1]
+        sl = slice(lo, lo + rows.size)
+        horizon = s.horizon.reshape(-1).take(rows).astype(np.intp)  # (m,) L
+        out.horizons[sl] = horizon
+        out.bootstrap[sl] = s.bootstrap.reshape(-1).take(rows)
+        steps = np.stack([np.zeros_like(horizon), horizon])  # (2, m) offsets of t and t + L
+        count = s.episode_step.reshape(-1).take(rows)  # (m,) steps before t in its episode
+        base, first = rows[:, None], -count[:, None]  # (m, 1): row of t, offset of the episode start
+        # offsets from t of the action histories a_{t+j-ℓ:t+j-1}, (2, m, ℓ)
+        offsets = steps[..., None] + np.arange(-ell, 0)
+        actions = s.actions.reshape(-1, a_dim)
+        actions.take(base + offsets * n, axis=0, out=action_groups[:, sl], mode="wrap")
+        action_groups[:, sl] *= (offsets >= first)[..., None]  # zero actions before the episode start
+        # o_{t+j-ℓ+1:t+j}; before the episode start its first observation
+        obs_rows = base + np.maximum(offsets + 1, first) * n
+        s.obs.reshape(-1, obs_dim).take(obs_rows, axis=0, out=obs_groups[:, sl], mode="wrap")
+        last = rows + (steps[1:] - 1) * n  # (1, m) step t+L-1: o_{t+L} is its next observation
+        next_obs = s.next_obs.reshape(-1, obs_dim)
+        next_obs.take(last, axis=0, out=obs_groups[1:, sl, -1], mode="wrap")
+        ahead = np.arange(k)
+        inside = ahead < horizon[:, None]  # (m, k)
+        chunk_rows = rows[:, None] + ahead * n  # (m, k)
+        s.rewards.reshape(-1).take(chunk_rows, out=out.rewards[sl], mode="wrap")
+        out.rewards[sl] *= inside
+        if s.plans is not None:  # the executed actions, then the plan's unexecuted tail (see ChunkReplayBuffer._write_chunks)
+            s.plans.reshape(-1, k, a_dim).take(rows, axis=0, out=out.chunks[sl])
+        else:  # the next k executed actions, zeros after the episode end
+            actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
+            np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
 
 
 class _StartIndex:
@@ -435,52 +553,17 @@ class ChunkReplayBuffer(BaseBuffer):
         return added
 
     def _add_offline_episode(self, ep: OfflineEpisode, index: int) -> int:
-        actions = np.asarray(ep.actions, dtype=np.float32)
-        t_len = actions.shape[0]
-        if t_len == 0:
-            raise ValueError(f"offline episode {index} is empty")
-        obs = np.asarray(ep.observations, dtype=np.float32)
-        if ep.next_observations is None:
-            if obs.shape[0] != t_len + 1:
-                raise ValueError(
-                    f"offline episode {index}: observations must have T+1={t_len + 1} rows when "
-                    f"next_observations is omitted, got {obs.shape[0]}"
-                )
-            next_obs, obs = obs[1:], obs[:-1]
-        else:
-            next_obs = np.asarray(ep.next_observations, dtype=np.float32)
-        fields = {
-            "observations": (obs.reshape(obs.shape[0], -1).shape, (t_len, self.obs_dim)),
-            "next_observations": (next_obs.reshape(next_obs.shape[0], -1).shape, (t_len, self.obs_dim)),
-            "actions": (actions.reshape(t_len, -1).shape, (t_len, self.action_dim)),
-            "rewards": (np.shape(ep.rewards), (t_len,)),
-            "terminations": (np.shape(ep.terminations), (t_len,)),
-            "truncations": (np.shape(ep.truncations), (t_len,)),
-        }
-        for name, (got, want) in fields.items():
-            if got != want:
-                raise ValueError(f"offline episode {index}: {name} has shape {got}, expected {want}")
-        if np.abs(actions).max() > 1.0 + 1e-6:
-            raise ValueError(f"offline episode {index}: actions must be normalised to [-1, 1]")
-        term = np.asarray(ep.terminations, dtype=bool)
-        trunc = np.asarray(ep.truncations, dtype=bool)
-        if (term[:-1] | trunc[:-1]).any():
-            raise ValueError(f"offline episode {index}: only the last step may be terminated or truncated")
+        arrays = episode_arrays(ep, index, self.obs_dim, self.action_dim)
+        t_len = arrays["actions"].shape[0]
         s, start = self.offline, self.offline_size
         if start + t_len > s.capacity:
             s.grow(max(2 * s.capacity, start + t_len, 1024))
         sl = slice(start, start + t_len)
-        s.obs[sl, 0] = obs.reshape(t_len, -1)
-        s.next_obs[sl, 0] = next_obs.reshape(t_len, -1)
-        s.actions[sl, 0] = actions.reshape(t_len, -1)
-        s.rewards[sl, 0] = np.asarray(ep.rewards, dtype=np.float32)
-        s.terminated[sl, 0] = term
-        steps = np.arange(t_len)
-        s.episode_step[sl, 0] = steps
-        horizon = np.minimum(self.chunk_size, t_len - steps)
-        s.horizon[sl, 0] = horizon
-        # the window ends at the last step of the episode iff steps + horizon == t_len
-        s.bootstrap[sl, 0] = ~((steps + horizon == t_len) & term[-1])
+        for name, array in arrays.items():
+            getattr(s, name)[sl, 0] = array
+        s.episode_step[sl, 0], s.horizon[sl, 0], s.bootstrap[sl, 0] = offline_windows(
+            t_len, bool(arrays["terminated"][-1]), self.chunk_size
+        )
         self.offline_size += t_len
         return t_len
 
@@ -548,10 +631,10 @@ class ChunkReplayBuffer(BaseBuffer):
         )
         if n_off > 0:
             rows = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3
-            self._gather(self.offline, rows, out, obs_groups, action_groups, 0)
+            self.offline.gather(rows, ell, out, obs_groups, action_groups, 0)
         if batch_size - n_off > 0:
             rows = self._starts.sample(batch_size - n_off).astype(np.intp)
-            self._gather(self.online, rows, out, obs_groups, action_groups, n_off)
+            self.online.gather(rows, ell, out, obs_groups, action_groups, n_off)
         if env is not None:
             inside = np.arange(k)[None, :] < out.horizons[:, None]  # (B, k)
             normalized = {
@@ -566,53 +649,6 @@ class ChunkReplayBuffer(BaseBuffer):
     def to_torch(self, array: np.ndarray, copy: bool = False) -> th.Tensor:
         """The sampled arrays are fresh: share their memory unless asked to copy."""
         return th.tensor(array, device=self.device) if copy else th.from_numpy(array).to(self.device)
-
-    def _gather(
-        self,
-        s: _Steps,
-        rows: np.ndarray,
-        out: ChunkReplaySamples,
-        obs_groups: np.ndarray,
-        action_groups: np.ndarray,
-        lo: int,
-    ) -> None:
-        """
-        Write the samples starting at the flat rows ``rows = slot * n_envs + env`` of ``s`` into
-        ``out[lo : lo + len(rows)]`` (see :class:`ChunkReplaySamples`). Before the episode start the
-        histories repeat its first observation and hold zero actions.
-
-        Step ``t + j`` of a sample's env is the flat row ``rows + j * n_envs``, taken modulo the ring
-        (``mode="wrap"``); rows outside the sample's episode are only read where they are masked.
-        """
-        k, ell, n = self.chunk_size, self.history_len, s.n_envs
-        sl = slice(lo, lo + rows.size)
-        horizon = s.horizon.reshape(-1).take(rows).astype(np.intp)  # (m,) L
-        out.horizons[sl] = horizon
-        out.bootstrap[sl] = s.bootstrap.reshape(-1).take(rows)
-        steps = np.stack([np.zeros_like(horizon), horizon])  # (2, m) offsets of t and t + L
-        count = s.episode_step.reshape(-1).take(rows)  # (m,) steps before t in its episode
-        base, first = rows[:, None], -count[:, None]  # (m, 1): row of t, offset of the episode start
-        # offsets from t of the action histories a_{t+j-ℓ:t+j-1}, (2, m, ℓ)
-        offsets = steps[..., None] + np.arange(-ell, 0)
-        actions = s.actions.reshape(-1, self.action_dim)
-        actions.take(base + offsets * n, axis=0, out=action_groups[:, sl], mode="wrap")
-        action_groups[:, sl] *= (offsets >= first)[..., None]  # zero actions before the episode start
-        # o_{t+j-ℓ+1:t+j}; before the episode start its first observation
-        obs_rows = base + np.maximum(offsets + 1, first) * n
-        s.obs.reshape(-1, self.obs_dim).take(obs_rows, axis=0, out=obs_groups[:, sl], mode="wrap")
-        last = rows + (steps[1:] - 1) * n  # (1, m) step t+L-1: o_{t+L} is its next observation
-        next_obs = s.next_obs.reshape(-1, self.obs_dim)
-        next_obs.take(last, axis=0, out=obs_groups[1:, sl, -1], mode="wrap")
-        ahead = np.arange(k)
-        inside = ahead < horizon[:, None]  # (m, k)
-        chunk_rows = rows[:, None] + ahead * n  # (m, k)
-        s.rewards.reshape(-1).take(chunk_rows, out=out.rewards[sl], mode="wrap")
-        out.rewards[sl] *= inside
-        if s.plans is not None:  # the executed actions, then the plan's unexecuted tail (see _write_chunks)
-            s.plans.reshape(-1, k, self.action_dim).take(rows, axis=0, out=out.chunks[sl])
-        else:  # the next k executed actions, zeros after the episode end
-            actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
-            np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ChunkReplaySamples:
         raise NotImplementedError("use ChunkReplayBuffer.sample()")

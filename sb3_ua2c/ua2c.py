@@ -35,9 +35,6 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.chunking import (
-    AdaptiveChunkExecutor,
-    ExecutorStep,
-    PlanResult,
     bootstrap_value,
     chunk_critic_loss,
     chunk_target,
@@ -51,6 +48,7 @@ from sb3_ua2c.config import (
     hyperparameters,
     policy_arguments,
 )
+from sb3_ua2c.execution import AdaptiveChunkExecutor, ExecutorStep, PlanResult
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 

@@ -1,5 +1,5 @@
-"""The execution rule of Eq. 7 with a numeric δ and with ``entropy_threshold="auto"`` (δ set for a target
-mean ``L_t``)."""
+"""Execution (Eq. 7): the adaptive-chunk executor, the rule with a numeric δ and with
+``entropy_threshold="auto"`` (δ set for a target mean ``L_t``)."""
 
 import math
 
@@ -11,16 +11,77 @@ from ua2c_helpers import ACT, FAST, OBS, rollout_actions
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import (
-    AUTO_THRESHOLD_WINDOW,
-    EntropyWindow,
     auto_entropy_threshold,
     chunk_entropy,
     executable_prefix_length,
 )
 from sb3_ua2c.config import check_arguments
+from sb3_ua2c.execution import AUTO_THRESHOLD_WINDOW, AdaptiveChunkExecutor, EntropyWindow, PlanResult
 from sb3_ua2c.policies import UA2CPolicy
 
 T = th.tensor
+
+
+# ------------------------------------------------------------------------------ the executor
+class ScriptedPlanner:
+    """Returns chunks whose entries encode the plan number; records the histories it saw."""
+
+    def __init__(self, k: int, lengths: list[int]):
+        self.k, self.lengths, self.calls = k, list(lengths), []
+
+    def __call__(self, obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
+        m = obs_h.shape[0]
+        self.calls.append((obs_h.copy(), act_h.copy()))
+        n = len(self.calls)
+        chunks = (10 * n + np.arange(self.k, dtype=np.float32)).reshape(1, self.k, 1).repeat(m, 0) / 100
+        lengths = np.array([self.lengths.pop(0) for _ in range(m)])
+        return PlanResult(chunks, lengths, np.zeros((m, self.k), dtype=np.float32))
+
+
+def test_executor_replans_after_the_prefix_and_pads_history():
+    ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    planner = ScriptedPlanner(3, [2, 3])
+    obs = [np.array([[float(i)]]) for i in range(6)]
+    acts, new = [], []
+    for t in range(4):
+        step = ex.act(obs[t], np.array([t == 0]), planner)
+        acts.append(step.actions.item())
+        new.append(bool(step.new_plan[0]))
+    # plan 1 (L=2) plays 0.10, 0.11; plan 2 (L=3) starts at t=2
+    assert acts == pytest.approx([0.10, 0.11, 0.20, 0.21])
+    assert new == [True, False, True, False]
+    # first plan: history padded with o_0 and zero actions
+    assert planner.calls[0][0].ravel().tolist() == [0.0, 0.0]
+    assert planner.calls[0][1].ravel().tolist() == [0.0, 0.0]
+    # second plan at t=2: o_1, o_2 and a_0, a_1
+    assert planner.calls[1][0].ravel().tolist() == [1.0, 2.0]
+    assert planner.calls[1][1].ravel().tolist() == pytest.approx([0.10, 0.11])
+
+
+def test_executor_replans_at_episode_start_and_state_round_trip():
+    ex = AdaptiveChunkExecutor(n_envs=2, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    planner = ScriptedPlanner(3, [3, 3, 3])
+    ex.act(np.array([[1.0], [2.0]]), np.array([True, True]), planner)
+    state = ex.state
+    # env 1 starts a new episode: only it replans, its history restarts from the new observation
+    step = ex.act(np.array([[3.0], [4.0]]), np.array([False, True]), planner)
+    assert step.new_plan.tolist() == [False, True]
+    assert planner.calls[-1][0].ravel().tolist() == [4.0, 4.0]
+    assert step.actions.ravel().tolist() == pytest.approx([0.11, 0.20])
+    # a copy rebuilt from the saved state behaves identically
+    other = AdaptiveChunkExecutor(n_envs=2, obs_dim=1, action_dim=1, chunk_size=3, history_len=2)
+    other.load_state(state)
+    again = other.act(np.array([[3.0], [4.0]]), np.array([False, True]), ScriptedPlanner(3, [3]))
+    assert again.actions[0, 0] == pytest.approx(0.11)
+    with pytest.raises(ValueError, match="plan has shape"):
+        other.load_state((state[0], state[1], np.zeros((2, 4, 1)), state[3], state[4]))
+
+
+def test_executor_noise_is_clipped_and_recorded_in_history():
+    ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=1, chunk_size=2, history_len=1)
+    step = ex.act(np.zeros((1, 1)), np.array([True]), ScriptedPlanner(2, [2]), noise=np.array([[5.0]]))
+    assert step.actions.item() == 1.0
+    assert ex.action_history.item() == 1.0
 
 
 # ------------------------------------------------------------------------------ "auto": δ from a window

@@ -15,7 +15,7 @@ from sb3_ua2c.flow import (
     interpolate,
     target_velocity,
 )
-from sb3_ua2c.policies import VelocityField
+from sb3_ua2c.networks import VelocityField
 
 
 def chunk(*values: float) -> th.Tensor:

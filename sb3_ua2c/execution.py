@@ -1,0 +1,257 @@
+"""Adaptive chunk execution (paper §3.2, Eq. 7): the per-environment state machine shared by the training
+rollouts and by the stateful ``predict`` (:class:`AdaptiveChunkExecutor`), and the window of recent
+entropies from which ``entropy_threshold="auto"`` sets δ (:class:`EntropyWindow`).
+
+The maths it applies (entropies, ``L_t``, the auto δ) are the pure functions of :mod:`sb3_ua2c.chunking`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+import torch as th
+
+from sb3_ua2c.chunking import auto_entropy_threshold
+
+#: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
+#: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
+AUTO_THRESHOLD_WINDOW = 50
+
+
+
+class EntropyWindow(th.nn.Module):
+    """
+    The entropies ``H_u`` of the last ``size`` replannings, one row per env (a ring), from which
+    ``entropy_threshold="auto"`` sets δ (:func:`auto_entropy_threshold`). The rows and their count are
+    buffers, so that ``save``/``load`` reproduce the δ of the saved model.
+
+    :param chunk_size: ``k``
+    :param size: rows kept (:data:`AUTO_THRESHOLD_WINDOW`)
+    """
+
+    def __init__(self, chunk_size: int, size: int = AUTO_THRESHOLD_WINDOW) -> None:
+        super().__init__()
+        self.register_buffer("rows", th.zeros(size, chunk_size))  # (size, k)
+        self.register_buffer("count", th.zeros((), dtype=th.long))  # rows added so far
+
+    def threshold(self, target: float, entropy: th.Tensor) -> th.Tensor:
+        """
+        δ for a replanning with entropies ``entropy`` ``(m, k)``: from the window, shape ``()``; while the
+        window is empty, each row's own δ, shape ``(m, 1)`` (the shortest ``L_t >= target`` its entropies allow).
+        """
+        rows = self.rows[: min(int(self.count), self.rows.shape[0])]  # (n, k)
+        if rows.shape[0]:
+            return auto_entropy_threshold(rows, target)
+        return auto_entropy_threshold(entropy.unsqueeze(-2), target).unsqueeze(-1)  # (m, 1, k) -> (m, 1)
+
+    def add(self, entropy: th.Tensor) -> None:
+        """Append the rows ``(m, k)`` of a replanning (the oldest rows are dropped past ``size``)."""
+        size = self.rows.shape[0]
+        new = entropy[-size:]  # (min(m, size), k)
+        start = int(self.count) + entropy.shape[0] - new.shape[0]
+        self.rows[(start + th.arange(new.shape[0], device=self.rows.device)) % size] = new.to(self.rows.dtype)
+        self.count += entropy.shape[0]
+
+
+class PlanResult(NamedTuple):
+    """Output of one replanning for ``m`` environments."""
+
+    #: selected chunks (clipped to [-1, 1]), shape ``(m, k, action_dim)``
+    chunks: np.ndarray
+    #: executable prefix lengths ``L_t`` (Eq. 7), shape ``(m,)``
+    lengths: np.ndarray
+    #: per-position entropies ``H_u``, shape ``(m, k)``
+    entropy: np.ndarray
+
+
+#: ``planner(observation_history (m, ℓ, obs_dim), action_history (m, ℓ, action_dim)) -> PlanResult``
+Planner = Callable[[np.ndarray, np.ndarray], PlanResult]
+
+
+class ChunkExecutorState(NamedTuple):
+    """
+    Recurrent state of the adaptive-chunk executor, as passed through ``predict(..., state=...)``.
+
+    All arrays have the number of environments as first dim.
+    """
+
+    #: ``o_{t-ℓ+1:t}`` (the newest entry is the last observation seen), shape ``(n, ℓ, obs_dim)``
+    observation_history: np.ndarray
+    #: ``a_{t-ℓ:t-1}`` (zeros before the episode start), shape ``(n, ℓ, action_dim)``
+    action_history: np.ndarray
+    #: current plan (selected chunk), shape ``(n, k, action_dim)``
+    plan: np.ndarray
+    #: executable length ``L_t`` of the current plan, shape ``(n,)``
+    plan_length: np.ndarray
+    #: number of actions of the current plan already executed, shape ``(n,)``
+    plan_position: np.ndarray
+
+
+class ExecutorStep(NamedTuple):
+    """What one executor step did, for every environment."""
+
+    #: executed actions (normalised), shape ``(n, action_dim)``
+    actions: np.ndarray
+    #: whether a new plan started at this step, shape ``(n,)``
+    new_plan: np.ndarray
+    #: the current plans, shape ``(n, k, action_dim)``
+    plans: np.ndarray
+    #: ``L_t`` of the current plans, shape ``(n,)``
+    plan_lengths: np.ndarray
+    #: entropies of the plans made at this step (rows of other envs are NaN), shape ``(n, k)``
+    entropy: np.ndarray
+
+
+class AdaptiveChunkExecutor:
+    """
+    Per-environment adaptive chunk execution (Eq. 7): replan when the executable prefix of the current
+    plan is used up or an episode starts, otherwise play the next action of the plan.
+
+    The history window is padded at the episode start by repeating the first observation (past
+    actions are zeros) and never crosses episodes. The same object drives the training rollouts and,
+    rebuilt from a :class:`ChunkExecutorState`, ``predict``.
+
+    :param n_envs: number of environments
+    :param obs_dim: flattened observation size
+    :param action_dim: action size
+    :param chunk_size: chunk length ``k``
+    :param history_len: history length ``ℓ``
+    """
+
+    def __init__(self, n_envs: int, obs_dim: int, action_dim: int, chunk_size: int, history_len: int) -> None:
+        self.n_envs, self.obs_dim, self.action_dim = n_envs, obs_dim, action_dim
+        self.chunk_size, self.history_len = chunk_size, history_len
+        self.observation_history = np.zeros((n_envs, history_len, obs_dim), dtype=np.float32)
+        self.action_history = np.zeros((n_envs, history_len, action_dim), dtype=np.float32)
+        self.plan = np.zeros((n_envs, chunk_size, action_dim), dtype=np.float32)
+        self.plan_length = np.zeros(n_envs, dtype=np.int64)
+        self.plan_position = np.zeros(n_envs, dtype=np.int64)
+        self._started = np.zeros(n_envs, dtype=bool)
+
+    @property
+    def state(self) -> ChunkExecutorState:
+        """A copy of the recurrent state."""
+        return ChunkExecutorState(
+            self.observation_history.copy(),
+            self.action_history.copy(),
+            self.plan.copy(),
+            self.plan_length.copy(),
+            self.plan_position.copy(),
+        )
+
+    def load_state(self, state: ChunkExecutorState | tuple[np.ndarray, ...]) -> None:
+        """
+        Restore a state returned by :attr:`state` (copied; the argument is not modified).
+
+        :param state: recurrent state of the same shapes
+        """
+        if len(state) != 5:
+            raise ValueError(f"state must be a ChunkExecutorState (5 arrays), got a tuple of {len(state)}")
+        obs_h, act_h, plan, plan_len, plan_pos = (np.asarray(x) for x in state)
+        expected = {
+            "observation_history": (obs_h.shape, self.observation_history.shape),
+            "action_history": (act_h.shape, self.action_history.shape),
+            "plan": (plan.shape, self.plan.shape),
+            "plan_length": (plan_len.shape, self.plan_length.shape),
+            "plan_position": (plan_pos.shape, self.plan_position.shape),
+        }
+        for name, (got, want) in expected.items():
+            if got != want:
+                raise ValueError(f"state.{name} has shape {got}, expected {want}")
+        self.observation_history[:] = obs_h
+        self.action_history[:] = act_h
+        self.plan[:] = plan
+        self.plan_length[:] = plan_len
+        self.plan_position[:] = plan_pos
+        self._started[:] = True
+
+    def reset(self, mask: np.ndarray, observations: np.ndarray) -> None:
+        """
+        Start new episodes for the environments in ``mask``: fill the history with their first
+        observation, clear past actions and drop the current plan.
+
+        :param mask: boolean, shape ``(n,)``
+        :param observations: flattened observations, shape ``(n, obs_dim)``
+        """
+        self.observation_history[mask] = observations[mask, None, :]
+        self.action_history[mask] = 0.0
+        self.plan_position[mask] = 0
+        self.plan_length[mask] = 0
+        self._started[mask] = True
+
+    def act(
+        self,
+        observations: np.ndarray,
+        episode_start: np.ndarray,
+        planner: Planner,
+        noise: np.ndarray | None = None,
+    ) -> ExecutorStep:
+        """
+        Observe ``o_t`` and return ``a_t`` for every environment, replanning where needed.
+
+        :param observations: flattened current observations, shape ``(n, obs_dim)``
+        :param episode_start: whether ``o_t`` is the first observation of an episode, shape ``(n,)``
+        :param planner: see :data:`Planner`
+        :param noise: optional exploration noise added to the executed actions (then clipped), ``(n, action_dim)``
+        :return: the executed actions and what was (re)planned
+        """
+        observations = np.asarray(observations, dtype=np.float32).reshape(self.n_envs, self.obs_dim)
+        start = np.asarray(episode_start, dtype=bool).reshape(self.n_envs) | ~self._started
+        if start.any():
+            self.reset(start, observations)
+        cont = ~start
+        if cont.any():
+            # shift the window by one step: (n, ℓ, obs_dim), oldest first
+            self.observation_history[cont, :-1] = self.observation_history[cont, 1:]
+            self.observation_history[cont, -1] = observations[cont]
+        replan = self.plan_position >= self.plan_length
+        entropy = np.full((self.n_envs, self.chunk_size), np.nan, dtype=np.float32)
+        if replan.any():
+            idx = np.flatnonzero(replan)
+            result = planner(self.observation_history[idx], self.action_history[idx])
+            self.plan[idx] = result.chunks
+            self.plan_length[idx] = result.lengths
+            self.plan_position[idx] = 0
+            entropy[idx] = result.entropy
+        actions = self.plan[np.arange(self.n_envs), self.plan_position].copy()
+        if noise is not None:
+            actions = np.clip(actions + noise, -1.0, 1.0).astype(np.float32)
+        self.plan_position += 1
+        # push a_t into the action window
+        self.action_history[:, :-1] = self.action_history[:, 1:]
+        self.action_history[:, -1] = actions
+        return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
+
+
+def resume_and_act(
+    state: ChunkExecutorState | tuple[np.ndarray, ...] | None,
+    episode_start: np.ndarray | None,
+    observations: np.ndarray,
+    chunk_size: int,
+    history_len: int,
+    action_dim: int,
+    planner: Planner,
+) -> tuple[ExecutorStep, ChunkExecutorState]:
+    """
+    One step of a stateful ``predict``: rebuild the executor from ``state``, act, return the new state.
+
+    :param state: the state returned by the previous step (``None``: new episodes)
+    :param episode_start: whether each observation starts an episode (``None``: every one without a
+        state, none with one)
+    :param observations: flattened observations, shape ``(n, obs_dim)``
+    :param chunk_size: ``k``
+    :param history_len: ``ℓ``
+    :param action_dim: action size
+    :param planner: see :data:`Planner`
+    :return: what the executor did, and its state after the step
+    """
+    n_envs, obs_dim = observations.shape
+    executor = AdaptiveChunkExecutor(n_envs, obs_dim, action_dim, chunk_size, history_len)
+    if episode_start is None:
+        episode_start = np.full(n_envs, state is None)
+    if state is not None:
+        executor.load_state(state)
+    step = executor.act(observations, np.asarray(episode_start, dtype=bool).reshape(n_envs), planner)
+    return step, executor.state
