@@ -1,30 +1,38 @@
-"""Statistics of the head-to-head with rliable (Agarwal et al., "Deep Reinforcement Learning at the
-Edge of the Statistical Precipice", NeurIPS 2021): interquartile mean (IQM) with stratified bootstrap
-confidence intervals, and the probability of improvement of one arm over another.
+"""Run-level statistics of the experiment reports, after rliable (Agarwal et al., "Deep
+Reinforcement Learning at the Edge of the Statistical Precipice", NeurIPS 2021).
 
-Layout. An arm's scores form a matrix ``(n_seeds, n_episodes)``: row ``s`` holds the evaluation
-episodes of the run with seed ``s`` (:func:`score_matrix`). In rliable's terms the rows are runs
-and the columns (evaluation episode ``i`` of every seed) are tasks: the IQM is taken over all
-seeds × episodes, and the stratified bootstrap resamples the seeds independently within each
-episode column, so the intervals carry the spread between training seeds as well as between
-scenarios. The probability of improvement ``P(X > Y)`` is the Mann-Whitney statistic over the
-seeds of each column, averaged over the columns (0.5 = no difference).
+The unit of replication is a run: one seed's data, training and evaluation. Every run is first
+reduced to one score per metric, the mean over its evaluation episodes (:func:`run_scores`); an
+arm's scores form rliable's ``(n_runs, n_tasks)`` matrix with one task per environment
+(:func:`score_matrix`). The evaluation episodes of different seeds are different scenarios, so
+they are never a task axis: resampling seeds within episode columns would hide the spread between
+runs, and an IQM over episodes would trim rare crashes away.
+
+* aggregates: rliable's IQM and mean over runs with stratified bootstrap intervals (runs resampled
+  within each task; :func:`iqm_with_ci`, :func:`mean_with_ci`);
+* ``P(X > Y)``: rliable's probability of improvement, the Mann-Whitney statistic over the runs of
+  each task averaged over tasks, with a bootstrap interval (:func:`probability_of_improvement`);
+* arms that share seeds (the same data and evaluation scenarios): the mean paired per-seed
+  difference with its Student-t interval (:func:`paired_difference`, ``scipy.stats.ttest_rel``),
+  and a verdict that names the interval (:func:`verdict`);
+* learning: the area under a run's online learning curve (:func:`learning_curve_area`).
 
 Metrics where lower is better (collision, jerk) are negated first (``higher_is_better=False``), so a
-probability above 0.5 always means that X does better.
+probability above 0.5 and a positive difference always mean that X does better.
 
-The point estimates are rliable's own functions (``rliable.metrics``). The bootstrap is rliable's
-stratified resampling written out here (:func:`stratified_resamples`, a few lines of NumPy):
-``rliable.library`` 1.2.0 needs ``arch < 8``, whose 7.x releases fail to import with pandas 3, and
-its resampling draws from NumPy's global generator whatever ``random_state`` it is given; here a
-seeded ``numpy.random.Generator`` makes every interval reproducible.
+Point estimates and intervals are rliable's own (``rliable.metrics``, and
+``rliable.library.get_interval_estimates`` with the percentile method). ``rliable.library`` 1.2.0
+imports ``arch < 8``, whose 7.x releases need pandas < 3 (the ``peers`` extra pins it). Its
+resampling draws from NumPy's global generator, so every interval here is computed with that
+generator seeded (and restored afterwards): the same call gives the same interval.
 
-Student-t intervals and relative changes of paired runs (Figure 2) are at the end of this module.
+Student-t intervals and relative changes of Figure 2's claims are at the end of this module.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -37,131 +45,106 @@ from sb3_ua2c.checks import check_int
 LOWER_IS_BETTER = frozenset({"cumulative_jerk", "jerk_per_step", "collision"})
 
 
-def _metrics() -> Any:
+def _rliable() -> tuple[Any, Any]:
     try:
-        from rliable import metrics
+        from rliable import library, metrics
     except ImportError as exc:
-        raise ImportError('the peers statistics need rliable: pip install "sb3-ua2c[peers]"') from exc
-    return metrics
+        raise ImportError('the report statistics need rliable: pip install -e ".[peers]"') from exc
+    return library, metrics
 
 
-def score_matrix(records: Sequence[Mapping[str, Any]], metric: str) -> np.ndarray:
-    """The per-episode values of ``metric`` in the unit records of one arm, one row per seed.
+def _interval_estimates(scores: Mapping[str, Any], func: Any, confidence: float, reps: int, seed: int) -> tuple:
+    """rliable's ``get_interval_estimates`` (percentile method) with NumPy's global generator seeded."""
+    check_int("reps", reps)
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    library, _ = _rliable()
+    state = np.random.get_state()  # noqa: NPY002  (rliable draws from the legacy global generator)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        with warnings.catch_warnings():  # arch deprecates the RandomState that rliable hands it
+            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+            return library.get_interval_estimates(dict(scores), func, reps=reps, confidence_interval_size=confidence,
+                                                  random_state=np.random.RandomState(seed))  # noqa: NPY002
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
 
-    :param records: the records of one arm (:func:`experiments.peers.common.unit_record`), any order
+
+def run_scores(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
+    """One score per run: the mean of ``metric`` over the run's evaluation episodes.
+
+    :param records: the records of one arm, one per seed, any order; ``record[evaluation]["episodes"]``
+        holds the evaluation episodes (:func:`experiments.peers.common.unit_record`)
     :param metric: a key of the evaluation episodes (``reward``, ``collision``, ``jerk_per_step``, ...)
-    :return: ``(n_seeds, n_episodes)``, rows in increasing seed order (booleans as 0.0 / 1.0)
+    :param evaluation: the record key of the evaluation (``"offline_evaluation"`` for the offline score)
+    :return: ``(n_runs,)`` in increasing seed order (booleans as 0.0 / 1.0, so a rate for a 0/1 metric)
     """
     if not records:
         raise ValueError("records must not be empty")
-    rows = []
+    scores = []
     for record in sorted(records, key=lambda r: r["seed"]):
-        episodes = record["evaluation"]["episodes"]
-        if episodes and metric not in episodes[0]:
+        episodes = record[evaluation]["episodes"]
+        if not episodes:
+            raise ValueError(f"seed {record['seed']} has no evaluation episodes")
+        if metric not in episodes[0]:
             raise ValueError(f"metric {metric!r} is not in the evaluation episodes; keys: {sorted(episodes[0])}")
-        rows.append([float(e[metric]) for e in episodes])
-    if len({len(row) for row in rows}) != 1:
-        raise ValueError(f"every seed needs the same number of evaluation episodes, got {[len(r) for r in rows]}")
-    return np.asarray(rows, dtype=np.float64)
+        scores.append(float(np.mean([float(e[metric]) for e in episodes])))
+    return np.asarray(scores, dtype=np.float64)
+
+
+def score_matrix(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
+    """rliable's score matrix of one arm on one task: :func:`run_scores` as a column.
+
+    :return: ``(n_runs, 1)``, rows in increasing seed order
+    """
+    return run_scores(records, metric, evaluation)[:, None]  # (n_runs,) -> (n_runs, 1)
 
 
 def _check_matrix(name: str, scores: Any) -> np.ndarray:
     scores = np.asarray(scores, dtype=np.float64)
     if scores.ndim != 2 or scores.size == 0:
-        raise ValueError(f"{name} must be a non-empty (n_seeds, n_episodes) matrix, got shape {scores.shape}")
+        raise ValueError(f"{name} must be a non-empty (n_runs, n_tasks) matrix, got shape {scores.shape}")
     if not np.all(np.isfinite(scores)):
         raise ValueError(f"{name} holds NaN or inf")
     return scores
 
 
-def stratified_resamples(scores: np.ndarray, reps: int, rng: np.random.Generator) -> np.ndarray:
-    """``reps`` bootstrap copies of ``scores``, each column's rows (seeds) drawn with replacement
-    independently of the other columns (rliable's ``StratifiedBootstrap``).
-
-    :param scores: ``(n_seeds, n_episodes)``
-    :return: ``(reps, n_seeds, n_episodes)``
-    """
-    n, m = scores.shape
-    rows = rng.integers(0, n, size=(reps, n, m))  # (reps, n, m): the seed row taken, per column
-    return scores[rows, np.arange(m)]
-
-
-def iqm_of_resamples(boot: np.ndarray) -> np.ndarray:
-    """rliable's ``aggregate_iqm`` of every bootstrap copy at once (scipy's 25 % trimmed mean per copy).
-
-    :param boot: ``(reps, n_seeds, n_episodes)``
-    :return: ``(reps,)``
-    """
-    from scipy.stats import trim_mean
-
-    return trim_mean(boot.reshape(len(boot), -1), proportiontocut=0.25, axis=1)
-
-
-def improvement_of_resamples(boot_x: np.ndarray, boot_y: np.ndarray) -> np.ndarray:
-    """rliable's ``probability_of_improvement`` of every pair of bootstrap copies at once: per episode
-    column the Mann-Whitney ``U / (n_x n_y)`` (the share of seed pairs with ``x > y``, ties counting
-    one half; 0.5 for identical columns, as rliable sets), averaged over the columns.
-
-    :param boot_x: ``(reps, n_x, m)``
-    :param boot_y: ``(reps, n_y, m)``
-    :return: ``(reps,)``
-    """
-    x, y = boot_x[:, :, None, :], boot_y[:, None, :, :]  # (reps, n_x, 1, m), (reps, 1, n_y, m)
-    wins = (x > y) + 0.5 * (x == y)  # (reps, n_x, n_y, m)
-    return wins.mean(axis=(1, 2)).mean(axis=1)
-
-
-def _percentile_interval(values: np.ndarray, confidence: float) -> tuple[float, float]:
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    tail = 100.0 * (1.0 - confidence) / 2.0
-    low, high = np.percentile(values, [tail, 100.0 - tail])
-    return float(low), float(high)
-
-
 def iqm(scores: np.ndarray) -> float:
-    """Interquartile mean: the mean of the middle 50 % of all entries (25 % trimmed from each end)."""
-    return float(_metrics().aggregate_iqm(_check_matrix("scores", scores)))
+    """Interquartile mean over runs × tasks: the mean of the middle 50 % (25 % trimmed from each end)."""
+    return float(_rliable()[1].aggregate_iqm(_check_matrix("scores", scores)))
 
 
-def _aggregate_with_ci(
-    scores: Mapping[str, np.ndarray], key: str, point: Any, of_resamples: Any, confidence: float, reps: int, seed: int
-) -> dict[str, dict[str, float]]:
-    check_int("reps", reps)
-    out = {}
-    for name, matrix in scores.items():
-        matrix = _check_matrix(f"scores[{name!r}]", matrix)
-        boot = stratified_resamples(matrix, reps, np.random.default_rng(seed))  # (reps, n, m)
-        low, high = _percentile_interval(of_resamples(boot), confidence)
-        out[name] = {key: float(point(matrix)), "ci_low": low, "ci_high": high}
-    return out
+def _aggregate_with_ci(scores: Mapping[str, np.ndarray], key: str, aggregate: Any, confidence: float, reps: int,
+                       seed: int) -> dict[str, dict[str, float]]:
+    checked = {name: _check_matrix(f"scores[{name!r}]", matrix) for name, matrix in scores.items()}
+    points, intervals = _interval_estimates(checked, lambda m: np.array([aggregate(m)]), confidence, reps, seed)
+    return {name: {key: float(points[name][0]), "ci_low": float(intervals[name][0, 0]),
+                   "ci_high": float(intervals[name][1, 0])} for name in checked}
 
 
 def iqm_with_ci(
     scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
 ) -> dict[str, dict[str, float]]:
-    """IQM of each arm with its stratified bootstrap confidence interval (percentile method).
+    """IQM of each arm over its runs with rliable's stratified bootstrap interval over runs.
 
-    :param scores: arm name -> ``(n_seeds, n_episodes)`` matrix
+    :param scores: arm name -> ``(n_runs, n_tasks)`` matrix (:func:`score_matrix`)
     :param confidence: interval size
     :param reps: bootstrap replications
-    :param seed: seed of the bootstrap's generator (the same call gives the same interval)
+    :param seed: seed of the bootstrap (the same call gives the same interval)
     :return: arm -> ``{"iqm", "ci_low", "ci_high"}``
     """
-    return _aggregate_with_ci(scores, "iqm", _metrics().aggregate_iqm, iqm_of_resamples, confidence, reps, seed)
+    return _aggregate_with_ci(scores, "iqm", _rliable()[1].aggregate_iqm, confidence, reps, seed)
 
 
 def mean_with_ci(
     scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
 ) -> dict[str, dict[str, float]]:
-    """Mean of each arm over seeds × episodes (rliable's ``aggregate_mean``; for a 0/1 metric, the rate)
-    with its stratified bootstrap confidence interval. Where a 0/1 metric such as collision is rarer
-    than 1 in 4 episodes its IQM is 0, as the trimmed quarters hold every 1: report the rate.
+    """Mean of each arm over its runs (rliable's ``aggregate_mean``; for a 0/1 metric, the mean rate)
+    with rliable's stratified bootstrap interval over runs.
 
     :return: arm -> ``{"mean", "ci_low", "ci_high"}`` (arguments as :func:`iqm_with_ci`)
     """
-    of_resamples = lambda boot: boot.reshape(len(boot), -1).mean(axis=1)  # noqa: E731  (reps,)
-    return _aggregate_with_ci(scores, "mean", _metrics().aggregate_mean, of_resamples, confidence, reps, seed)
+    return _aggregate_with_ci(scores, "mean", _rliable()[1].aggregate_mean, confidence, reps, seed)
 
 
 def probability_of_improvement(
@@ -172,27 +155,87 @@ def probability_of_improvement(
     reps: int = 2000,
     seed: int = 0,
 ) -> dict[str, float]:
-    """``P(X > Y)``: how likely a run of X does better than a run of Y on an evaluation episode
-    column, averaged over the columns, with its stratified bootstrap confidence interval (X and Y
-    resampled independently, as rliable's ``StratifiedIndependentBootstrap``).
+    """``P(X > Y)``: how likely a run of X scores higher than a run of Y on a task (ties count one
+    half), averaged over the tasks, with rliable's bootstrap interval (X and Y resampled
+    independently, rliable's ``StratifiedIndependentBootstrap``).
 
-    :param x: ``(n_seeds_x, n_episodes)`` scores of X
-    :param y: ``(n_seeds_y, n_episodes)`` scores of Y (the same episode columns)
+    :param x: ``(n_runs_x, n_tasks)`` scores of X
+    :param y: ``(n_runs_y, n_tasks)`` scores of Y (the same tasks)
     :param higher_is_better: ``False`` for costs (collision, jerk): X is better when lower
     :return: ``{"probability", "ci_low", "ci_high"}``
     """
-    check_int("reps", reps)
-    metrics = _metrics()
     x, y = _check_matrix("x", x), _check_matrix("y", y)
     if x.shape[1] != y.shape[1]:
-        raise ValueError(f"x and y need the same episode columns, got {x.shape[1]} and {y.shape[1]}")
+        raise ValueError(f"x and y need the same tasks, got {x.shape[1]} and {y.shape[1]}")
     sign = 1.0 if higher_is_better else -1.0
-    x, y = sign * x, sign * y
-    rng = np.random.default_rng(seed)
-    boot_x, boot_y = stratified_resamples(x, reps, rng), stratified_resamples(y, reps, rng)
-    low, high = _percentile_interval(improvement_of_resamples(boot_x, boot_y), confidence)
-    return {"probability": float(metrics.probability_of_improvement(x, y)), "ci_low": low, "ci_high": high}
+    metrics = _rliable()[1]
+    points, intervals = _interval_estimates({"pair": [sign * x, sign * y]},
+                                            lambda a, b: np.array([metrics.probability_of_improvement(a, b)]),
+                                            confidence, reps, seed)
+    return {"probability": float(points["pair"][0]), "ci_low": float(intervals["pair"][0, 0]),
+            "ci_high": float(intervals["pair"][1, 0])}
 
+
+def paired_difference(
+    x: Sequence[float], y: Sequence[float], higher_is_better: bool = True, confidence: float = 0.95
+) -> dict[str, float]:
+    """Mean of the per-seed differences ``x_s − y_s`` of two arms that share their seeds (the same
+    data and evaluation scenarios), with its Student-t interval (``scipy.stats.ttest_rel``).
+
+    :param x: one score per run of X (:func:`run_scores`), in seed order
+    :param y: the same seeds' scores of Y
+    :param higher_is_better: ``False`` for costs: the differences are ``y_s − x_s``, so that a
+        positive difference always means that X does better
+    :param confidence: interval size
+    :return: ``{"difference", "ci_low", "ci_high", "runs", "x_better_runs"}``
+    """
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.ndim != 1 or x.shape != y.shape:
+        raise ValueError(f"x and y must be paired 1-D score vectors, got shapes {x.shape} and {y.shape}")
+    if len(x) < 2:
+        raise ValueError(f"a paired interval needs at least 2 runs, got {len(x)}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("x and y must be finite")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    better, worse = (x, y) if higher_is_better else (y, x)
+    diff = better - worse  # (n_runs,)
+    if np.all(diff == diff[0]):  # no spread: the interval is the point (ttest_rel would give NaN)
+        low = high = float(diff[0])
+    else:
+        low, high = scipy.stats.ttest_rel(better, worse).confidence_interval(confidence)
+    return {"difference": float(diff.mean()), "ci_low": float(low), "ci_high": float(high), "runs": len(diff),
+            "x_better_runs": int(np.sum(diff > 0))}
+
+
+def verdict(x: str, y: str, paired: Mapping[str, float], unit: str = "") -> str:
+    """A sentence that names the interval of a :func:`paired_difference`, not only its sign.
+
+    ``"X vs Y: +3.10 [0.70, 5.50] over 5 paired runs (X ahead in 4): X better"``; the last words are
+    ``X better`` / ``Y better`` when the interval excludes 0, ``no difference shown`` otherwise.
+    """
+    low, high = paired["ci_low"], paired["ci_high"]
+    word = f"{x} better" if low > 0 else f"{y} better" if high < 0 else "no difference shown"
+    return (f"{x} vs {y}: {paired['difference']:+.2f}{unit} [{low:+.2f}, {high:+.2f}] over {paired['runs']} paired "
+            f"runs ({x} ahead in {paired['x_better_runs']}): {word}")
+
+
+def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) -> float:
+    """Area under one run's online learning curve per env step: the return of the episode running at
+    each step, averaged over the steps up to the last episode's end, i.e. ``Σ_i R_i ℓ_i / Σ_i ℓ_i``
+    with ``ℓ_i`` the length of episode ``i`` in env steps (a run that learns early scores higher than
+    one with the same final return that learns late).
+
+    :param end_steps: the env step at which each online episode ended, increasing
+    :param returns: the episodes' returns
+    """
+    ends, rets = np.asarray(end_steps, dtype=np.float64), np.asarray(returns, dtype=np.float64)
+    if ends.ndim != 1 or ends.shape != rets.shape or len(ends) == 0:
+        raise ValueError(f"end_steps and returns must be non-empty and of one length, got {ends.shape}, {rets.shape}")
+    lengths = np.diff(ends, prepend=0.0)  # (n_episodes,)
+    if np.any(lengths <= 0):
+        raise ValueError("end_steps must be positive and increasing")
+    return float(np.sum(rets * lengths) / ends[-1])
 
 
 def _check_df(df: int) -> None:
@@ -284,6 +327,7 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
 
 
 __all__ = [
-    "LOWER_IS_BETTER", "improvement_of_resamples", "iqm", "iqm_of_resamples", "iqm_with_ci", "mean_with_ci", "probability_of_improvement", "score_matrix", "stratified_resamples",
+    "LOWER_IS_BETTER", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
+    "probability_of_improvement", "run_scores", "score_matrix", "verdict",
     "compare", "relative_change_pct", "student_t_quantile", "student_t_two_sided_cdf", "t_confidence_interval",
 ]

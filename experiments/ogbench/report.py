@@ -1,9 +1,10 @@
 """Report of the OGBench benchmark: success after the offline and the online phase, per arm.
 
-Statistics are rliable's (:mod:`experiments.common.stats`): an arm's scores form a ``(n_seeds,
-n_episodes)`` matrix of evaluation successes (0 or 1), the IQM is taken over seeds x episodes with
-a stratified bootstrap 95 % interval, and the probability of improvement compares two arms episode
-column by episode column. The ranking of fixed chunks against one-step is set against Q-chunking's
+Statistics are run-level (:mod:`experiments.common.stats`): each run (seed) scores its success
+rate over its evaluation episodes; per arm the mean and the IQM over runs with rliable's stratified
+bootstrap 95 % interval, per pair of arms the probability of improvement over runs and, as the
+arms of a seed share its data and evaluation goals, the mean paired per-seed difference with its
+Student-t interval. The ranking of fixed chunks against one-step is set against Q-chunking's
 published one (Li, Zhou, Levine 2025: QC > FQL on every OGBench domain, cube-single included).
 
 Outputs: ``ogbench.md``, ``ogbench.json`` and the learning curves ``ogbench_online_success.png``
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import iqm_with_ci, probability_of_improvement
+from experiments.common.stats import iqm_with_ci, paired_difference, probability_of_improvement
 
 PHASES = ("offline", "online")
 LABELS = {"adaptive": "UA2C (adaptive chunks)", "fixed": "fixed chunks (k = 5, δ = inf)", "onestep": "one-step (k = 1)"}
@@ -34,15 +35,23 @@ SUCCESS_BAR = 0.10
 
 
 def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarray:
-    """``(n_seeds, n_episodes)`` evaluation successes of one arm after ``phase``, rows by seed."""
+    """``(n_runs, 1)``: each run's success rate over its evaluation episodes after ``phase``
+    (``record["success_<phase>"]``), rows by seed."""
     if phase not in PHASES:
         raise ValueError(f"phase must be one of {PHASES}, got {phase!r}")
     if not records:
         raise ValueError("records must not be empty")
-    rows = [list(map(float, r[f"eval_{phase}"]["successes"])) for r in sorted(records, key=lambda r: r["seed"])]
-    if len({len(row) for row in rows}) != 1:
-        raise ValueError(f"every seed needs the same number of evaluation episodes, got {[len(r) for r in rows]}")
-    return np.asarray(rows, dtype=np.float64)
+    rates = [float(r[f"success_{phase}"]) for r in sorted(records, key=lambda r: r["seed"])]
+    return np.asarray(rates, dtype=np.float64)[:, None]  # (n_runs,) -> (n_runs, 1)
+
+
+def records_from_report(path: str | Path) -> list[dict[str, Any]]:
+    """The run records kept in a written ``ogbench.json`` (what the statistics need: arm, seed, task,
+    budget, success rates and seconds), to rebuild the report where the unit records are gone."""
+    import json
+
+    summary = json.loads(Path(path).read_text())
+    return [{**r, "task": summary["task"], "budget": summary["budget"]} for r in summary["records"]]
 
 
 def by_arm(records: Sequence[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
@@ -77,13 +86,16 @@ def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[st
         intervals = iqm_with_ci(matrices[phase], reps=reps)
         for arm, matrix in matrices[phase].items():
             arms.setdefault(arm, {"seeds": sorted(r["seed"] for r in groups[arm])})[phase] = {
-                "mean": float(matrix.mean()), "per_seed": matrix.mean(axis=1).tolist(), **intervals[arm]}
+                "mean": float(matrix.mean()), "per_seed": matrix[:, 0].tolist(), **intervals[arm]}
     pairs: dict[str, Any] = {}
     for x, y in itertools.permutations(groups, 2):
         if (y, x) in {tuple(k.split(" > ")) for k in pairs}:
             continue
         pairs[f"{x} > {y}"] = {phase: probability_of_improvement(matrices[phase][x], matrices[phase][y], reps=reps)
                                for phase in PHASES}
+        if arms[x]["seeds"] == arms[y]["seeds"] and len(arms[x]["seeds"]) >= 2:
+            for phase in PHASES:
+                pairs[f"{x} > {y}"][f"{phase}_paired"] = paired_difference(matrices[phase][x][:, 0], matrices[phase][y][:, 0])
     poi = pairs.get("fixed > onestep", {}).get("online")
     if poi is None and "onestep > fixed" in pairs:
         flipped = pairs["onestep > fixed"]["online"]
@@ -115,11 +127,9 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
     lines += [f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units"
               + (f" (estimate {est['total_cpu'] / 60:.0f} CPU-min, an upper bound)" if est.get("total_cpu") else "")
               + ".", ""]
-    lines += ["Success rate over the evaluation episodes after each phase: mean, per seed, and IQM over "
-              "seeds x episodes with its stratified bootstrap 95 % interval (rliable). Success is 0 or 1 per "
-              "episode, so its IQM is about (p - 0.25) / 0.5 clipped to [0, 1] for a success rate p: 0 below 25 % "
-              "and 100 % above 75 %. Read the means; the IQM and the probabilities of improvement carry the "
-              "intervals.", "",
+    lines += ["Success rate after each phase. A run's score is its success rate over its evaluation episodes; "
+              "the table gives the mean over runs, the IQM over runs with its stratified bootstrap 95 % interval "
+              "(rliable), and every run's rate.", "",
               "| arm | seeds | offline mean | offline IQM [95 % CI] | online mean | online IQM [95 % CI] | per seed (online) |",
               "|---|---|---|---|---|---|---|"]
     for arm, s in summary["arms"].items():
@@ -128,11 +138,16 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
                      f"[{_pct(off['ci_low'])}, {_pct(off['ci_high'])}] | {_pct(on['mean'])} | {_pct(on['iqm'])} "
                      f"[{_pct(on['ci_low'])}, {_pct(on['ci_high'])}] | "
                      f"{', '.join(f'{100 * v:.0f}' for v in on['per_seed'])} |")
-    lines += ["", "Probability of improvement P(X > Y) over the evaluation episodes (0.5 = no difference):", "",
-              "| X > Y | offline [95 % CI] | online [95 % CI] |", "|---|---|---|"]
+    lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
+              "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t interval:", "",
+              "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",
+              "|---|---|---|---|---|"]
     for pair, p in summary["improvement"].items():
+        paired = [f"{_pct(p[f'{ph}_paired']['difference'])} [{_pct(p[f'{ph}_paired']['ci_low'])}, "
+                  f"{_pct(p[f'{ph}_paired']['ci_high'])}]" if f"{ph}_paired" in p else "–" for ph in PHASES]
         lines.append("| " + pair + " | " + " | ".join(
-            f"{p[ph]['probability']:.2f} [{p[ph]['ci_low']:.2f}, {p[ph]['ci_high']:.2f}]" for ph in PHASES) + " |")
+            f"{p[ph]['probability']:.2f} [{p[ph]['ci_low']:.2f}, {p[ph]['ci_high']:.2f}]" for ph in PHASES)
+            + " | " + " | ".join(paired) + " |")
     r = summary["ranking"]
     lines += ["", "## Budget and ranking next to Q-chunking", "",
               "| | this run | Q-chunking |", "|---|---|---|",
@@ -196,9 +211,10 @@ def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
 
 
 def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command: str | None = None,
-                 estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None) -> dict[str, Any]:
-    """Write ``ogbench.md``, ``ogbench.json`` and the PNGs into ``out``; return the summary (``date``: when the
-    run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
+                 estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None,
+                 plots: bool = True) -> dict[str, Any]:
+    """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary
+    (``date``: when the run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
     from sb3_ua2c.pipeline import write_json
 
     out = Path(out)
@@ -206,11 +222,13 @@ def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command:
     summary = summarize(records, reps=reps)
     summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
     summary["date"] = date
-    write_plots(records, out)
+    if plots:
+        write_plots(records, out)
     (out / "ogbench.md").write_text(format_markdown(summary, command))
     write_json(out / "ogbench.json", {**summary, "records": [
         {k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]})
     return summary
 
 
-__all__ = ["QC_REFERENCE", "format_markdown", "ranking", "success_matrix", "summarize", "write_report"]
+__all__ = ["QC_REFERENCE", "format_markdown", "ranking", "records_from_report", "success_matrix", "summarize",
+           "write_report"]

@@ -1,9 +1,11 @@
 """Aggregation and report of the head-to-head: ``peers.json``, ``peers.md`` and the PNGs.
 
-Per arm: every evaluation metric as an IQM with its 95 % stratified bootstrap CI over seeds ×
-evaluation episodes (:mod:`experiments.common.stats`), the offline-only score of the arms with an
-offline phase, the online learning curve, and the wall / CPU seconds. Per (UA2C arm, peer): the
-probability of improvement of the UA2C arm, per metric.
+Statistics are run-level (:mod:`experiments.common.stats`): every run (seed) is reduced to one
+score per metric, the mean over its evaluation episodes. Per arm: the IQM and mean of every metric
+over runs with 95 % stratified bootstrap CIs, the offline-only score of the arms with an offline
+phase, the online learning curve and its area per run, and the wall / CPU seconds. Per (UA2C arm,
+peer): the probability of improvement over runs, per metric, and the mean paired per-seed
+difference of the reward with its interval (the arms of a seed share its data and scenarios).
 """
 
 from __future__ import annotations
@@ -18,9 +20,13 @@ import numpy as np
 from experiments.common.stats import (
     LOWER_IS_BETTER,
     iqm_with_ci,
+    learning_curve_area,
     mean_with_ci,
+    paired_difference,
     probability_of_improvement,
+    run_scores,
     score_matrix,
+    verdict,
 )
 from experiments.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
 
@@ -29,11 +35,6 @@ METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_
 #: Metrics of the probability of improvement.
 POI_METRICS = ("reward", "collision", "merge_success", "jerk_per_step")
 CURVE_BINS = 20
-
-
-def _offline_score_records(records: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """The records with their offline evaluation in place of the final one (for :func:`score_matrix`)."""
-    return [{"seed": r["seed"], "evaluation": r["offline_evaluation"]} for r in records]
 
 
 def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
@@ -72,13 +73,16 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
-    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_seeds, n_episodes)
+    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
     metrics = iqm_with_ci(scores, reps=reps)
     means = mean_with_ci(scores, reps=reps)
     offline = None
     if all(r.get("offline_evaluation") for r in records):
-        off = _offline_score_records(records)
-        offline = {m: iqm_with_ci({"x": score_matrix(off, m)}, reps=reps)["x"] for m in METRICS}
+        offline = {m: iqm_with_ci({"x": score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
+                   for m in METRICS}
+    ordered = sorted(records, key=lambda r: r["seed"])
+    areas = [learning_curve_area([e["end_step"] for e in r["online_episodes"]], [e["reward"] for e in r["online_episodes"]])
+             if r["online_episodes"] else float("nan") for r in ordered]
     online_steps = int(records[0]["online_steps"])
     curves = np.array([binned_curve(r["online_episodes"], online_steps) for r in sorted(records, key=lambda r: r["seed"])])
     band = curve_band(curves, reps=reps)
@@ -94,6 +98,9 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "offline_steps": int(first["offline_steps"]),
         "metrics": metrics,
         "means": means,
+        "per_seed": {m: scores[m][:, 0].tolist() for m in METRICS},
+        "curve_area": {"per_seed": areas, **(mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
+                                             if np.all(np.isfinite(areas)) else {})},
         "offline_metrics": offline,
         "curve": {"env_steps": steps, **band},
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
@@ -105,10 +112,17 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
 
 def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, peer: str,
                  reps: int = 2000) -> dict[str, Any]:
-    """Probability that ``ours`` improves on ``peer``, per metric (lower-is-better metrics negated)."""
-    return {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
-                                          higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
-            for m in POI_METRICS}
+    """Probability that a run of ``ours`` improves on a run of ``peer``, per metric (lower-is-better
+    metrics negated), and, over the seeds both ran, the paired per-seed reward difference."""
+    out: dict[str, Any] = {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
+                                                         higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
+                           for m in POI_METRICS}
+    shared = sorted({r["seed"] for r in records[ours]} & {r["seed"] for r in records[peer]})
+    if len(shared) >= 2:
+        x = run_scores([r for r in records[ours] if r["seed"] in shared], "reward")
+        y = run_scores([r for r in records[peer] if r["seed"] in shared], "reward")
+        out["reward_paired"] = paired_difference(x, y)
+    return out
 
 
 def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 2000) -> dict[str, Any]:
@@ -125,18 +139,14 @@ def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 20
 
 
 def verdicts(summary: Mapping[str, Any]) -> list[str]:
-    """Plain sentences: for every (UA2C arm, peer), who has the higher IQM reward, by how much, and the
-    probability of improvement."""
-    arms, lines = summary["arms"], []
+    """Plain sentences: for every (UA2C arm, peer), the paired per-seed reward difference with its
+    interval (the verdict follows the interval, not the sign), then the probability of improvement."""
+    lines = []
     for pair in summary["pairs"].values():
-        o, p = pair["ua2c"], pair["peer"]
-        ro, rp = arms[o]["metrics"]["reward"]["iqm"], arms[p]["metrics"]["reward"]["iqm"]
-        gap, rel = ro - rp, 100.0 * (ro - rp) / abs(rp) if rp else float("nan")
+        o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
         poi = pair["reward"]
-        word = "beats" if gap > 0 else "LOSES to" if gap < 0 else "ties with"
-        lines.append(f"{ARM_LABELS.get(o, o)} {word} {ARM_LABELS.get(p, p)}: IQM reward {ro:.2f} vs {rp:.2f} "
-                     f"({gap:+.2f}, {rel:+.1f} % of |peer|); P(UA2C > peer) = {poi['probability']:.2f} "
-                     f"[{poi['ci_low']:.2f}, {poi['ci_high']:.2f}]")
+        head = verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
+        lines.append(f"{head}; P({o} > {p}) = {poi['probability']:.2f} [{poi['ci_low']:.2f}, {poi['ci_high']:.2f}]")
     return lines
 
 
@@ -149,11 +159,12 @@ def headline(summary: Mapping[str, Any]) -> str:
     if not ours or not peers:
         return "Only one side was run: no head-to-head verdict."
     o, p = max(ours, key=reward.get), max(peers, key=reward.get)
-    gap = reward[o] - reward[p]
-    side = "ahead of" if gap > 0 else "BEHIND" if gap < 0 else "level with"
-    return (f"Best UA2C arm, {ARM_LABELS.get(o, o)} (IQM reward {reward[o]:.2f}), is {side} the best peer, "
-            f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}), by {abs(gap):.2f}; P(UA2C > peer) = "
-            f"{summary['pairs'][f'{o}_vs_{p}']['reward']['probability']:.2f}. By the mean reward: "
+    pair = summary["pairs"][f"{o}_vs_{p}"]
+    paired = (verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
+              else "no shared seeds")
+    return (f"Best UA2C arm by IQM reward over runs, {ARM_LABELS.get(o, o)} ({reward[o]:.2f}); best peer, "
+            f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}). Paired per seed: {paired}; P(UA2C > peer) = "
+            f"{pair['reward']['probability']:.2f}. By the mean reward: "
             f"{_mean(arms[o], 'reward'):.2f} vs {_mean(arms[p], 'reward'):.2f} "
             f"({_mean(arms[o], 'reward') - _mean(arms[p], 'reward'):+.2f}); collision rate "
             f"{_mean(arms[o], 'collision'):.2f} vs {_mean(arms[p], 'collision'):.2f}.")
@@ -184,12 +195,13 @@ def results_table(summary: Mapping[str, Any]) -> list[str]:
 
 def means_table(summary: Mapping[str, Any]) -> list[str]:
     """The per-arm means [95 % CI] in Markdown: collision and merge success as rates."""
-    lines = ["| arm | reward | collision rate | merge rate | cum. jerk | jerk/step |", "|---|---|---|---|---|---|"]
+    lines = ["| arm | reward | collision rate | merge rate | cum. jerk | jerk/step | online curve area |",
+             "|---|---|---|---|---|---|---|"]
     for arm in summary["arms"].values():
-        m = arm["means"]
+        m, area = arm["means"], arm.get("curve_area", {})
         lines.append(f"| {arm['label']} | {_cell(m['reward'], key='mean')} | {_cell(m['collision'], key='mean')} "
                      f"| {_cell(m['merge_success'], key='mean')} | {_cell(m['cumulative_jerk'], 1, 'mean')} "
-                     f"| {_cell(m['jerk_per_step'], key='mean')} |")
+                     f"| {_cell(m['jerk_per_step'], key='mean')} | {_cell(area, key='mean') if 'mean' in area else '–'} |")
     return lines
 
 
@@ -266,8 +278,10 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         f"steps for UA2C, IQL and Cal-QL" + (f" (Cal-QL: {calql})" if calql else "") + f", on the seed's Figure-2 "
         f"dataset ({b['dataset_episodes']} episodes of the behaviour policy, the same data for every arm).",
         f"- Evaluation: {b['eval_episodes']} held-out episodes per seed (Figure 2's scenarios, the same for every "
-        "arm), deterministic actions; statistics are IQMs with 95 % stratified bootstrap CIs over seeds × episodes, "
-        "and P(UA2C > peer) is rliable's probability of improvement (0.5 = no difference).",
+        "arm), deterministic actions. Statistics are run-level: each seed's score is the mean over its evaluation "
+        "episodes; IQMs and means over runs carry 95 % stratified bootstrap CIs (rliable), P(UA2C > peer) is "
+        "rliable's probability of improvement over runs (0.5 = no difference), and the paired difference is the "
+        "mean per-seed difference with its Student-t interval.",
         f"- Observation: {obs}. Action space: the same `Box` (acceleration, lane-change command with the env's "
         "thresholds) for every arm.",
         f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
@@ -298,13 +312,13 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "",
         *_protocol_lines(summary),
         "",
-        "## Verdict (IQM of the final evaluation reward)",
+        "## Verdict (final evaluation reward, paired per seed)",
         "",
         f"**{headline(summary)}**",
         "",
         *(f"- {v}" for v in verdicts(summary)),
         "",
-        "## Results (IQM [95 % CI] over seeds × evaluation episodes)",
+        "## Results (IQM over runs [95 % CI]; one score per run = the mean over its evaluation episodes)",
         "",
         *results_table(summary),
         "",
@@ -312,14 +326,14 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared offline "
         "checkpoint.",
         "",
-        "For the 0/1 metrics (collision, merge success) the IQM trims the quarter of episodes at each end, so a "
-        "collision rate under 25 % reads 0: the rates are in the next table.",
+        "For the 0/1 metrics (collision, merge success) a run's score is its rate; the IQM over runs trims the "
+        "quarter of runs at each end, so the means over runs are in the next table.",
         "",
-        "## Means (95 % CI) over seeds × evaluation episodes",
+        "## Means over runs [95 % CI], and the area under each run's online learning curve",
         "",
         *means_table(summary),
         "",
-        "## Probability of improvement of each UA2C arm over each peer",
+        "## Probability of improvement of each UA2C arm over each peer (over runs)",
         "",
         *pairs_table(summary),
         "",

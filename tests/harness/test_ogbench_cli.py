@@ -116,9 +116,9 @@ def test_work_directory_of_another_budget_is_refused(quick_run):
 ])
 def test_bad_input_is_a_clear_error(argv, message, capsys):
     require("ogbench")
-    from sb3_ua2c.__main__ import main
+    from experiments.ogbench.cli import main
 
-    assert main(["ogbench", "--quick", "--out", "unused", *argv]) == 2
+    assert main(["--quick", "--out", "unused", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and re.search(message, err), err
 
@@ -164,19 +164,24 @@ def test_summary_statistics_on_hand_made_records(hand_records):
 
     summary = summarize(hand_records, reps=200)
     fixed = summary["arms"]["fixed"]
+    # one score per run: its success rate
     assert fixed["seeds"] == [0, 1, 2] and fixed["online"]["per_seed"] == [1.0, 0.75, 0.0]
     assert fixed["online"]["mean"] == pytest.approx(7 / 12)
-    # IQM: the 12 values sorted are 5 zeros then 7 ones; trimming 3 from each end leaves 0, 0, 1, 1, 1, 1
-    assert fixed["online"]["iqm"] == pytest.approx(4 / 6)
+    # IQM over 3 runs: 25 % of 3 trims no whole run, so it is their mean
+    assert fixed["online"]["iqm"] == pytest.approx(7 / 12)
     assert summary["arms"]["onestep"]["offline"]["mean"] == pytest.approx(0.25)
     assert summary["arms"]["onestep"]["online"] == {"mean": 0.0, "per_seed": [0.0, 0.0, 0.0], "iqm": 0.0,
                                                     "ci_low": 0.0, "ci_high": 0.0}
-    # the last episode column: onestep succeeds on every seed offline, fixed on none -> 0 there, 0.5 elsewhere
-    offline = summary["improvement"]["fixed > onestep"]["offline"]
-    assert offline["probability"] == pytest.approx((0.5 * 3 + 0.0) / 4)
-    # online P(fixed > onestep) per column: column 1-3 have 2/3 of fixed seeds winning (+ ties of 1/3 at 0.5)
-    online = summary["improvement"]["fixed > onestep"]["online"]
-    assert online["probability"] == pytest.approx((3 * (2 / 3 + 0.5 / 3) + (1 / 3 + 0.5 * 2 / 3)) / 4)
+    # offline: every one-step run (rate 0.25) beats every fixed run (rate 0)
+    pair = summary["improvement"]["fixed > onestep"]
+    assert pair["offline"]["probability"] == 0.0
+    # online, run pairs: 1 > 0 and 0.75 > 0 three times each, 0 = 0 three ties -> (6 + 1.5) / 9
+    assert pair["online"]["probability"] == pytest.approx(7.5 / 9)
+    # paired per seed: differences 1, 0.75, 0 -> mean 7/12, sd 0.52042, t(0.975, 2) = 4.30265
+    paired = pair["online_paired"]
+    assert paired["difference"] == pytest.approx(7 / 12) and paired["x_better_runs"] == 2
+    assert paired["ci_low"] == pytest.approx(7 / 12 - 4.302653 * 0.520416 / 3 ** 0.5, abs=1e-5)
+    assert paired["ci_high"] == pytest.approx(7 / 12 + 4.302653 * 0.520416 / 3 ** 0.5, abs=1e-5)
     assert summary["best_mean_success"] == pytest.approx(7 / 12) and summary["above_bar"]
 
 
@@ -195,7 +200,7 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
 
     summary = write_report(hand_records, tmp_path, command="python -m experiments.ogbench", reps=200)
     text = (tmp_path / "ogbench.md").read_text()
-    assert "| fixed chunks (k = 5, δ = inf) | 3 | 0.0 % | 0.0 % [0.0 %, 0.0 %] | 58.3 % | 66.7 %" in text
+    assert "| fixed chunks (k = 5, δ = inf) | 3 | 0.0 % | 0.0 % [0.0 %, 0.0 %] | 58.3 % | 58.3 %" in text
     assert "| 100, 75, 0 |" in text and "Command: `python -m experiments.ogbench`" in text
     assert summary["ranking"]["agrees_with_qc"] is (summary["ranking"]["ours_online"] == "fixed chunks > one-step")
     assert (tmp_path / "ogbench_online_success.png").stat().st_size > 1000
@@ -209,15 +214,13 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
     assert "**No arm exceeds 10 % success at this budget**" in format_markdown(summarize(failing, reps=50))
 
 
-def test_report_rejects_mixed_tasks_and_ragged_episodes(hand_records):
+def test_report_rejects_mixed_tasks_and_reads_run_rates(hand_records):
     require("rliable")
     from experiments.ogbench.report import success_matrix, summarize
 
     other = {**hand_records[0], "task": "scene-play-singletask-task1-v0"}
     with pytest.raises(ValueError, match="records must come from one task"):
         summarize([*hand_records, other])
-    ragged = [hand_records[0], {**hand_records[1], "eval_online": {"successes": [1, 0]}}]
-    with pytest.raises(ValueError, match="same number of evaluation episodes"):
-        success_matrix(ragged, "online")
+    assert success_matrix(hand_records[:3], "online").tolist() == [[1.0], [0.75], [0.0]]  # rates, seed order
     with pytest.raises(ValueError, match="phase must be one of"):
         success_matrix(hand_records, "final")

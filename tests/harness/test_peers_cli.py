@@ -141,23 +141,29 @@ def test_report_builders_on_hand_made_records():
         "sac": [_record("sac", 0, [5.0, 6.0], [(60, 0.0)]), _record("sac", 1, [7.0, 8.0], [(100, 4.0)])],
     }
     adaptive = arm_summary(records["ua2c_adaptive"], reps=200)
-    # IQM of {1, 2, 3, 4}: the middle half {2, 3}
+    # one score per run: seed 0 scores 1.5, seed 1 3.5; 25 % of 2 runs trims none, so the IQM is 2.5
+    assert adaptive["per_seed"]["reward"] == [1.5, 3.5]
     assert adaptive["metrics"]["reward"]["iqm"] == pytest.approx(2.5)
     assert adaptive["metrics"]["collision"]["iqm"] == pytest.approx(0.5)
-    assert adaptive["offline_metrics"]["reward"]["iqm"] == pytest.approx(1.0)  # middle half of {0, 1, 1, 2}
+    assert adaptive["offline_metrics"]["reward"]["iqm"] == pytest.approx(1.0)  # runs 0.5 and 1.5
     assert adaptive["wall_seconds"] == {"mean_per_seed": 90.0, "total": 180.0}
     summary = aggregate(records, reps=200)
     assert summary["arms"]["sac"]["offline_metrics"] is None
-    # every adaptive episode scores below every SAC episode of the same column: P(UA2C > SAC) = 0
+    # both adaptive runs (1.5, 3.5) score below both SAC runs (5.5, 7.5): P(UA2C > SAC) = 0
     assert summary["pairs"]["ua2c_adaptive_vs_sac"]["reward"] == {"probability": 0.0, "ci_low": 0.0, "ci_high": 0.0}
     # jerk is a cost: lower adaptive jerk is an improvement
     assert summary["pairs"]["ua2c_adaptive_vs_sac"]["jerk_per_step"]["probability"] == 1.0
     (line,) = verdicts(summary)
-    assert "UA2C adaptive chunks LOSES to SB3 SAC (online): IQM reward 2.50 vs 6.50 (-4.00, -61.5 % of |peer|)" in line
+    # paired per seed: 1.5 - 5.5 and 3.5 - 7.5, no spread; the verdict names the interval, no percentage
+    assert line.startswith("UA2C adaptive chunks vs SB3 SAC (online): -4.00 [-4.00, -4.00] over 2 paired runs "
+                           "(UA2C adaptive chunks ahead in 0): SB3 SAC (online) better; P(")
+    assert "%" not in line
+    # learning-curve area of seed 0: return 1 over steps 1-50, 3 over 51-100 -> 2.0; seed 1: (80 + 250) / 90
+    assert adaptive["curve_area"]["per_seed"] == pytest.approx([2.0, 330 / 90])
     assert "| UA2C adaptive chunks | 2.50 [" in results_table(summary)[2]
     row = readme_table(summary)[3]
     assert row.startswith("| SB3 SAC (online) | 6.50 [") and row.endswith("] | 6.50 | 0.50 | 1.00 |")
-    # means over seeds x episodes: reward (1 + 2 + 3 + 4) / 4, one collision per seed in two episodes
+    # means over runs: reward (1.5 + 3.5) / 2, one collision per seed in two episodes
     assert adaptive["means"]["reward"]["mean"] == pytest.approx(2.5)
     assert adaptive["means"]["collision"]["mean"] == pytest.approx(0.5)
     assert adaptive["means"]["cumulative_jerk"]["mean"] == pytest.approx(25.0)
@@ -191,6 +197,8 @@ def test_headline_names_the_best_of_each_side():
         "sac": [_record("sac", s, [3.0, 3.0], [(50, 1.0)]) for s in (0, 1)],
     }
     line = headline(aggregate(records, reps=50))
-    assert line == ("Best UA2C arm, UA2C fixed chunks (δ=inf) (IQM reward 4.00), is ahead of the best peer, "
-                    "SB3 SAC (online) (3.00), by 1.00; P(UA2C > peer) = 1.00. By the mean reward: 4.00 vs 3.00 "
-                    "(+1.00); collision rate 0.50 vs 0.50.")
+    assert line == ("Best UA2C arm by IQM reward over runs, UA2C fixed chunks (δ=inf) (4.00); best peer, "
+                    "SB3 SAC (online) (3.00). Paired per seed: UA2C fixed chunks (δ=inf) vs SB3 SAC (online): "
+                    "+1.00 [+1.00, +1.00] over 2 paired runs (UA2C fixed chunks (δ=inf) ahead in 2): UA2C fixed "
+                    "chunks (δ=inf) better; P(UA2C > peer) = 1.00. By the mean reward: 4.00 vs 3.00 (+1.00); "
+                    "collision rate 0.50 vs 0.50.")
