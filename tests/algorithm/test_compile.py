@@ -19,6 +19,7 @@ def test_torch_compile_rejects_non_bool(bad):
         make_policy(torch_compile=bad)
 
 
+@pytest.mark.slow
 def test_torch_compile_keeps_parameters_checkpoints_and_constructor_parameters(tmp_path):
     th.manual_seed(0)
     eager = make_policy()
@@ -39,6 +40,7 @@ def test_torch_compile_keeps_parameters_checkpoints_and_constructor_parameters(t
     assert model.policy.torch_compile is True
 
 
+@pytest.mark.slow
 def test_compiled_critics_match_eager_to_rounding():
     th.manual_seed(0)
     eager = make_policy()

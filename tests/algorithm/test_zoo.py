@@ -310,6 +310,7 @@ def test_train_on_mixed_traffic_with_evaluation(tmp_path):
     assert [line.split(",")[1] for line in monitor] == ["20"] * 4  # 80 steps = 4 training episodes
 
 
+@pytest.mark.slow
 def test_optimize_on_mixed_traffic(tmp_path):
     storage = f"sqlite:///{tmp_path / 'sweep.db'}"
     zoo.main(["optimize", *_mixed_traffic_args(tmp_path, "-n", "40", "--n-trials", "1", "--n-evaluations", "2",

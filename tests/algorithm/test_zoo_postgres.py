@@ -80,6 +80,7 @@ def _worker_command(storage: str, seed: int, log_folder: Path) -> list[str]:
     ]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_two_workers_share_a_postgres_study(postgres_server, tmp_path):
     import optuna
 
