@@ -308,7 +308,9 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     :param new: (n,) the method's per-seed means
     :param base: (n,) the baseline's per-seed means, same seed order
     :return: ``change_pct`` (of the means over seeds, the headline figure), ``per_seed_pct``,
-        and the t interval of the per-seed changes (``per_seed_mean_pct``, ``per_seed_ci95_pct``)
+        the t interval of the per-seed changes (``per_seed_mean_pct``, ``per_seed_ci95_pct``) and, with
+        2 or more seeds, ``paired``: the mean per-seed difference ``new − base`` in the metric's units
+        with its t interval (:func:`paired_difference`), which a base near or below 0 cannot distort
     """
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
@@ -318,12 +320,15 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
     finite = [p for p in per_seed if math.isfinite(p)]
     mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
-    return {
+    out = {
         "change_pct": relative_change_pct(float(new_a.mean()), float(base_a.mean())),
         "per_seed_pct": per_seed,
         "per_seed_mean_pct": mean,
         "per_seed_ci95_pct": half,
     }
+    if new_a.size >= 2 and np.all(np.isfinite(new_a)) and np.all(np.isfinite(base_a)):
+        out["paired"] = paired_difference(new_a, base_a, confidence=confidence)  # new − base, in the metric's units
+    return out
 
 
 __all__ = [

@@ -80,7 +80,10 @@ def _header(summary: Mapping[str, Any], command: str, date: str) -> Lines:
         "a single seed has no interval)",
         "",
         "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
-        "the per-seed column is the mean ± 95% interval of the per-seed changes. Where a claim is short "
+        "the per-seed column is the mean ± 95% interval of the per-seed changes, and the paired difference is "
+        "the mean per-run difference method − baseline in the metric's units with its 95% Student-t interval "
+        "(the runs of a seed share its data and scenarios; an interval that contains 0 shows no difference). "
+        "Where a claim is short "
         "of the paper, docs/research-log.md (\"What was tried\") says what was tried. "
         "Rows without a suffix act with fixed candidate noise (`predict(deterministic=True)`: the same "
         "history always gives the same plan); rows marked \"sampled\" evaluate the same checkpoints "
@@ -126,15 +129,19 @@ def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None]
 def _claims_table(summary: Mapping[str, Any]) -> Lines:
     """The headline table: our relative change of each claim next to the paper's."""
     c = summary["comparisons"]
-    lines = ["| claim | ours | per-seed changes | paper | vs paper |", "|---|---|---|---|---|"]
+    lines = ["| claim | ours | per-seed changes | paired difference [95 % CI] | paper | vs paper |",
+             "|---|---|---|---|---|---|"]
     for label, key, paper_key in _claim_rows(summary):
         if key not in c:
             continue
         cmp = c[key]
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
+        paired = cmp.get("paired")
+        diff = (f"{paired['difference']:+.2f} [{paired['ci_low']:+.2f}, {paired['ci_high']:+.2f}] "
+                f"({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else "")
         paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
-        lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {paper} | {verdict} |")
+        lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {diff} | {paper} | {verdict} |")
     style = summary.get("style")
     if style:
         lines.append(

@@ -82,6 +82,12 @@ def test_compare_headline_is_the_change_of_the_means() -> None:
     assert out["per_seed_ci95_pct"] == pytest.approx(
         12.7062 * np.std([100.0, 25.0], ddof=1) / math.sqrt(2), rel=1e-4
     )
+    # the paired difference in the metric's units: 10 and 2 -> mean 6, sd 5.6569, half 12.7062 * 5.6569 / sqrt(2)
+    paired = out["paired"]
+    assert paired["difference"] == 6.0 and paired["runs"] == 2 and paired["x_better_runs"] == 2
+    assert paired["ci_low"] == pytest.approx(6.0 - 12.7062 * 4.0, rel=1e-4)
+    assert paired["ci_high"] == pytest.approx(6.0 + 12.7062 * 4.0, rel=1e-4)
+    assert "paired" not in compare([2.0], [1.0])  # one seed: no interval
     with pytest.raises(ValueError, match="equal-length"):
         compare([1.0], [1.0, 2.0])
 
