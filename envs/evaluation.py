@@ -150,13 +150,13 @@ def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
 
 
 def format_table(rows: dict[str, dict[str, float]]) -> str:
-    """A plain-text table, one row per method."""
+    """A plain-text table, one row per method, 95 characters wide (fits a terminal and the README)."""
     headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
-    lines = [" | ".join(f"{h:>12}" for h in headers)]
-    lines.append("-|-".join("-" * 12 for _ in headers))
+    lines = [" | ".join(f"{h:>11}" for h in headers)]
+    lines.append("-|-".join("-" * 11 for _ in headers))
     for name, s in rows.items():
         values = (s["reward"], s["cumulative_jerk"], s["collision"], s["merge_success"], s["mean_speed"], s["mean_executed_length"])
-        lines.append(" | ".join([f"{name:>12}"] + [f"{v:12.3f}" for v in values]))
+        lines.append(" | ".join([f"{name:>11}"] + [f"{v:11.3f}" for v in values]))
     return "\n".join(lines)
 
 

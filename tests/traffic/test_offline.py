@@ -388,3 +388,17 @@ def test_read_monitor_hand_made_and_bad_files(tmp_path: Path) -> None:
     (tmp_path / "bad.monitor.csv").write_text("r,l,t\n1,2,3\n")
     with pytest.raises(ValueError, match="not a Monitor log"):
         read_monitor(tmp_path / "bad.monitor.csv")
+
+
+def test_format_table_is_95_characters_wide_with_three_decimals() -> None:
+    from envs.evaluation import format_table
+
+    row = {"reward": 34.567, "cumulative_jerk": 722.837, "collision": 0.7, "merge_success": 0.3,
+           "mean_speed": 25.037, "mean_executed_length": 3.359}
+    lines = format_table({"pretrained": row, "dataset": {**row, "collision": math.nan}}).splitlines()
+    assert lines[0] == ("     method |      reward |   cum. jerk |   collision |       merge |       speed |"
+                        "    mean L_t")
+    assert lines[2] == (" pretrained |      34.567 |     722.837 |       0.700 |       0.300 |      25.037 |"
+                        "       3.359")
+    assert lines[3].split(" | ")[3].strip() == "nan"
+    assert {len(line) for line in lines} == {95}
