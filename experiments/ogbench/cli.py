@@ -80,8 +80,8 @@ def _run(args: argparse.Namespace, command: str) -> int:
             if not (out / "ogbench.json").is_file():
                 raise
             # a checkout keeps the report, not the units: rebuild the statistics from its run records
-            records, plots = report.records_from_report(out / "ogbench.json"), False
-            est = json.loads((out / "ogbench.json").read_text()).get("estimate") or est
+            recorded = json.loads((out / "ogbench.json").read_text())
+            records, plots, est = report.records_from_report(recorded), False, recorded.get("estimate") or est
     else:
         # a fresh process per unit costs seconds of imports: the quick run stays in this one
         serial = args.serial or (args.quick and args.workers == 1 and args.ray_address is None)

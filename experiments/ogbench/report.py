@@ -45,12 +45,9 @@ def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarr
     return np.asarray(rates, dtype=np.float64)[:, None]  # (n_runs,) -> (n_runs, 1)
 
 
-def records_from_report(path: str | Path) -> list[dict[str, Any]]:
-    """The run records kept in a written ``ogbench.json`` (what the statistics need: arm, seed, task,
+def records_from_report(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The run records kept in a written ``ogbench.json`` (its parsed ``summary``: arm, seed, task,
     budget, success rates and seconds), to rebuild the report where the unit records are gone."""
-    import json
-
-    summary = json.loads(Path(path).read_text())
     return [{**r, "task": summary["task"], "budget": summary["budget"]} for r in summary["records"]]
 
 
