@@ -402,3 +402,26 @@ def test_format_table_is_95_characters_wide_with_three_decimals() -> None:
                         "       3.359")
     assert lines[3].split(" | ")[3].strip() == "nan"
     assert {len(line) for line in lines} == {95}
+
+
+def test_generic_stages_refuse_what_they_cannot_build(tmp_path: Path) -> None:
+    """The algorithm's own make_env builds any registered env; a dataset that records a setting of
+    an application package (the style classifier of ``envs``) needs that package's maker."""
+    from sb3_ua2c.offline import make_env as generic_make_env
+    from sb3_ua2c.pipeline import env_settings, finetune, pretrain
+
+    env = generic_make_env("Pendulum-v1", None, style_classifier=None)
+    assert env.observation_space.shape == (3,)
+    env.close()
+    with pytest.raises(ValueError, match=r"records the setting\(s\) \['style_classifier'\].*envs.make_env"):
+        generic_make_env("MixedTraffic-v0", None, style_classifier="default")
+    styled = load_dataset(write_dataset([hand_episode()], tmp_path / "styled", PENDULUM_OBS, PENDULUM_ACT,
+                                        metadata={"env_id": "Pendulum-v1", "style_classifier": "default"}))
+    with pytest.raises(ValueError, match="generic make_env cannot apply"):
+        pretrain(styled, tmp_path / "x.zip", 1, algo_kwargs=TINY)
+    anonymous = load_dataset(write_dataset([hand_episode()], tmp_path / "anon", PENDULUM_OBS, PENDULUM_ACT))
+    with pytest.raises(OfflineDatasetError, match="records no env_id"):
+        env_settings(anonymous)
+    with pytest.raises(ValueError, match="needs a dataset or env_settings_"):
+        finetune(tmp_path / "missing.zip", tmp_path / "y.zip", 10)
+    assert not (tmp_path / "x.zip").exists()
