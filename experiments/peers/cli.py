@@ -41,7 +41,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="seeds to run (default: 0 1 2 3 4; with --quick: 0 1)")
     parser.add_argument("--arms", nargs="+", default=list(ARMS), metavar="ARM",
                         help=f"arms to run (default: all): {' '.join(ARMS)}")
-    parser.add_argument("--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
     parser.add_argument("--out", default="results", help="report directory (default: results)")
@@ -163,7 +164,7 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             budget = read_manifest(paths) or budget
         else:
             _run(args, seeds, arms, budget, paths)
-        summary = build_summary(paths, budget, args.workers, command, date)
+        summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000)
     except UnitsFailedError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
