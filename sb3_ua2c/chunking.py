@@ -143,6 +143,36 @@ def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -
     return th.cumprod(ok, dim=-1).sum(dim=-1).clamp_(min=1)
 
 
+def entropy_growth_length(entropy: th.Tensor, growth: float) -> th.Tensor:
+    """
+    Executable prefix length of the growth rule (``execution_rule="growth"``, not in the paper): the
+    largest ``u`` such that ``H_{u'} - H_1 <= c`` for every ``u' <= u``. The rule compares each
+    position with the plan's own first one, so ``H_1`` gates nothing (``L_t >= 1`` always) and a
+    shift of every ``H_u`` by one constant (rescaled action bounds, a constant action dimension)
+    leaves ``L_t`` unchanged. In standard deviations: ``sigma_u / sigma_1 <= e^c`` for one action dim.
+
+    :param entropy: per-position entropy ``H_u``, shape ``(*batch, k)``
+    :param growth: ``c``, nats above ``H_1`` (``>= 0``)
+    :return: long tensor ``L_t`` in ``[1, k]``, shape ``(*batch,)``
+    """
+    return executable_prefix_length(entropy - entropy[..., :1], growth)  # (*batch, k) - (*batch, 1)
+
+
+def quantile_entropy_thresholds(entropy: th.Tensor, quantile: float) -> th.Tensor:
+    """
+    Per-position thresholds ``delta_u`` of the calibrated rule (``execution_rule="quantile"``, not in
+    the paper): the ``q``-quantile over ``n`` histories of ``H_u`` at each position ``u``. Eq. 7 with
+    these thresholds executes position ``u`` where the plan is at least as sure there as a fraction
+    ``q`` of the calibration histories (linear interpolation between order statistics, as
+    ``torch.quantile``). Shifting every ``H_u`` by one constant shifts every ``delta_u`` by it.
+
+    :param entropy: ``H_u`` of the calibration histories, shape ``(n, k)``; NaN rows are ignored
+    :param quantile: ``q`` in ``[0, 1]``
+    :return: ``delta_u``, shape ``(k,)``
+    """
+    return th.nanquantile(entropy, quantile, dim=0)  # (n, k) -> (k,)
+
+
 def default_target_plan_length(chunk_size: int) -> float:
     """``target_plan_length`` of ``entropy_threshold="auto"`` when not given: ``(k + 1) / 2``, halfway between
     one action per plan (the one-step baseline) and the whole chunk (fixed execution)."""

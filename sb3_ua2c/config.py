@@ -26,12 +26,22 @@ POLICY_CHUNKING_ARGUMENTS = (
     "history_len",
     "flow_steps",
     "n_candidates",
+    "execution_rule",
     "entropy_threshold",
     "target_plan_length",
+    "entropy_quantile",
+    "entropy_growth",
     "discrete_action_dims",
     "discrete_entropy",
     "commit_discrete",
 )
+
+#: values of ``execution_rule``: how ``L_t`` is set from the entropies ``H_u`` (:class:`~sb3_ua2c.ua2c.UA2C`)
+EXECUTION_RULES = ("threshold", "quantile", "growth")
+#: ``q`` of ``execution_rule="quantile"`` when ``entropy_quantile`` is not given
+DEFAULT_ENTROPY_QUANTILE = 0.75
+#: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
+DEFAULT_ENTROPY_GROWTH = 0.5
 
 #: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
@@ -77,6 +87,21 @@ def _entropy_threshold(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a number or 'auto', got {value!r}")
     if value == -math.inf:
         raise ValueError(f"{name} must not be -inf (it would execute one action per plan: use chunk_size=1)")
+
+
+def _execution_rule(name: str, value: Any) -> None:
+    if not isinstance(value, str) or value not in EXECUTION_RULES:
+        raise ValueError(f"{name} must be one of {list(EXECUTION_RULES)}, got {value!r}")
+
+
+def _optional_fraction(name: str, value: Any) -> None:
+    if value is not None:
+        _fraction(name, value)
+
+
+def _optional_non_negative_number(name: str, value: Any) -> None:
+    if value is not None:
+        _non_negative_number(name, value)
 
 
 def _optional_number(name: str, value: Any) -> None:
@@ -134,8 +159,11 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "target_flow_steps": _positive_int,
     "n_candidates": _positive_int,
     "n_target_candidates": _positive_int,
+    "execution_rule": _execution_rule,
     "entropy_threshold": _entropy_threshold,
     "target_plan_length": _optional_number,
+    "entropy_quantile": _optional_fraction,
+    "entropy_growth": _optional_non_negative_number,
     "q_weight": _non_negative_number,
     "smooth_weight": _non_negative_number,
     "discrete_entropy": check_bool,
@@ -165,9 +193,11 @@ def check_arguments(**arguments: Any) -> None:
     constructors spell them) and the constraints between those given together. A bad value raises a
     ``ValueError`` that names the parameter.
 
-    Constraints between arguments: ``target_plan_length`` (not ``None``) needs
-    ``entropy_threshold="auto"`` and lies in ``[1, chunk_size]``; ``n_elite <= n_candidates``;
-    ``critic_n_heads`` divides ``critic_embed_dim``.
+    Constraints between arguments: a parameter of an execution rule is set only with that rule
+    (``entropy_threshold`` other than 0 and ``target_plan_length`` with ``"threshold"``,
+    ``entropy_quantile`` with ``"quantile"``, ``entropy_growth`` with ``"growth"``);
+    ``target_plan_length`` (not ``None``) needs ``entropy_threshold="auto"`` and lies in
+    ``[1, chunk_size]``; ``n_elite <= n_candidates``; ``critic_n_heads`` divides ``critic_embed_dim``.
 
     :param arguments: hyperparameters by name (any subset of the constructors' arguments)
     """
@@ -175,6 +205,7 @@ def check_arguments(**arguments: Any) -> None:
         if name not in _CHECKS:
             raise ValueError(f"unknown UA2C hyperparameter {name!r}")
         _CHECKS[name](name, value)
+    _check_rule_parameters(arguments)
     target = arguments.get("target_plan_length")
     if target is not None:
         delta = arguments.get("entropy_threshold")
@@ -192,6 +223,28 @@ def check_arguments(**arguments: Any) -> None:
         raise ValueError(
             f"critic_n_heads={arguments['critic_n_heads']} must divide critic_embed_dim={arguments['critic_embed_dim']}"
         )
+
+
+#: the parameters of each execution rule, with the value that means "not set"
+_RULE_PARAMETERS = {
+    "threshold": {"entropy_threshold": 0.0, "target_plan_length": None},
+    "quantile": {"entropy_quantile": None},
+    "growth": {"entropy_growth": None},
+}
+
+
+def _check_rule_parameters(arguments: Mapping[str, Any]) -> None:
+    """A rule's parameter set (not at its "not set" value) under another ``execution_rule`` is an error."""
+    rule = arguments.get("execution_rule")
+    if rule is None:
+        return
+    for other, parameters in _RULE_PARAMETERS.items():
+        for name, unset in parameters.items():
+            if other != rule and name in arguments and arguments[name] != unset:
+                raise ValueError(
+                    f"{name} applies to execution_rule={other!r} only, got {name}={arguments[name]!r} with "
+                    f"execution_rule={rule!r} (leave {name} at {unset!r})"
+                )
 
 
 def normalize_discrete_dims(
@@ -272,6 +325,9 @@ def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: t
 
 
 __all__ = [
+    "DEFAULT_ENTROPY_GROWTH",
+    "DEFAULT_ENTROPY_QUANTILE",
+    "EXECUTION_RULES",
     "ONLINE_TARGETS",
     "POLICY_CHUNKING_ARGUMENTS",
     "check_arguments",

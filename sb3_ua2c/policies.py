@@ -23,11 +23,15 @@ from sb3_ua2c.chunking import (
     commit_through_switch,
     continuous_dims,
     default_target_plan_length,
+    entropy_growth_length,
     executable_prefix_length,
     pessimistic_q,
+    quantile_entropy_thresholds,
     select_chunk,
 )
 from sb3_ua2c.config import (
+    DEFAULT_ENTROPY_GROWTH,
+    DEFAULT_ENTROPY_QUANTILE,
     check_arguments,
     check_spaces,
     hyperparameters,
@@ -41,6 +45,25 @@ from sb3_ua2c.networks import ChunkCritics, VelocityField
 DETERMINISTIC_NOISE_SEED = 0
 
 
+#: candidates per history when :meth:`UA2CPolicy.calibrate_entropy_thresholds` measures ``H_u``: the
+#: estimator's SD (about 0.04 nats per action dim) is small next to the spread of ``H_u`` across states
+CALIBRATION_SAMPLES = 256
+
+
+def standardize_noise(x0: th.Tensor) -> th.Tensor:
+    """
+    Standardise a draw of candidate noise over its candidates, per (position, action dim): zero mean and
+    unit unbiased variance along dim ``-3``, so that the spread of the deterministic candidates (and the
+    ``H_u`` measured on them) is not biased by one particular draw. One candidate is left as drawn.
+
+    :param x0: noise, shape ``(*batch, S, k, action_dim)``
+    :return: the same shape
+    """
+    if x0.shape[-3] < 2:
+        return x0
+    return (x0 - x0.mean(dim=-3, keepdim=True)) / x0.std(dim=-3, correction=1, keepdim=True)
+
+
 def deterministic_generator(device: th.device | str) -> th.Generator:
     """Generator of the candidate noise of ``predict(..., deterministic=True)``, seeded with
     :data:`DETERMINISTIC_NOISE_SEED` (a fresh one per call: the same draw at every replanning)."""
@@ -48,6 +71,9 @@ def deterministic_generator(device: th.device | str) -> th.Generator:
     generator.manual_seed(DETERMINISTIC_NOISE_SEED)
     return generator
 
+
+#: state-dict keys of the execution rule (:meth:`UA2CPolicy.load_state_dict`)
+_RULE_STATE = ("entropy_window.", "calibrated_thresholds")
 
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
 DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
@@ -65,10 +91,17 @@ class UA2CPolicy(BasePolicy):
     :param history_len: ``ℓ``
     :param flow_steps: Euler steps ``N`` when acting
     :param n_candidates: chunks ``S`` sampled per replanning
-    :param entropy_threshold: ``delta`` of Eq. 7 (``inf`` = fixed chunk execution), or ``"auto"``: δ set
-        from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
+    :param execution_rule: how ``L_t`` is set from the entropies ``H_u`` (see :class:`~sb3_ua2c.ua2c.UA2C`):
+        ``"threshold"`` (Eq. 7 with ``entropy_threshold``), ``"quantile"`` (Eq. 7 with calibrated
+        per-position thresholds, ``entropy_quantile``) or ``"growth"`` (``entropy_growth``)
+    :param entropy_threshold: ``delta`` of Eq. 7 in nats (``inf`` = fixed chunk execution), or ``"auto"``:
+        δ set from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
     :param target_plan_length: with ``entropy_threshold="auto"``, the mean ``L_t`` over the window that δ
         is set for, in ``[1, k]`` (``None`` = ``(k + 1) / 2``)
+    :param entropy_quantile: with ``execution_rule="quantile"``: ``q`` in ``[0, 1]``, unitless
+        (``None`` = :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_QUANTILE`)
+    :param entropy_growth: with ``execution_rule="growth"``: ``c`` in nats above ``H_1``
+        (``None`` = :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_GROWTH`)
     :param discrete_action_dims: ``{action index: category values}`` of categorical action dims
         (:func:`~sb3_ua2c.config.normalize_discrete_dims`)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
@@ -102,8 +135,11 @@ class UA2CPolicy(BasePolicy):
         history_len: int = 4,
         flow_steps: int = 10,
         n_candidates: int = 32,
+        execution_rule: str = "threshold",
         entropy_threshold: float | str = 0.0,
         target_plan_length: float | None = None,
+        entropy_quantile: float | None = None,
+        entropy_growth: float | None = None,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         discrete_entropy: bool = True,
         commit_discrete: bool = False,
@@ -136,8 +172,11 @@ class UA2CPolicy(BasePolicy):
         self.history_len = history_len
         self.flow_steps = flow_steps
         self.n_candidates = n_candidates
+        self.execution_rule = execution_rule
         self.entropy_threshold = entropy_threshold
         self.target_plan_length = target_plan_length
+        self.entropy_quantile = entropy_quantile
+        self.entropy_growth = entropy_growth
         self.discrete_action_dims = discrete_action_dims
         self.discrete_entropy = discrete_entropy
         self.commit_discrete = commit_discrete
@@ -158,6 +197,9 @@ class UA2CPolicy(BasePolicy):
         self.continuous_dims = continuous_dims(self.action_dim, self.discrete_dims)
         #: the entropies that set δ under ``entropy_threshold="auto"`` (``None`` for a numeric δ)
         self.entropy_window: EntropyWindow | None = None
+        #: ``delta_u`` of ``execution_rule="quantile"``, shape ``(k,)`` (NaN until calibrated; a buffer,
+        #: saved with the policy); ``None`` under the other rules
+        self.register_buffer("calibrated_thresholds", None)
         self._follow_entropy_threshold()
         #: ``L_t`` and ``H_u`` of the last replanning done by ``predict`` (one row per env)
         self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
@@ -218,23 +260,83 @@ class UA2CPolicy(BasePolicy):
         check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
         self.n_elite = n_elite
 
-    def set_entropy_threshold(self, entropy_threshold: float | str, target_plan_length: float | None = None) -> None:
+    def set_execution_rule(self, **rule: Any) -> None:
         """
-        Validate and set δ of Eq. 7 (execution only: the losses do not read it). ``entropy_threshold="auto"``
-        keeps the current window, or starts an empty one; a number drops it.
+        Validate and set the execution rule (execution only: the losses do not read it). Arguments as the
+        constructor's ``execution_rule``, ``entropy_threshold``, ``target_plan_length``,
+        ``entropy_quantile`` and ``entropy_growth``; those not given take their defaults (``"threshold"``,
+        ``0.0``, ``None``). ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
+        ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
         """
-        check_arguments(
-            entropy_threshold=entropy_threshold, target_plan_length=target_plan_length, chunk_size=self.chunk_size
-        )
-        self.entropy_threshold, self.target_plan_length = entropy_threshold, target_plan_length
+        defaults = {"execution_rule": "threshold", "entropy_threshold": 0.0, "target_plan_length": None,
+                    "entropy_quantile": None, "entropy_growth": None}
+        unknown = sorted(set(rule) - set(defaults))
+        if unknown:
+            raise ValueError(f"set_execution_rule takes {sorted(defaults)}, got {unknown}")
+        rule = {**defaults, **rule}
+        check_arguments(**rule, chunk_size=self.chunk_size)
+        for name, value in rule.items():
+            setattr(self, name, value)
         self._follow_entropy_threshold()
 
+    def set_entropy_threshold(self, entropy_threshold: float | str, target_plan_length: float | None = None) -> None:
+        """:meth:`set_execution_rule` for Eq. 7 with one δ: ``execution_rule="threshold"``."""
+        self.set_execution_rule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length)
+
     def _follow_entropy_threshold(self) -> None:
-        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``; drop it for a numeric δ."""
-        if self.entropy_threshold != "auto":
+        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``, and the calibrated
+        thresholds under ``"quantile"``; drop what the rule does not use."""
+        auto = self.execution_rule == "threshold" and self.entropy_threshold == "auto"
+        if not auto:
             self.entropy_window = None
         elif self.entropy_window is None:
             self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
+        if self.execution_rule != "quantile":
+            self.calibrated_thresholds = None
+        elif self.calibrated_thresholds is None:
+            self.calibrated_thresholds = th.full((self.chunk_size,), math.nan, device=self.device)
+
+    @property
+    def needs_calibration(self) -> bool:
+        """``execution_rule="quantile"`` without calibrated thresholds (:meth:`calibrate_entropy_thresholds`)."""
+        return self.calibrated_thresholds is not None and bool(th.isnan(self.calibrated_thresholds).any())
+
+    def calibrate_entropy_thresholds(
+        self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int = CALIBRATION_SAMPLES,
+        batch_size: int = 64,
+    ) -> th.Tensor:
+        """
+        Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
+        ``n_samples`` candidates each, and set :attr:`calibrated_thresholds` to their per-position
+        ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
+
+        :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``
+        :param action_history: their past actions, shape ``(n, ℓ, action_dim)``
+        :param n_samples: candidates per history (more than ``n_candidates``: less estimator noise)
+        :param batch_size: histories per sampling pass (memory only)
+        :return: the measured ``H_u``, shape ``(n, k)``
+        """
+        if self.execution_rule != "quantile":
+            raise ValueError(f"calibration applies to execution_rule='quantile', not {self.execution_rule!r}")
+        check_arguments(n_candidates=n_samples)
+        if obs_history.shape[0] < 2:
+            raise ValueError(f"calibration needs at least 2 histories, got {obs_history.shape[0]}")
+        with th.inference_mode():
+            entropy = th.cat([
+                self.candidate_entropy(obs_history[i:i + batch_size], action_history[i:i + batch_size], n_samples)
+                for i in range(0, obs_history.shape[0], batch_size)
+            ])  # (n, k)
+        q = DEFAULT_ENTROPY_QUANTILE if self.entropy_quantile is None else self.entropy_quantile
+        assert self.calibrated_thresholds is not None
+        self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, q))
+        return entropy
+
+    def candidate_entropy(self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int) -> th.Tensor:
+        """``H_u`` (:func:`~sb3_ua2c.chunking.chunk_entropy`) of ``n_samples`` fresh-noise candidates per history,
+        measured on the clipped actions that would be executed: ``(m, ℓ, ·)`` histories -> ``(m, k)``."""
+        cond = self.actor.condition(self.flatten_history(obs_history, action_history))
+        samples = self.sample_chunks(cond, n_samples, self.flow_steps).clamp(-1.0, 1.0)  # (m, S, k, A)
+        return chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)
 
     def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
         """
@@ -251,11 +353,12 @@ class UA2CPolicy(BasePolicy):
         return self.entropy_window.threshold(target, entropy)
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """``nn.Module.load_state_dict``; ``entropy_window.*`` follows this policy's δ, which a load may
-        override: a checkpoint with a numeric δ loads into an ``"auto"`` policy with an empty window, and a
-        numeric δ ignores a saved window."""
-        own = {k: v for k, v in self.state_dict().items() if k.startswith("entropy_window.")}
-        state_dict = {k: v for k, v in state_dict.items() if not k.startswith("entropy_window.") or k in own}
+        """``nn.Module.load_state_dict``; the execution rule's state (``entropy_window.*``,
+        ``calibrated_thresholds``) follows this policy's rule, which a load may override: a checkpoint
+        saved under another rule loads into an ``"auto"`` policy with an empty window and into a
+        ``"quantile"`` policy uncalibrated, and a rule ignores the state of another."""
+        own = {k: v for k, v in self.state_dict().items() if k.startswith(_RULE_STATE)}
+        state_dict = {k: v for k, v in state_dict.items() if not k.startswith(_RULE_STATE) or k in own}
         return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)
 
     def set_training_mode(self, mode: bool) -> None:
@@ -286,13 +389,16 @@ class UA2CPolicy(BasePolicy):
         :param n_steps: Euler steps
         :param generator: optional random generator for the noise
         :param shared_noise: one noise draw ``(n_samples, k, action_dim)`` for every history, so that
-            a history's chunks do not depend on the other rows of the batch (deterministic acting);
-            ``False``: independent noise per history
+            a history's chunks do not depend on the other rows of the batch (deterministic acting),
+            standardised over the candidates (:func:`standardize_noise`); ``False``: independent noise
+            per history
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
         b = cond.shape[0]
         shape = (1 if shared_noise else b, n_samples, self.chunk_size, self.action_dim)
         x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+        if shared_noise:
+            x0 = standardize_noise(x0)
         return self.actor.sample(x0.expand(b, -1, -1, -1), cond, n_steps)
 
     def plan_tensors(
@@ -304,8 +410,9 @@ class UA2CPolicy(BasePolicy):
         record_entropy: bool = False,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
-        One replanning: sample S chunks, measure the per-position entropy of the S samples, keep the
-        chunk with the highest ``min_j Q_j`` and set the executed length ``L_t`` by Eq. 7;
+        One replanning: sample S chunks, measure the per-position entropy of the S samples (clipped to
+        the action bounds: the actions that would be executed), keep the chunk with the highest
+        ``min_j Q_j`` and set the executed length ``L_t`` by the execution rule (:meth:`plan_lengths`);
         ``commit_discrete`` then extends ``L_t`` through the first categorical switch.
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
@@ -319,18 +426,33 @@ class UA2CPolicy(BasePolicy):
         m = obs_history.shape[0]
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
         s, n_steps = self.n_candidates, self.flow_steps
-        samples = self.sample_chunks(cond, s, n_steps, generator, shared_noise)  # (m, S, k, A)
-        entropy = chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
-        clipped = samples.clamp(-1.0, 1.0)
+        clipped = self.sample_chunks(cond, s, n_steps, generator, shared_noise).clamp(-1.0, 1.0)  # (m, S, k, A)
+        entropy = chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         obs_flat = obs_history.reshape(m, -1)
         q = self.critic(obs_flat, clipped)  # (n, m, S)
-        lengths = executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
+        lengths = self.plan_lengths(entropy)
         chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
         if record_entropy and self.entropy_window is not None:
             self.entropy_window.add(entropy)
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
         return chunks, lengths, entropy
+
+    def plan_lengths(self, entropy: th.Tensor) -> th.Tensor:
+        """
+        ``L_t`` of a replanning from its entropies ``H_u`` ``(m, k)`` by the execution rule: Eq. 7 with
+        δ (``"threshold"``) or with the calibrated ``delta_u`` (``"quantile"``), or the growth rule
+        (:func:`~sb3_ua2c.chunking.entropy_growth_length`). Returns a long tensor ``(m,)`` in ``[1, k]``.
+        """
+        if self.execution_rule == "growth":
+            return entropy_growth_length(entropy, DEFAULT_ENTROPY_GROWTH if self.entropy_growth is None
+                                         else self.entropy_growth)
+        if self.execution_rule == "quantile":
+            if self.needs_calibration:
+                raise RuntimeError("execution_rule='quantile' acts once its thresholds are calibrated: call "
+                                   "UA2C.calibrate_execution() (learn() does it from the replay buffer)")
+            return executable_prefix_length(entropy, self.calibrated_thresholds)
+        return executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
 
     def plan(
         self,

@@ -50,7 +50,7 @@ from sb3_ua2c.config import (
 )
 from sb3_ua2c.execution import AdaptiveChunkExecutor, ExecutorStep, PlanResult
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
-from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
+from sb3_ua2c.policies import CALIBRATION_SAMPLES, MlpPolicy, UA2CPolicy
 
 SelfUA2C = TypeVar("SelfUA2C", bound="UA2C")
 
@@ -99,11 +99,22 @@ class UA2C(OffPolicyAlgorithm):
     :param target_flow_steps: Euler steps for the target candidates (cheaper than acting)
     :param n_candidates: chunks ``S`` sampled per replanning
     :param n_target_candidates: candidate chunks ``Q`` in the target max (Eq. 4 / 8)
-    :param entropy_threshold: ``delta`` of Eq. 7 (``math.inf`` = the whole chunk), or ``"auto"``: δ set
-        after each training replanning from the entropies of the last ones, for a mean ``L_t`` of
+    :param execution_rule: how the executed length ``L_t`` follows from the per-position entropies ``H_u``
+        of a replanning's candidates (docs/algorithm.md): ``"threshold"`` (default, Eq. 7): the longest
+        prefix with every ``H_u <= entropy_threshold``; ``"quantile"`` (not in the paper): Eq. 7 with
+        per-position thresholds ``delta_u``, the ``entropy_quantile`` of ``H_u`` over histories of the
+        data, calibrated by :meth:`calibrate_execution` (``learn`` calibrates from the replay buffer
+        when needed) and saved with the model; ``"growth"`` (not in the paper): the longest prefix with
+        every ``H_u - H_1 <= entropy_growth``
+    :param entropy_threshold: ``delta`` of Eq. 7 in nats (``math.inf`` = the whole chunk), or ``"auto"``: δ
+        set after each training replanning from the entropies of the last ones, for a mean ``L_t`` of
         ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`)
     :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in
         ``[1, k]`` (``None`` = ``(k + 1) / 2``)
+    :param entropy_quantile: with ``execution_rule="quantile"`` only: ``q`` in ``[0, 1]``, a fraction of
+        states (``None`` = :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_QUANTILE`)
+    :param entropy_growth: with ``execution_rule="growth"`` only: ``c`` in nats above ``H_1`` (``None`` =
+        :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_GROWTH`)
     :param q_weight: ``lambda``, weight of the value term in Eq. 2
     :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
         paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
@@ -162,8 +173,11 @@ class UA2C(OffPolicyAlgorithm):
         target_flow_steps: int = 2,
         n_candidates: int = 32,
         n_target_candidates: int = 2,
+        execution_rule: str = "threshold",
         entropy_threshold: float | str = 0.0,
         target_plan_length: float | None = None,
+        entropy_quantile: float | None = None,
+        entropy_growth: float | None = None,
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
         discrete_entropy: bool = True,
@@ -216,8 +230,11 @@ class UA2C(OffPolicyAlgorithm):
         self.target_flow_steps = target_flow_steps
         self.n_candidates = n_candidates
         self.n_target_candidates = n_target_candidates
+        self.execution_rule = execution_rule
         self.entropy_threshold = entropy_threshold
         self.target_plan_length = target_plan_length
+        self.entropy_quantile = entropy_quantile
+        self.entropy_growth = entropy_growth
         self.q_weight = q_weight
         self.smooth_weight = smooth_weight
         self.discrete_entropy = discrete_entropy
@@ -466,6 +483,8 @@ class UA2C(OffPolicyAlgorithm):
         n_envs = env.num_envs
 
         def policy_plan(obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
+            if self.policy.needs_calibration:
+                self.calibrate_execution()
             return self.policy.plan(obs_h, act_h, deterministic=False, record_entropy=True)
 
         callback.on_rollout_start()
@@ -574,19 +593,55 @@ class UA2C(OffPolicyAlgorithm):
             self.logger.record("rollout/entropy_threshold", float(self.policy.current_entropy_threshold()))
         super().dump_logs()
 
+    def set_execution_rule(self, **rule: Any) -> None:
+        """
+        Change the execution rule (execution only; the losses do not depend on it), e.g. to evaluate
+        one checkpoint under several rules. Keyword arguments as the constructor's ``execution_rule``,
+        ``entropy_threshold``, ``target_plan_length``, ``entropy_quantile`` and ``entropy_growth``
+        (validated alike); those not given take their defaults. ``"quantile"`` keeps calibrated
+        thresholds (or needs :meth:`calibrate_execution`), ``"auto"`` keeps the entropy window (or starts
+        an empty one). Kept by :meth:`save`.
+        """
+        self.policy.set_execution_rule(**rule)
+        for name in ("execution_rule", "entropy_threshold", "target_plan_length", "entropy_quantile",
+                     "entropy_growth"):
+            setattr(self, name, getattr(self.policy, name))
+
     def set_entropy_threshold(
         self, entropy_threshold: float | str, target_plan_length: float | None = None
     ) -> None:
         """
-        Change δ of Eq. 7 (execution only; the losses do not depend on it), e.g. to evaluate one
+        Change δ of Eq. 7 (``execution_rule="threshold"``; execution only), e.g. to evaluate one
         checkpoint with fixed (``inf``) and adaptive execution; ``"auto"`` with ``target_plan_length``
         keeps the model's entropy window (or starts an empty one). Kept by :meth:`save`.
 
         :param entropy_threshold: the new threshold (validated like the constructor argument)
         :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
         """
-        self.policy.set_entropy_threshold(entropy_threshold, target_plan_length)
-        self.entropy_threshold, self.target_plan_length = entropy_threshold, target_plan_length
+        self.set_execution_rule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length)
+
+    def calibrate_execution(self, n_histories: int = 1024, n_samples: int = CALIBRATION_SAMPLES) -> np.ndarray:
+        """
+        Calibrate ``execution_rule="quantile"``: draw ``n_histories`` histories from the replay buffer
+        (after Phase 1: the dataset), measure ``H_u`` at each with ``n_samples`` fresh-noise candidates,
+        and set the per-position thresholds ``delta_u`` to the ``entropy_quantile`` of ``H_u``
+        (:meth:`UA2CPolicy.calibrate_entropy_thresholds`). Saved with the model. The draw and the noise
+        come from the model's random generators (seeded by ``seed``), as a training batch's do.
+
+        :param n_histories: histories drawn (with replacement, as a training batch)
+        :param n_samples: candidates per history
+        :return: the measured ``H_u``, shape ``(n_histories, k)``
+        """
+        check_int("n_histories", n_histories, low=2)
+        n_online, n_offline = self.replay_buffer.n_samples()
+        if n_online + n_offline == 0:
+            raise ValueError(
+                "calibrate_execution needs histories in the replay buffer: add offline episodes "
+                "(add_offline_episodes) or collect steps first (learning_starts > 0)"
+            )
+        data = self.replay_buffer.sample(n_histories, env=self._vec_normalize_env)
+        entropy = self.policy.calibrate_entropy_thresholds(data.observation_history, data.action_history, n_samples)
+        return entropy.cpu().numpy()
 
     def set_n_elite(self, n_elite: int) -> None:
         """

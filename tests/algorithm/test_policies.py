@@ -119,7 +119,7 @@ def batch_policy(chunk_size: int) -> UA2CPolicy:
         history_len=2,
         n_candidates=6,
         flow_steps=2,
-        entropy_threshold=2.72,
+        entropy_threshold=2.41,
         net_arch=[16],
         critic_embed_dim=8,
         critic_ff_dim=16,

@@ -270,6 +270,7 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
         cond = policy.actor.condition(policy.flatten_history(history, th.zeros(1, policy.history_len, 1)))
         g = th.Generator().manual_seed(DETERMINISTIC_NOISE_SEED)
         x0 = th.randn((1, 4, policy.chunk_size, 1), generator=g)
+        x0 = (x0 - x0.mean(dim=1, keepdim=True)) / x0.std(dim=1, keepdim=True)  # standardised over the S = 4
         x1 = (x0 + policy.actor(x0, th.zeros(()), cond)).clamp(-1.0, 1.0)
         q = policy.critic(history.reshape(1, -1), x1).min(dim=0).values  # (1, S)
         expected = x1[0, q[0].argmax(), 0]
