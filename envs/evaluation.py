@@ -30,6 +30,7 @@ class EpisodeMetrics:
     merge_success: bool
     mean_speed: float  # [m/s]
     mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
+    plan_lengths: tuple[int, ...] = ()  # L_t of every plan of the episode, in order (1 per decision of a peer)
 
     @property
     def jerk_per_step(self) -> float:
@@ -132,6 +133,7 @@ def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> Epis
     return EpisodeMetrics(
         seed=seed, reward=total, length=steps, cumulative_jerk=jerk, collision=collision,
         merge_success=merged, mean_speed=float(np.nanmean(speeds)), mean_executed_length=float(np.mean(lengths)),
+        plan_lengths=tuple(lengths),
     )
 
 

@@ -1,0 +1,81 @@
+"""The report of the execution-rule study: one score per run and arm (the mean over the run's evaluation
+episodes), paired per-seed differences of each rule against fixed chunks and against its own random-cut
+and fixed-``k'`` controls (:func:`experiments.common.stats.paired_difference`), and the ``L_t`` histograms."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from experiments.common.stats import paired_difference
+
+MODES = ("deterministic", "sampled")
+
+
+def run_score(entry: Mapping[str, Any], metric: str) -> float:
+    """The mean of ``metric`` over one run's evaluation episodes of one arm and mode."""
+    return float(np.mean([float(e[metric]) for e in entry["episodes"]]))
+
+
+def _controls(arms: Sequence[str], rule: str) -> list[str]:
+    return sorted(a for a in arms if a.startswith(f"{rule}:"))
+
+
+def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> dict[str, Any]:
+    """``{checkpoint: {mode: {arm: {...}}}}``: per-seed scores, their mean, mean ``L_t`` shares, and for each rule
+    the paired differences against ``fixed`` and against its controls (``None`` with fewer than 2 runs)."""
+    records = sorted(records, key=lambda r: r["seed"])
+    out: dict[str, Any] = {}
+    for checkpoint in records[0]["checkpoints"]:
+        for mode in MODES:
+            arms = list(records[0]["checkpoints"][checkpoint])
+            table: dict[str, Any] = {}
+            for arm in arms:
+                entries = [r["checkpoints"][checkpoint][arm][mode] for r in records]
+                scores = [run_score(e, metric) for e in entries]
+                table[arm] = {"per_seed": scores, "mean": float(np.mean(scores)),
+                              "collision": float(np.mean([run_score(e, "collision") for e in entries])),
+                              "length_shares": np.mean([e["length_shares"] for e in entries], axis=0).tolist()}
+            for arm in arms:
+                if ":" in arm or arm == "fixed":
+                    continue
+                against = ["fixed", *_controls(arms, arm)]
+                table[arm]["paired"] = {
+                    other: (paired_difference(table[arm]["per_seed"], table[other]["per_seed"])
+                            if len(records) > 1 else None)
+                    for other in against
+                }
+            out.setdefault(checkpoint, {})[mode] = table
+    return out
+
+
+def _interval(p: Mapping[str, float] | None) -> str:
+    if p is None:
+        return "n/a"
+    return f"{p['difference']:+.1f} [{p['ci_low']:+.1f}, {p['ci_high']:+.1f}]"
+
+
+def _shares(shares: Sequence[float]) -> str:
+    return " ".join(f"{100 * s:.0f}" for s in shares)
+
+
+def markdown(summary: Mapping[str, Any], header: Sequence[str]) -> str:
+    """The tables of :func:`summarize`, one per checkpoint and mode."""
+    lines = ["# Execution rules on MixedTraffic-v0", "", *header, ""]
+    for checkpoint, modes in summary.items():
+        for mode, table in modes.items():
+            lines += [f"## {checkpoint}, {mode}", "",
+                      "| arm | reward (mean of runs) | collision | L_t = 1..k (% of plans) | − fixed | − random cut "
+                      "| − fixed k' |", "|---|---|---|---|---|---|---|"]
+            for arm, row in table.items():
+                paired = row.get("paired") or {}
+                random_cut = next((v for k, v in paired.items() if k.endswith(":random")), None)
+                k_cut = next((v for k, v in paired.items() if k.endswith(":fixed_k")), None)
+                cells = [_interval(paired["fixed"]) if "fixed" in paired else "",
+                         _interval(random_cut) if paired else "", _interval(k_cut) if paired else ""]
+                lines.append(f"| {arm} | {row['mean']:.1f} | {row['collision']:.2f} | {_shares(row['length_shares'])} "
+                             f"| {' | '.join(cells)} |")
+            lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,99 @@
+"""One run of the execution-rule study on ``MixedTraffic-v0`` (:func:`run_seed`): collect the seed's data,
+pre-train (Phase 1), fine-tune one checkpoint per online rule (Phase 2), and evaluate every checkpoint
+under every screened rule and under its controls (:func:`evaluate_rules`), deterministic and with fresh
+noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, one seed per unit."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
+from envs.evaluation import evaluate
+from experiments.common.names import DATASET_SEED_BASE
+from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule, length_histogram
+from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
+
+#: ``make main``'s budget (``MAIN_BUDGET["full"]`` of ``sb3_ua2c/__main__.py``) and a smoke-test one
+BUDGETS = {
+    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 20},
+    "quick": {"episodes": 3, "pretrain_steps": 8, "finetune_steps": 30, "eval_episodes": 1, "time_limit": 4.0},
+}
+#: evaluation scenarios: episode i of run seed s is SUMO scenario 1000 * (base + s) + i
+VALIDATION_SEED_BASE = 3_000  # choices (development seeds)
+TEST_SEED_BASE = 4_000  # reports (confirmation seeds)
+CHUNK_SIZE = TRAFFIC_DEFAULTS.get("chunk_size", 5)
+
+
+def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:
+    return [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in results]
+
+
+def _lengths(results: Sequence[Any]) -> list[int]:
+    return [n for e in results for n in e.plan_lengths]
+
+
+def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], scenario_seed: int,
+                   n_episodes: int, settings: Mapping[str, Any], control_seed: int) -> dict[str, Any]:
+    """Each rule, deterministic and with fresh noise, then its controls (a random cut from the rule's own
+    ``L_t`` histogram in that mode, and fixed ``k' = round(mean L_t)``): ``{arm: {mode: {...}}}``."""
+    out: dict[str, Any] = {}
+    for name in rules:
+        for mode, deterministic in (("deterministic", True), ("sampled", False)):
+            apply_rule(model, RULES[name], calibration)
+            thresholds = model.policy.calibrated_thresholds
+            results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
+                               deterministic=deterministic)
+            lengths = _lengths(results)
+            shares = length_histogram(lengths, model.chunk_size)
+            entry = {"episodes": _episode_rows(results), "length_shares": shares,
+                     "thresholds": None if thresholds is None else thresholds.tolist()}
+            out.setdefault(name, {})[mode] = entry
+            if name == "fixed":
+                continue
+            k_prime = int(np.clip(round(float(np.mean(lengths))), 1, model.chunk_size))
+            for control, rule in ((f"{name}:random", RandomCut(shares, control_seed)),
+                                  (f"{name}:fixed_k", FixedCut(k_prime, model.chunk_size))):
+                apply_control(model, rule)
+                results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,),
+                                   env_settings_=dict(settings), deterministic=deterministic)
+                out.setdefault(control, {})[mode] = {"episodes": _episode_rows(results), "k": k_prime,
+                                                     "length_shares": length_histogram(_lengths(results),
+                                                                                       model.chunk_size)}
+            apply_rule(model, RULES["fixed"])
+    return out
+
+
+def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
+             screened_rules: Sequence[str], scenario_base: int) -> dict[str, Any]:
+    """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
+    the pre-trained and of every fine-tuned checkpoint under ``screened_rules`` and their controls."""
+    th.set_num_threads(1)
+    root = Path(work) / f"seed{seed}"
+    env_kwargs = {"time_limit": budget["time_limit"]} if "time_limit" in budget else None
+    ds = collect_dataset(root / "dataset", budget["episodes"], seed=DATASET_SEED_BASE + 10_000 * seed,
+                         env_kwargs=env_kwargs, style_classifier="default", overwrite=True)
+    pre = pretrain(ds, root / "pretrained.zip", budget["pretrain_steps"], seed=seed, algo_kwargs=TRAFFIC_DEFAULTS,
+                   make_env=make_env)
+    settings = env_settings(ds)
+    checkpoints = {"offline": pre}
+    for rule in online_rules:
+        checkpoints[f"online_{rule}"] = finetune(pre, root / f"online_{rule}.zip", budget["finetune_steps"], dataset=ds,
+                                                 seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_env)
+    record: dict[str, Any] = {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
+                              "dataset_mean_return": ds.metadata["mean_return"], "checkpoints": {}}
+    env = make_env(**settings)
+    try:
+        for name, path in checkpoints.items():
+            model = load_checkpoint(path, env)
+            record["checkpoints"][name] = evaluate_rules(
+                model, screened_rules, ds.episodes, scenario_base + seed, budget["eval_episodes"], settings,
+                control_seed=seed)
+    finally:
+        env.close()
+    return record
