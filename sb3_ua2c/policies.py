@@ -7,6 +7,7 @@ Mixed Traffic", §2.3 and §3.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -41,35 +42,37 @@ from sb3_ua2c.config import (
 from sb3_ua2c.execution import EntropyWindow, PlanResult, resume_and_act
 from sb3_ua2c.networks import ChunkCritics, VelocityField
 
-#: seed of the candidate noise ``x_0`` used by ``predict(..., deterministic=True)``
-DETERMINISTIC_NOISE_SEED = 0
-
+#: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
+DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
 
 #: candidates per history when :meth:`UA2CPolicy.calibrate_entropy_thresholds` measures ``H_u``: the
 #: estimator's SD (about 0.04 nats per action dim) is small next to the spread of ``H_u`` across states
 CALIBRATION_SAMPLES = 256
 
 
-def standardize_noise(x0: th.Tensor) -> th.Tensor:
+def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: int, chunk_size: int) -> th.Tensor:
     """
-    Standardise a draw of candidate noise over its candidates, per (position, action dim): zero mean and
-    unit unbiased variance along dim ``-3``, so that the spread of the deterministic candidates (and the
-    ``H_u`` measured on them) is not biased by one particular draw. One candidate is left as drawn.
+    The candidate noise ``x_0`` of ``predict(..., deterministic=True)``: for each history, a standard normal
+    draw from a generator seeded with a hash (BLAKE2b) of the history's float32 bytes. The same history
+    always gets the same noise, whatever the batch it is planned in; two histories get independent draws,
+    so over the states of an episode the deterministic candidates spread as fresh noise's do (one draw
+    shared by every state would bias every ``H_u`` by its own luck, by up to ±0.5 nats).
 
-    :param x0: noise, shape ``(*batch, S, k, action_dim)``
-    :return: the same shape
+    :param obs_history: ``(m, ℓ, obs_dim)``
+    :param action_history: ``(m, ℓ, action_dim)``
+    :param n_samples: candidates ``S``
+    :param chunk_size: ``k``
+    :return: ``(m, S, k, action_dim)`` on the histories' device
     """
-    if x0.shape[-3] < 2:
-        return x0
-    return (x0 - x0.mean(dim=-3, keepdim=True)) / x0.std(dim=-3, correction=1, keepdim=True)
-
-
-def deterministic_generator(device: th.device | str) -> th.Generator:
-    """Generator of the candidate noise of ``predict(..., deterministic=True)``, seeded with
-    :data:`DETERMINISTIC_NOISE_SEED` (a fresh one per call: the same draw at every replanning)."""
-    generator = th.Generator(device=device)
-    generator.manual_seed(DETERMINISTIC_NOISE_SEED)
-    return generator
+    m, action_dim = obs_history.shape[0], action_history.shape[-1]
+    rows = th.cat([obs_history.reshape(m, -1), action_history.reshape(m, -1)], dim=1)
+    rows = rows.detach().to("cpu", th.float32).numpy()
+    noise = th.empty((m, n_samples, chunk_size, action_dim))
+    for i in range(m):
+        digest = hashlib.blake2b(rows[i].tobytes(), digest_size=8, key=DETERMINISTIC_NOISE_KEY).digest()
+        generator = th.Generator().manual_seed(int.from_bytes(digest, "little") >> 1)
+        noise[i] = th.randn((n_samples, chunk_size, action_dim), generator=generator)
+    return noise.to(obs_history.device)
 
 
 #: state-dict keys of the execution rule (:meth:`UA2CPolicy.load_state_dict`)
@@ -379,7 +382,7 @@ class UA2CPolicy(BasePolicy):
         n_samples: int,
         n_steps: int,
         generator: th.Generator | None = None,
-        shared_noise: bool = False,
+        x0: th.Tensor | None = None,
     ) -> th.Tensor:
         """
         Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
@@ -388,25 +391,21 @@ class UA2CPolicy(BasePolicy):
         :param n_samples: candidates per history
         :param n_steps: Euler steps
         :param generator: optional random generator for the noise
-        :param shared_noise: one noise draw ``(n_samples, k, action_dim)`` for every history, so that
-            a history's chunks do not depend on the other rows of the batch (deterministic acting),
-            standardised over the candidates (:func:`standardize_noise`); ``False``: independent noise
-            per history
+        :param x0: the noise to start from, ``(B, n_samples, k, action_dim)`` (:func:`history_noise`);
+            ``None``: independent Gaussian noise
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
-        b = cond.shape[0]
-        shape = (1 if shared_noise else b, n_samples, self.chunk_size, self.action_dim)
-        x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
-        if shared_noise:
-            x0 = standardize_noise(x0)
-        return self.actor.sample(x0.expand(b, -1, -1, -1), cond, n_steps)
+        if x0 is None:
+            shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
+            x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+        return self.actor.sample(x0, cond, n_steps)
 
     def plan_tensors(
         self,
         obs_history: th.Tensor,
         action_history: th.Tensor,
         generator: th.Generator | None = None,
-        shared_noise: bool = False,
+        deterministic: bool = False,
         record_entropy: bool = False,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
@@ -418,15 +417,21 @@ class UA2CPolicy(BasePolicy):
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
         :param generator: optional random generator for the noise
-        :param shared_noise: the same S noises for every history (see :meth:`sample_chunks`)
+        :param deterministic: start from each history's own noise (:func:`history_noise`) instead of fresh noise
         :param record_entropy: add the entropies to :attr:`entropy_window` (``entropy_threshold="auto"``
             only; training rollouts)
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
+        if deterministic and m > 1:
+            # one history at a time: its floats, and so the hash that seeds its noise, never depend on the batch
+            rows = [self.plan_tensors(obs_history[i : i + 1], action_history[i : i + 1], None, True, record_entropy)
+                    for i in range(m)]
+            return tuple(th.cat(parts) for parts in zip(*rows))  # type: ignore[return-value]
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
         s, n_steps = self.n_candidates, self.flow_steps
-        clipped = self.sample_chunks(cond, s, n_steps, generator, shared_noise).clamp(-1.0, 1.0)  # (m, S, k, A)
+        x0 = history_noise(obs_history, action_history, s, self.chunk_size) if deterministic else None
+        clipped = self.sample_chunks(cond, s, n_steps, generator, x0).clamp(-1.0, 1.0)  # (m, S, k, A)
         entropy = chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
         obs_flat = obs_history.reshape(m, -1)
         q = self.critic(obs_flat, clipped)  # (n, m, S)
@@ -464,18 +469,16 @@ class UA2CPolicy(BasePolicy):
         """
         NumPy front end of :meth:`plan_tensors` (a :data:`~sb3_ua2c.execution.Planner`).
 
-        ``deterministic=True`` starts every history's S candidates from the same noise ``x_0``, drawn
-        with a fixed seed (:func:`deterministic_generator`): a row's plan is a function of its own
-        history, whatever the batch it is planned in and its position there (up to the last-bit
-        rounding of batched matrix products, which depends on the batch size as in any SB3 policy);
-        the selection and the rule of Eq. 7 are unchanged. ``False``: fresh noise for every history.
+        ``deterministic=True`` starts a history's S candidates from noise ``x_0`` seeded by the history
+        itself (:func:`history_noise`), one history at a time: a row's plan is a function of its own
+        history, bit for bit, whatever the batch it is planned in and its position there; the selection
+        and the execution rule are unchanged. ``False``: fresh noise for every history, in one batch.
         ``record_entropy``: see :meth:`plan_tensors` (``predict`` never records: it does not change δ).
         """
-        generator = deterministic_generator(self.device) if deterministic else None
         with th.inference_mode():
             obs_t = th.as_tensor(obs_history, device=self.device, dtype=th.float32)
             act_t = th.as_tensor(action_history, device=self.device, dtype=th.float32)
-            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, generator, deterministic, record_entropy)
+            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, None, deterministic, record_entropy)
         return PlanResult(chunks.cpu().numpy(), lengths.cpu().numpy(), entropy.cpu().numpy())
 
     # ------------------------------------------------------------------ SB3 interface
@@ -487,8 +490,7 @@ class UA2CPolicy(BasePolicy):
         assert isinstance(observation, th.Tensor)
         obs = observation.reshape(observation.shape[0], 1, -1).expand(-1, self.history_len, -1)
         act = th.zeros(obs.shape[0], self.history_len, self.action_dim, device=obs.device)
-        generator = deterministic_generator(obs.device) if deterministic else None
-        chunks, _, _ = self.plan_tensors(obs.float(), act, generator, shared_noise=deterministic)
+        chunks, _, _ = self.plan_tensors(obs.float(), act, deterministic=deterministic)
         return chunks[:, 0]
 
     def predict(
@@ -506,8 +508,8 @@ class UA2CPolicy(BasePolicy):
         :param observation: observation(s)
         :param state: state returned by the previous call (``None`` = new episodes)
         :param episode_start: whether each observation starts an episode
-        :param deterministic: the same fixed-seed noise for every replanning and every env (same
-            history -> same plan, whatever the other rows) instead of fresh noise
+        :param deterministic: noise seeded by each history (:func:`history_noise`: same history -> same
+            plan, whatever the other rows) instead of fresh noise
         :return: actions in the env's action space and the next state
         """
         if self.actor.training or self.critic.training:

@@ -75,8 +75,8 @@ class UA2C(OffPolicyAlgorithm):
     error over chunk entries and divides the value term by the batch mean ``|Q|``; targets use the
     current actor for the candidates and ``target_flow_steps`` Euler steps; ``H_u`` sums per-dim
     entropies (Gaussian for continuous dims, empirical categorical for ``discrete_action_dims``).
-    ``predict(deterministic=True)`` starts the candidates of every history from one fixed-seed noise
-    draw, so a history's plan does not depend on the other envs of the batch. During the
+    ``predict(deterministic=True)`` starts the candidates of every history from noise seeded by a hash
+    of that history, so a history's plan does not depend on the other envs of the batch. During the
     ``learning_starts`` warm-up, plans are uniform random chunks executed in full.
 
     :param policy: the policy model to use (``"MlpPolicy"`` or :class:`UA2CPolicy`)

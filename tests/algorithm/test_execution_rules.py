@@ -19,7 +19,7 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     quantile_entropy_thresholds,
 )
-from sb3_ua2c.policies import standardize_noise
+from sb3_ua2c.policies import history_noise
 
 
 def test_growth_length_by_hand():
@@ -86,13 +86,19 @@ def test_scale_free_rules_ignore_the_units_of_the_actions():
     assert scaled["threshold"] != base["threshold"] and constant["threshold"] != base["threshold"]
 
 
-def test_standardised_noise_has_zero_mean_and_unit_variance_per_position_and_dim():
-    x0 = th.randn((1, 32, 5, 3), generator=th.Generator().manual_seed(0)) * 2.0 + 1.0
-    z = standardize_noise(x0)
-    assert th.allclose(z.mean(dim=1), th.zeros(1, 5, 3), atol=1e-6)
-    assert th.allclose(z.var(dim=1, correction=1), th.ones(1, 5, 3), atol=1e-5)
-    one = th.randn(1, 1, 5, 3)
-    assert th.equal(standardize_noise(one), one)
+def test_deterministic_noise_is_a_function_of_the_history_alone():
+    obs = th.randn(3, 2, 4, generator=th.Generator().manual_seed(0))
+    act = th.randn(3, 2, 1, generator=th.Generator().manual_seed(1))
+    noise = history_noise(obs, act, 32, 5)
+    assert noise.shape == (3, 32, 5, 1)
+    assert th.equal(history_noise(obs[1:2], act[1:2], 32, 5)[0], noise[1])  # alone = in a batch
+    assert th.equal(history_noise(obs[[2, 0]], act[[2, 0]], 32, 5), noise[[2, 0]])  # any order
+    assert not th.equal(noise[0], noise[1])  # two histories, two independent draws
+    changed = act.clone()
+    changed[0, 0, 0] += 1e-3
+    assert not th.equal(history_noise(obs, changed, 32, 5)[0], noise[0])  # the past actions count
+    # independent standard normal draws: over 3 histories × 160 numbers, mean ~0 and SD ~1
+    assert abs(float(noise.mean())) < 0.15 and abs(float(noise.std()) - 1.0) < 0.1
 
 
 def quantile_model(**kwargs) -> UA2C:

@@ -256,7 +256,7 @@ def test_load_n_elite_override_sets_the_policy(tmp_path):
 
 
 def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
-    from sb3_ua2c.policies import DETERMINISTIC_NOISE_SEED
+    from sb3_ua2c.policies import history_noise
 
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **{k: v for k, v in FAST.items() if k != "n_candidates"})
     policy = model.policy
@@ -268,9 +268,7 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
         # by hand: one Euler step x1 = x0 + v(x0, 0 | h), then best-of-S by min_j Q_j
         history = obs.reshape(1, 1, -1).expand(-1, policy.history_len, -1)
         cond = policy.actor.condition(policy.flatten_history(history, th.zeros(1, policy.history_len, 1)))
-        g = th.Generator().manual_seed(DETERMINISTIC_NOISE_SEED)
-        x0 = th.randn((1, 4, policy.chunk_size, 1), generator=g)
-        x0 = (x0 - x0.mean(dim=1, keepdim=True)) / x0.std(dim=1, keepdim=True)  # standardised over the S = 4
+        x0 = history_noise(history, th.zeros(1, policy.history_len, 1), 4, policy.chunk_size)  # (1, S, k, 1)
         x1 = (x0 + policy.actor(x0, th.zeros(()), cond)).clamp(-1.0, 1.0)
         q = policy.critic(history.reshape(1, -1), x1).min(dim=0).values  # (1, S)
         expected = x1[0, q[0].argmax(), 0]
