@@ -151,6 +151,14 @@ def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
     return out
 
 
+def plan_length_shares(results: list[EpisodeMetrics], chunk_size: int) -> list[float]:
+    """The ``L_t`` histogram of the plans of ``results``: the share of plans with ``L_t = 1 .. k``
+    (``(k,)`` fractions summing to 1; zeros when no plan was made)."""
+    lengths = np.asarray([n for r in results for n in r.plan_lengths], dtype=np.int64)
+    counts = np.bincount(lengths, minlength=chunk_size + 1)[1 : chunk_size + 1]
+    return (counts / counts.sum()).tolist() if counts.sum() else [0.0] * chunk_size
+
+
 def format_table(rows: dict[str, dict[str, float]]) -> str:
     """A plain-text table, one row per method, 95 characters wide (fits a terminal and the README)."""
     headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
@@ -162,4 +170,4 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "format_table", "summarize"]
+__all__ = ["SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "format_table", "plan_length_shares", "summarize"]

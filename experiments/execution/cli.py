@@ -37,7 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="run seeds (default: 0 1 2; --quick: 0 1)")
     parser.add_argument("--online", nargs="+", default=["fixed", "delta0"],
                         help=f"rules of the Phase-2 checkpoints among {list(RULES)} (default: fixed delta0)")
-    parser.add_argument("--rules", nargs="+", default=list(RULES), help="rules every checkpoint is evaluated with")
+    parser.add_argument("--rules", nargs="+", default=list(RULES),
+                        help="rules the pre-trained checkpoint (and, without --own-rule-only, every checkpoint) is "
+                             "evaluated with")
+    parser.add_argument("--own-rule-only", action="store_true",
+                        help="evaluate each fine-tuned checkpoint with fixed chunks and its own rule only")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per checkpoint, arm and mode (default: 20; --quick: 1)")
     parser.add_argument("--out", default="results", help="report directory (execution_<role>.md / .json)")
@@ -57,11 +61,14 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError("--rules must include 'fixed' (the reference every rule is paired with)")
 
 
-def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int) -> float:
-    """Wall minutes on ``workers`` cores: training plus ``(1 + n_online)`` checkpoints × rules × 3 (rule and
-    its two controls) × 2 modes × episodes."""
+def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
+                     own_rule_only: bool = False) -> float:
+    """Wall minutes on ``workers`` cores: training plus the evaluations (a rule other than ``fixed`` comes with
+    its two controls) of ``(1 + n_online)`` checkpoints × rules × 2 modes × episodes (with ``own_rule_only``,
+    a fine-tuned checkpoint has at most 4 arms: fixed, its rule and the rule's controls)."""
     per_seed = TRAINING_SECONDS["data_and_phase1"] + n_online * TRAINING_SECONDS["phase2"]
-    per_seed += (1 + n_online) * (3 * n_rules - 2) * 2 * episodes * EPISODE_SECONDS
+    arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)
+    per_seed += arms * 2 * episodes * EPISODE_SECONDS
     return per_seed * n_seeds / 60.0 / min(workers, n_seeds)
 
 
@@ -89,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     base = getattr(unit, ROLES[args.role])
     units = [Unit(f"seed{s}", unit.run_seed,
                   dict(seed=s, work=str(work / args.role), budget=budget, online_rules=args.online,
-                       screened_rules=args.rules, scenario_base=base),
+                       screened_rules=args.rules, scenario_base=base, own_rule_only=args.own_rule_only),
                   result_file=work / args.role / f"seed{s}.json") for s in seeds]
     if args.report_only:
         missing = [u.name for u in units if not u.result_file.is_file()]
@@ -98,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
     else:
         minutes = estimate_minutes(len(seeds), len(args.online), len(args.rules), budget["eval_episodes"],
-                                   args.workers)
+                                   args.workers, args.own_rule_only)
         print(f"{PROG}: {args.role}, seeds {seeds}, online {args.online}, {len(args.rules)} rules; "
               f"estimate {minutes:.0f} min wall on {args.workers} worker(s)", flush=True)
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))

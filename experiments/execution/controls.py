@@ -26,13 +26,6 @@ RULES: dict[str, dict[str, Any]] = {
 }
 
 
-def length_histogram(lengths: Sequence[int], chunk_size: int) -> list[float]:
-    """Share of plans with ``L_t = 1 .. k``: ``(k,)`` fractions summing to 1 (all zeros for no plan)."""
-    counts = np.bincount(np.asarray(lengths, dtype=np.int64), minlength=chunk_size + 1)[1 : chunk_size + 1]
-    total = counts.sum()
-    return (counts / total).tolist() if total else [0.0] * chunk_size
-
-
 class RandomCut:
     """``L_t`` drawn at random from a histogram, whatever the entropies: the control that keeps an adaptive
     arm's length distribution and removes its information (``policy.plan_lengths`` replaced).

@@ -31,6 +31,8 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
     for checkpoint in records[0]["checkpoints"]:
         for mode in MODES:
             arms = list(records[0]["checkpoints"][checkpoint])
+            if not all(list(r["checkpoints"][checkpoint]) == arms for r in records):
+                raise ValueError(f"the runs evaluated {checkpoint} under different arms; rerun them alike")
             table: dict[str, Any] = {}
             for arm in arms:
                 entries = [r["checkpoints"][checkpoint][arm][mode] for r in records]

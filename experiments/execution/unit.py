@@ -14,9 +14,9 @@ import numpy as np
 import torch as th
 
 from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
-from envs.evaluation import evaluate
+from envs.evaluation import evaluate, plan_length_shares
 from experiments.common.names import DATASET_SEED_BASE
-from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule, length_histogram
+from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
 
 #: ``make main``'s budget (``MAIN_BUDGET["full"]`` of ``sb3_ua2c/__main__.py``) and a smoke-test one
@@ -27,15 +27,10 @@ BUDGETS = {
 #: evaluation scenarios: episode i of run seed s is SUMO scenario 1000 * (base + s) + i
 VALIDATION_SEED_BASE = 3_000  # choices (development seeds)
 TEST_SEED_BASE = 4_000  # reports (confirmation seeds)
-CHUNK_SIZE = TRAFFIC_DEFAULTS.get("chunk_size", 5)
 
 
 def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:
     return [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in results]
-
-
-def _lengths(results: Sequence[Any]) -> list[int]:
-    return [n for e in results for n in e.plan_lengths]
 
 
 def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], scenario_seed: int,
@@ -49,8 +44,8 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
             thresholds = model.policy.calibrated_thresholds
             results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
                                deterministic=deterministic)
-            lengths = _lengths(results)
-            shares = length_histogram(lengths, model.chunk_size)
+            lengths = [n for e in results for n in e.plan_lengths]
+            shares = plan_length_shares(results, model.chunk_size)
             entry = {"episodes": _episode_rows(results), "length_shares": shares,
                      "thresholds": None if thresholds is None else thresholds.tolist()}
             out.setdefault(name, {})[mode] = entry
@@ -63,16 +58,16 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
                 results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,),
                                    env_settings_=dict(settings), deterministic=deterministic)
                 out.setdefault(control, {})[mode] = {"episodes": _episode_rows(results), "k": k_prime,
-                                                     "length_shares": length_histogram(_lengths(results),
-                                                                                       model.chunk_size)}
+                                                     "length_shares": plan_length_shares(results, model.chunk_size)}
             apply_rule(model, RULES["fixed"])
     return out
 
 
 def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
-             screened_rules: Sequence[str], scenario_base: int) -> dict[str, Any]:
+             screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
-    the pre-trained and of every fine-tuned checkpoint under ``screened_rules`` and their controls."""
+    the pre-trained checkpoint under ``screened_rules`` and their controls, and of every fine-tuned one
+    under the same (``own_rule_only=False``) or under fixed chunks and the rule it was trained with."""
     th.set_num_threads(1)
     root = Path(work) / f"seed{seed}"
     env_kwargs = {"time_limit": budget["time_limit"]} if "time_limit" in budget else None
@@ -91,8 +86,11 @@ def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequ
     try:
         for name, path in checkpoints.items():
             model = load_checkpoint(path, env)
+            rules = screened_rules
+            if own_rule_only and name != "offline":
+                rules = list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
             record["checkpoints"][name] = evaluate_rules(
-                model, screened_rules, ds.episodes, scenario_base + seed, budget["eval_episodes"], settings,
+                model, rules, ds.episodes, scenario_base + seed, budget["eval_episodes"], settings,
                 control_seed=seed)
     finally:
         env.close()

@@ -8,13 +8,17 @@ import pytest
 import torch as th
 
 from experiments.execution import cli
-from experiments.execution.controls import FixedCut, RandomCut, length_histogram
+from envs.evaluation import EpisodeMetrics, plan_length_shares
+from experiments.execution.controls import FixedCut, RandomCut
 from experiments.execution.report import markdown, run_score, summarize
 
 
-def test_length_histogram_by_hand():
-    assert length_histogram([1, 1, 3, 5], 5) == [0.5, 0.0, 0.25, 0.0, 0.25]
-    assert length_histogram([], 3) == [0.0, 0.0, 0.0]
+def test_plan_length_shares_by_hand():
+    def episode(lengths):
+        return EpisodeMetrics(0, 0.0, 1, 0.0, False, False, 0.0, 1.0, plan_lengths=tuple(lengths))
+
+    assert plan_length_shares([episode([1, 1]), episode([3, 5])], 5) == [0.5, 0.0, 0.25, 0.0, 0.25]
+    assert plan_length_shares([episode([])], 3) == [0.0, 0.0, 0.0]
 
 
 def test_random_cut_draws_the_given_histogram_whatever_the_entropies():
@@ -83,3 +87,24 @@ def test_estimate_counts_training_and_every_evaluation():
     # 1 seed, 2 online rules, 3 rules evaluated, 10 episodes, 1 worker:
     # 70 + 2 × 55 = 180 s training; 3 checkpoints × (3·3 − 2) arms × 2 modes × 10 × 0.6 s = 252 s
     assert cli.estimate_minutes(1, 2, 3, 10, 1) == pytest.approx((180 + 252) / 60)
+
+
+@pytest.mark.slow
+def test_quick_run_end_to_end_writes_the_report_and_resumes(tmp_path, capsys):
+    import json
+
+    args = ["--quick", "--seeds", "0", "--workers", "1", "--online", "delta0", "--rules", "fixed", "delta0",
+            "growth0.5", "--out", str(tmp_path)]
+    assert cli.main(args) == 0
+    summary = json.loads((tmp_path / "execution_development.json").read_text())["summary"]
+    assert set(summary) == {"offline", "online_delta0"}
+    table = summary["online_delta0"]["sampled"]
+    assert set(table) == {"fixed", "delta0", "delta0:random", "delta0:fixed_k", "growth0.5", "growth0.5:random",
+                          "growth0.5:fixed_k"}
+    assert table["fixed"]["length_shares"][-1] == 1.0  # fixed chunks execute all k actions
+    assert sum(table["growth0.5"]["length_shares"]) == pytest.approx(1.0)
+    record = json.loads((tmp_path / "execution_work" / "development" / "seed0.json").read_text())
+    assert record["scenario_seed"] == 3000 and record["checkpoints"]["offline"]["fixed"]["deterministic"]["episodes"]
+    capsys.readouterr()
+    assert cli.main(args) == 0  # the stored run is reused
+    assert "unit seed0" not in capsys.readouterr().out

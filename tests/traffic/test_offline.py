@@ -342,12 +342,18 @@ def test_sampled_evaluation_is_seeded_per_episode(traffic_dataset, tmp_path: Pat
 
 
 @pytest.mark.slow
-def test_cli_main_quick_end_to_end(tmp_path: Path) -> None:
+def test_cli_main_quick_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from sb3_ua2c.__main__ import main
 
     assert main(["main", "--quick", "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert set(summary["summary"]) == {"pretrained", "finetuned", "dataset"}
+    # the L_t histogram of each checkpoint's evaluation plans, printed under the table
+    out = capsys.readouterr().out
+    for name in ("pretrained", "finetuned"):
+        lengths = [n for e in summary["episodes"][name] for n in e["plan_lengths"]]
+        shares = [100 * lengths.count(u) / len(lengths) for u in range(1, 6)]
+        assert f"{name:>11} | L_t = 1..5, % of plans: " + " ".join(f"{p:.0f}" for p in shares) in out
     for name in ("pretrained.zip", "finetuned.zip", "finetuned.monitor.csv", "dataset/data"):
         assert (tmp_path / "run" / name).exists()
 
