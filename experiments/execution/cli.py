@@ -113,10 +113,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     command, date = run_header(command_line(PROG, argv), out / f"{name}.json" if args.report_only else None)
     summary = report.summarize(records)
     header = [f"Command: `{command}`", f"Date: {date}", f"Role: {args.role} (scenario seed base {base}); seeds {seeds}",
-              f"Budget per run: {budget}"]
+              f"Budget per run: {records[0]['budget']}"]
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"command": command, "date": date, "role": args.role,
-                                                  "seeds": seeds, "budget": budget, "summary": summary}, indent=1))
-    (out / f"{name}.md").write_text(report.markdown(summary, header))
+                                                  "seeds": seeds, "budget": records[0]["budget"], "summary": summary}, indent=1))
+    (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records)))
     print(f"wrote {out / name}.md")
     return 0

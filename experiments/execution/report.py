@@ -63,9 +63,50 @@ def _shares(shares: Sequence[float]) -> str:
     return " ".join(f"{100 * s:.0f}" for s in shares)
 
 
-def markdown(summary: Mapping[str, Any], header: Sequence[str]) -> str:
-    """The tables of :func:`summarize`, one per checkpoint and mode."""
-    lines = ["# Execution rules on MixedTraffic-v0", "", *header, ""]
+def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
+    """Per rule, the means over every checkpoint and mode of: the rule's score minus fixed chunks', minus
+    its random cut's, minus its fixed-``k'``'s, and its mean ``L_t`` (a descriptive summary of the tables)."""
+    cells: dict[str, dict[str, list[float]]] = {}
+    for modes in summary.values():
+        for table in modes.values():
+            for arm, row in table.items():
+                if ":" in arm or arm == "fixed":
+                    continue
+                cell = cells.setdefault(arm, {"fixed": [], "random": [], "fixed_k": [], "mean_length": []})
+                cell["fixed"].append(row["mean"] - table["fixed"]["mean"])
+                cell["random"].append(row["mean"] - table[f"{arm}:random"]["mean"])
+                cell["fixed_k"].append(row["mean"] - table[f"{arm}:fixed_k"]["mean"])
+                cell["mean_length"].append(float(np.dot(np.arange(1, len(row["length_shares"]) + 1),
+                                                        row["length_shares"])))
+    return {arm: {key: float(np.mean(values)) for key, values in cell.items()} | {"cells": len(cell["fixed"])}
+            for arm, cell in cells.items()}
+
+
+def threshold_quantiles(records: Sequence[Mapping[str, Any]]) -> dict[str, list[float]]:
+    """The calibrated ``delta_u`` of each quantile rule on the pre-trained checkpoints, averaged over runs:
+    the quantiles of ``H_u`` over dataset histories, per position (``(k,)`` nats)."""
+    out = {}
+    for arm, modes in records[0]["checkpoints"]["offline"].items():
+        if modes["deterministic"].get("thresholds") is not None:
+            rows = [r["checkpoints"]["offline"][arm]["deterministic"]["thresholds"] for r in records]
+            out[arm] = np.mean(rows, axis=0).tolist()
+    return out
+
+
+def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapping[str, Sequence[float]] = {}) -> str:
+    """The overview, the ``H_u`` quantiles and the tables of :func:`summarize`, one per checkpoint and mode."""
+    lines = ["# Execution rules on MixedTraffic-v0", "", *header, "",
+             "## Overview", "",
+             "Means over every checkpoint and mode below (descriptive; the intervals are in the tables).", "",
+             "| rule | − fixed | − random cut | − fixed k' | mean L_t | cells |", "|---|---|---|---|---|---|"]
+    for arm, row in overview(summary).items():
+        lines.append(f"| {arm} | {row['fixed']:+.1f} | {row['random']:+.1f} | {row['fixed_k']:+.1f} "
+                     f"| {row['mean_length']:.2f} | {row['cells']} |")
+    if thresholds:
+        lines += ["", "## H_u over dataset histories (pre-trained checkpoints, mean over runs)", "",
+                  "| quantile rule | δ_u for u = 1..k (nats) |", "|---|---|"]
+        lines += [f"| {arm} | {' '.join(f'{x:+.2f}' for x in values)} |" for arm, values in thresholds.items()]
+    lines.append("")
     for checkpoint, modes in summary.items():
         for mode, table in modes.items():
             lines += [f"## {checkpoint}, {mode}", "",
