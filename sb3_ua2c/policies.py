@@ -427,7 +427,7 @@ class UA2CPolicy(BasePolicy):
             # one history at a time: its floats, and so the hash that seeds its noise, never depend on the batch
             rows = [self.plan_tensors(obs_history[i : i + 1], action_history[i : i + 1], None, True, record_entropy)
                     for i in range(m)]
-            return tuple(th.cat(parts) for parts in zip(*rows))  # type: ignore[return-value]
+            return tuple(th.cat(parts) for parts in zip(*rows, strict=True))  # type: ignore[return-value]
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
         s, n_steps = self.n_candidates, self.flow_steps
         x0 = history_noise(obs_history, action_history, s, self.chunk_size) if deterministic else None

@@ -134,7 +134,7 @@ def test_calibration_sets_the_quantile_of_the_measured_entropies():
         action = env.action_space.sample()
         obs, reward, terminated, truncated, _ = env.step(action)
         for key, value in zip(("observations", "actions", "rewards", "terminations", "truncations"),
-                              (obs, action, reward, terminated, truncated)):
+                              (obs, action, reward, terminated, truncated), strict=True):
             episode[key].append(value)
     model.add_offline_episodes([{k: np.asarray(v) for k, v in episode.items()}])
     entropy = model.calibrate_execution(n_histories=50, n_samples=64)

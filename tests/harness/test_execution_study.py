@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from experiments.execution import cli
 from envs.evaluation import EpisodeMetrics, plan_length_shares
+from experiments.execution import cli
 from experiments.execution.controls import FixedCut, RandomCut
 from experiments.execution.report import markdown, run_score, summarize
 
