@@ -112,11 +112,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     records = [json.loads(u.result_file.read_text()) for u in units]
     command, date = run_header(command_line(PROG, argv), out / f"{name}.json" if args.report_only else None)
     summary = report.summarize(records)
+    online = report.online_protocol(records)
     header = [f"Command: `{command}`", f"Date: {date}", f"Role: {args.role} (scenario seed base {base}); seeds {seeds}",
               f"Budget per run: {records[0]['budget']}"]
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"command": command, "date": date, "role": args.role,
-                                                  "seeds": seeds, "budget": records[0]["budget"], "summary": summary}, indent=1))
-    (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records)))
+                                                  "seeds": seeds, "budget": records[0]["budget"], "summary": summary,
+                                                  "online_protocol": online}, indent=1))
+    (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records), online))
     print(f"wrote {out / name}.md")
     return 0

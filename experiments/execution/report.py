@@ -53,6 +53,28 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
     return out
 
 
+def online_protocol(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> dict[str, dict[str, Any]]:
+    """Figure 2 (c)'s comparison: each checkpoint fine-tuned with a rule, acting with that rule, against the
+    one fine-tuned with fixed chunks, acting with fixed chunks; paired per seed (``{rule: {mode: {...}}}``)."""
+    records = sorted(records, key=lambda r: r["seed"])
+    checkpoints = records[0]["checkpoints"]
+    if "online_fixed" not in checkpoints:
+        return {}
+    out: dict[str, dict[str, Any]] = {}
+    for name in checkpoints:
+        rule = name.removeprefix("online_")
+        if not name.startswith("online_") or rule == "fixed":
+            continue
+        for mode in MODES:
+            ours = [run_score(r["checkpoints"][name][rule][mode], metric) for r in records]
+            base = [run_score(r["checkpoints"]["online_fixed"]["fixed"][mode], metric) for r in records]
+            out.setdefault(rule, {})[mode] = {
+                "per_seed": ours, "fixed_per_seed": base, "mean": float(np.mean(ours)), "fixed_mean": float(np.mean(base)),
+                "paired": paired_difference(ours, base) if len(records) > 1 else None,
+            }
+    return out
+
+
 def _interval(p: Mapping[str, float] | None) -> str:
     if p is None:
         return "n/a"
@@ -93,8 +115,10 @@ def threshold_quantiles(records: Sequence[Mapping[str, Any]]) -> dict[str, list[
     return out
 
 
-def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapping[str, Sequence[float]] = {}) -> str:
-    """The overview, the ``H_u`` quantiles and the tables of :func:`summarize`, one per checkpoint and mode."""
+def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapping[str, Sequence[float]] = {},
+             online: Mapping[str, Any] = {}) -> str:
+    """The overview, the online protocol (:func:`online_protocol`), the ``H_u`` quantiles and the tables of
+    :func:`summarize`, one per checkpoint and mode."""
     lines = ["# Execution rules on MixedTraffic-v0", "", *header, "",
              "## Overview", "",
              "Means over every checkpoint and mode below (descriptive; the intervals are in the tables).", "",
@@ -102,6 +126,11 @@ def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapp
     for arm, row in overview(summary).items():
         lines.append(f"| {arm} | {row['fixed']:+.1f} | {row['random']:+.1f} | {row['fixed_k']:+.1f} "
                      f"| {row['mean_length']:.2f} | {row['cells']} |")
+    if online:
+        lines += ["", "## Online protocol (Figure 2 (c)): fine-tuned and acting with the rule, against fixed chunks",
+                  "", "| rule | mode | reward | fixed chunks | paired per seed |", "|---|---|---|---|---|"]
+        lines += [f"| {rule} | {mode} | {row['mean']:.1f} | {row['fixed_mean']:.1f} | {_interval(row['paired'])} |"
+                  for rule, modes in online.items() for mode, row in modes.items()]
     if thresholds:
         lines += ["", "## H_u over dataset histories (pre-trained checkpoints, mean over runs)", "",
                   "| quantile rule | δ_u for u = 1..k (nats) |", "|---|---|"]
