@@ -81,6 +81,8 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
         finite = [v for v in values if math.isfinite(v)]
         mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
         out[key] = {"mean": mean, "ci95": half, "per_seed": values}
+    if all("length_shares" in per_seed[s] for s in seeds):  # the L_t histogram, recorded since 2026-12-04
+        out["length_shares"] = np.mean([per_seed[s]["length_shares"] for s in seeds], axis=0).tolist()
     return out
 
 

@@ -170,6 +170,12 @@ def _methods_table(summary: Mapping[str, Any]) -> Lines:
             f"| {_fmt(s['jerk_per_step'])} | {_fmt(s['collision'])} "
             f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
         )
+    shares = [(METHOD_LABELS[m], summary["methods"][m]["length_shares"]) for m in order
+              if "length_shares" in summary["methods"].get(m, {})]
+    if shares:
+        lines += ["", "Executed lengths (share of plans with L_t = 1..k, %, mean over seeds):", "",
+                  "| method | L_t = 1..k |", "|---|---|"]
+        lines += [f"| {label} | {' '.join(f'{100 * p:.0f}' for p in row)} |" for label, row in shares]
     return lines
 
 

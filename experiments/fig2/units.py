@@ -90,7 +90,7 @@ def _evaluation(
 ) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists
     (``deterministic``: fixed candidate noise, see :func:`sb3_ua2c.pipeline.evaluate`)."""
-    from envs.evaluation import evaluate, summarize
+    from envs.evaluation import evaluate, plan_length_shares, summarize
     from sb3_ua2c.pipeline import write_json
 
     path = raw / f"{method}.json"
@@ -120,7 +120,8 @@ def _evaluation(
                 "n_elite": n_elite,
                 "flow_steps": flow_steps,
                 "deterministic": deterministic,
-                "summary": summarize(episodes),
+                "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
+                            "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
                 "episodes": episodes,
             },
         )

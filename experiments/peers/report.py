@@ -70,6 +70,34 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
     return {"mean": mean.tolist(), "ci_low": low.tolist(), "ci_high": high.tolist()}
 
 
+def length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evaluation") -> list[float] | None:
+    """The ``L_t`` histogram of an arm's evaluation plans, pooled over its runs: the share of plans with
+    ``L_t = 1 .. k`` (``k`` = the arm's ``chunk_size``, 1 for a peer); ``None`` when a record keeps no lengths
+    (records made before 2026-12-04) or has no such evaluation."""
+    if not all(r.get(evaluation) for r in records):
+        return None
+    episodes = [e for r in records for e in r[evaluation]["episodes"]]
+    if not episodes or any("plan_lengths" not in e for e in episodes):
+        return None
+    lengths = np.asarray([n for e in episodes for n in e["plan_lengths"]], dtype=np.int64)
+    k = int(records[0].get("hyperparams", {}).get("chunk_size", max(lengths.max(initial=1), 1)))
+    counts = np.bincount(lengths, minlength=k + 1)[1 : k + 1]
+    return (counts / counts.sum()).tolist() if counts.sum() else None
+
+
+def lengths_table(summary: Mapping[str, Any]) -> list[str]:
+    """``L_t`` per arm, offline and online (Markdown), or a line saying that the records keep none."""
+    rows = [(arm["label"], arm.get("length_shares") or {}) for arm in summary["arms"].values()]
+    if not any(shares.get("online") or shares.get("offline") for _, shares in rows):
+        return ["Not recorded in these runs (the records keep L_t per plan since 2026-12-04: rerun to see it)."]
+
+    def cell(shares: list[float] | None) -> str:
+        return "–" if shares is None else " ".join(f"{100 * p:.0f}" for p in shares)
+
+    return ["| arm | offline: L_t = 1..k, % of plans | online |", "|---|---|---|",
+            *(f"| {label} | {cell(shares.get('offline'))} | {cell(shares.get('online'))} |" for label, shares in rows)]
+
+
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
@@ -102,6 +130,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "curve_area": {"per_seed": areas, **(mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
                                              if np.all(np.isfinite(areas)) else {})},
         "offline_metrics": offline,
+        "length_shares": {"offline": length_shares(records, "offline_evaluation"), "online": length_shares(records)},
         "curve": {"env_steps": steps, **band},
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
         "cpu_seconds": {"mean_per_seed": float(np.mean(cpu)), "total": float(np.sum(cpu))},
@@ -332,6 +361,10 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "## Means over runs [95 % CI], and the area under each run's online learning curve",
         "",
         *means_table(summary),
+        "",
+        "## Executed lengths L_t (evaluation plans, pooled over runs)",
+        "",
+        *lengths_table(summary),
         "",
         "## Probability of improvement of each UA2C arm over each peer (over runs)",
         "",

@@ -887,3 +887,14 @@ def test_run_all_submits_every_main_part_before_the_style_parts(tmp_path: Path, 
     assert calls == [(3, "main"), (1, "main"), (3, "style"), (1, "style")]
     assert executed == ["seed3/main/unit", "seed1/main/unit", "seed3/style/unit", "seed1/style/unit"]
     assert lines[0].startswith("seed 3 (main): 1 unit(s) run in ")
+
+
+def test_methods_keep_the_mean_length_histogram_when_every_seed_recorded_one() -> None:
+    from experiments.fig2.aggregation import _stats
+
+    metrics = {"reward": 1.0, "cumulative_jerk": 1.0, "jerk_per_step": 1.0, "collision": 0.0, "merge_success": 1.0,
+               "mean_speed": 1.0, "mean_executed_length": 2.0}
+    per_seed = {0: {**metrics, "length_shares": [0.5, 0.5, 0.0]}, 1: {**metrics, "length_shares": [0.0, 0.5, 0.5]}}
+    assert _stats(per_seed, [0, 1])["length_shares"] == [0.25, 0.5, 0.25]
+    del per_seed[1]["length_shares"]  # a record made before 2026-12-04
+    assert "length_shares" not in _stats(per_seed, [0, 1])
