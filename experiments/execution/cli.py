@@ -69,7 +69,7 @@ def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, w
     per_seed = TRAINING_SECONDS["data_and_phase1"] + n_online * TRAINING_SECONDS["phase2"]
     arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)
     per_seed += arms * 2 * episodes * EPISODE_SECONDS
-    return per_seed * n_seeds / 60.0 / min(workers, n_seeds)
+    return per_seed * n_seeds / 60.0 / max(1, min(workers, n_seeds))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -104,8 +104,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"error: no stored runs for {missing} under {work / args.role}", file=sys.stderr)
             return 2
     else:
-        minutes = estimate_minutes(len(seeds), len(args.online), len(args.rules), budget["eval_episodes"],
-                                   args.workers, args.own_rule_only)
+        todo = sum(not u.result_file.is_file() for u in units)  # stored runs are not run again
+        minutes = estimate_minutes(todo, len(args.online), len(args.rules), budget["eval_episodes"],
+                                   args.workers, args.own_rule_only) if todo else 0.0
         print(f"{PROG}: {args.role}, seeds {seeds}, online {args.online}, {len(args.rules)} rules; "
               f"estimate {minutes:.0f} min wall on {args.workers} worker(s)", flush=True)
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
