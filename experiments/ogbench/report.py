@@ -84,6 +84,9 @@ def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[st
         for arm, matrix in matrices[phase].items():
             arms.setdefault(arm, {"seeds": sorted(r["seed"] for r in groups[arm])})[phase] = {
                 "mean": float(matrix.mean()), "per_seed": matrix[:, 0].tolist(), **intervals[arm]}
+            evaluations = [r.get(f"eval_{phase}") or {} for r in groups[arm]]
+            if all("length_shares" in e for e in evaluations):  # recorded since 2026-12-04
+                arms[arm][phase]["length_shares"] = np.mean([e["length_shares"] for e in evaluations], axis=0).tolist()
     pairs: dict[str, Any] = {}
     for x, y in itertools.permutations(groups, 2):
         if (y, x) in {tuple(k.split(" > ")) for k in pairs}:
@@ -135,6 +138,12 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
                      f"[{_pct(off['ci_low'])}, {_pct(off['ci_high'])}] | {_pct(on['mean'])} | {_pct(on['iqm'])} "
                      f"[{_pct(on['ci_low'])}, {_pct(on['ci_high'])}] | "
                      f"{', '.join(f'{100 * v:.0f}' for v in on['per_seed'])} |")
+    shares = [(arm, s) for arm, s in summary["arms"].items() if "length_shares" in s["offline"]]
+    if shares:
+        lines += ["", "Executed lengths L_t of the evaluation plans (share of plans with L_t = 1..k, %, mean over runs):",
+                  "", "| arm | offline | online |", "|---|---|---|"]
+        lines += [f"| {LABELS.get(arm, arm)} | {' '.join(f'{100 * p:.0f}' for p in s['offline']['length_shares'])} "
+                  f"| {' '.join(f'{100 * p:.0f}' for p in s['online'].get('length_shares', []))} |" for arm, s in shares]
     lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
               "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t interval:", "",
               "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",

@@ -135,14 +135,17 @@ def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: 
     """Success rate of ``model`` (stateful ``predict``, deterministic candidates) over ``n_episodes``.
 
     An episode succeeds when the environment reports ``info["success"]`` (it then terminates).
+    ``length_shares``: the share of the plans with ``L_t = 1 .. k`` over all episodes.
     """
-    successes, lengths, returns = [], [], []
+    successes, lengths, returns, plans = [], [], [], []
     for i in range(n_episodes):
         obs, _ = env.reset(seed=EVAL_SEED_BASE + 1000 * seed + i)
         state, start = None, np.ones(1, dtype=bool)
         done, success, total, steps = False, False, 0.0, 0
         while not done:
             action, state = model.predict(obs, state=state, episode_start=start, deterministic=True)
+            if int(state.plan_position[0]) == 1:  # a plan was made at this step
+                plans.append(int(state.plan_length[0]))
             start = np.zeros(1, dtype=bool)
             obs, reward, terminated, truncated, info = env.step(action)
             success |= info["success"]
@@ -152,7 +155,9 @@ def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: 
         successes.append(float(success))
         lengths.append(steps)
         returns.append(total)
-    return {"success": float(np.mean(successes)), "successes": successes, "lengths": lengths, "returns": returns}
+    counts = np.bincount(np.asarray(plans, dtype=np.int64), minlength=model.chunk_size + 1)[1 : model.chunk_size + 1]
+    return {"success": float(np.mean(successes)), "successes": successes, "lengths": lengths, "returns": returns,
+            "length_shares": (counts / max(counts.sum(), 1)).tolist()}
 
 
 class _OnlineCurve(BaseCallback):

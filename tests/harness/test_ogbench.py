@@ -262,6 +262,8 @@ def test_unit_runs_end_to_end(ogb, tmp_path):
     assert [p["step"] for p in record["curve"]] == [0, 12, 25]
     assert record["curve"][0]["success"] == record["success_offline"] in (0.0, 0.5, 1.0)
     assert len(record["eval_online"]["successes"]) == 2
+    # fixed chunks (δ = inf): every evaluation plan executes all k = 5 actions
+    assert record["eval_offline"]["length_shares"] == record["eval_online"]["length_shares"] == [0, 0, 0, 0, 1.0]
     assert all(n <= 20 for n in record["eval_offline"]["lengths"] + record["eval_online"]["lengths"])
     assert len(record["training_episodes"]) >= 1  # 25 steps > one 20-step episode
     assert all(record["seconds"][f"{p}_cpu"] > 0 for p in ("pretrain", "finetune", "eval_offline", "eval_online"))

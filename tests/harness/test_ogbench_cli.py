@@ -224,3 +224,22 @@ def test_report_rejects_mixed_tasks_and_reads_run_rates(hand_records):
     assert success_matrix(hand_records[:3], "online").tolist() == [[1.0], [0.75], [0.0]]  # rates, seed order
     with pytest.raises(ValueError, match="phase must be one of"):
         success_matrix(hand_records, "final")
+
+
+def test_summary_and_report_show_the_length_histograms_when_recorded(hand_records):
+    require("rliable")
+    from experiments.ogbench.report import format_markdown, summarize
+
+    for r in hand_records:
+        k1 = r["arm"] == "onestep"
+        r["eval_offline"]["length_shares"] = [1.0] if k1 else [0.5, 0.0, 0.0, 0.0, 0.5]
+        r["eval_online"]["length_shares"] = [1.0] if k1 else [0.0, 0.0, 0.0, 0.0, 1.0]
+    r = hand_records[0]
+    r["eval_offline"]["length_shares"] = [0.2, 0.0, 0.0, 0.0, 0.8]  # one fixed run differs
+    summary = summarize(hand_records, reps=50)
+    assert summary["arms"]["fixed"]["offline"]["length_shares"] == pytest.approx([0.4, 0, 0, 0, 0.6])
+    assert summary["arms"]["onestep"]["online"]["length_shares"] == [1.0]
+    text = format_markdown(summary)
+    assert "40 0 0 0 60 | 0 0 0 0 100 |" in text and "| 100 | 100 |" in text
+    del hand_records[1]["eval_online"]["length_shares"]  # a record made before 2026-12-04
+    assert "length_shares" not in summarize(hand_records, reps=50)["arms"]["fixed"]["online"]
