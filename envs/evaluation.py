@@ -14,6 +14,7 @@ import torch as th
 from envs.collection import make_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import check_spaces_match
 from sb3_ua2c.pipeline import load_checkpoint
 
@@ -154,9 +155,7 @@ def summarize(results: list[EpisodeMetrics]) -> dict[str, float]:
 def plan_length_shares(results: list[EpisodeMetrics], chunk_size: int) -> list[float]:
     """The ``L_t`` histogram of the plans of ``results``: the share of plans with ``L_t = 1 .. k``
     (``(k,)`` fractions summing to 1; zeros when no plan was made)."""
-    lengths = np.asarray([n for r in results for n in r.plan_lengths], dtype=np.int64)
-    counts = np.bincount(lengths, minlength=chunk_size + 1)[1 : chunk_size + 1]
-    return (counts / counts.sum()).tolist() if counts.sum() else [0.0] * chunk_size
+    return length_shares([n for r in results for n in r.plan_lengths], chunk_size)
 
 
 def format_table(rows: dict[str, dict[str, float]]) -> str:

@@ -120,6 +120,7 @@ def cmd_main(args: argparse.Namespace) -> int:
     from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
     from envs.evaluation import evaluate, format_table, plan_length_shares, summarize
     from sb3_ua2c import UA2C
+    from sb3_ua2c.execution import format_length_shares
     from sb3_ua2c.pipeline import env_settings, finetune, pretrain, write_json
 
     budget = MAIN_BUDGET["quick" if args.quick else "full"]
@@ -154,7 +155,7 @@ def cmd_main(args: argparse.Namespace) -> int:
     print(format_table(rows))
     k = UA2C.load(fine, device="cpu").chunk_size
     for name in ("pretrained", "finetuned"):
-        shares = " ".join(f"{100 * p:.0f}" for p in plan_length_shares(raw[name], k))
+        shares = format_length_shares(plan_length_shares(raw[name], k))
         print(f"{name:>11} | L_t = 1..{k}, % of plans: {shares}")
     write_json(run / "summary.json", {"summary": rows, "episodes": raw, "budget": budget, "seconds": time.time() - t0})
     print(f"run directory: {run}  ({time.time() - t0:.0f} s)")

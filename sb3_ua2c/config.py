@@ -38,6 +38,14 @@ POLICY_CHUNKING_ARGUMENTS = (
 
 #: values of ``execution_rule``: how ``L_t`` is set from the entropies ``H_u`` (:class:`~sb3_ua2c.ua2c.UA2C`)
 EXECUTION_RULES = ("threshold", "quantile", "growth")
+#: the arguments that make up the execution rule, with their defaults (``None``: the rule's own default)
+EXECUTION_RULE_DEFAULTS: dict[str, Any] = {
+    "execution_rule": "threshold",
+    "entropy_threshold": 0.0,
+    "target_plan_length": None,
+    "entropy_quantile": None,
+    "entropy_growth": None,
+}
 #: ``q`` of ``execution_rule="quantile"`` when ``entropy_quantile`` is not given
 DEFAULT_ENTROPY_QUANTILE = 0.75
 #: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
@@ -225,11 +233,11 @@ def check_arguments(**arguments: Any) -> None:
         )
 
 
-#: the parameters of each execution rule, with the value that means "not set"
+#: the parameters of each execution rule (their defaults in :data:`EXECUTION_RULE_DEFAULTS` mean "not set")
 _RULE_PARAMETERS = {
-    "threshold": {"entropy_threshold": 0.0, "target_plan_length": None},
-    "quantile": {"entropy_quantile": None},
-    "growth": {"entropy_growth": None},
+    "threshold": ("entropy_threshold", "target_plan_length"),
+    "quantile": ("entropy_quantile",),
+    "growth": ("entropy_growth",),
 }
 
 
@@ -239,7 +247,8 @@ def _check_rule_parameters(arguments: Mapping[str, Any]) -> None:
     if rule is None:
         return
     for other, parameters in _RULE_PARAMETERS.items():
-        for name, unset in parameters.items():
+        for name in parameters:
+            unset = EXECUTION_RULE_DEFAULTS[name]
             if other != rule and name in arguments and arguments[name] != unset:
                 raise ValueError(
                     f"{name} applies to execution_rule={other!r} only, got {name}={arguments[name]!r} with "
@@ -327,6 +336,7 @@ def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: t
 __all__ = [
     "DEFAULT_ENTROPY_GROWTH",
     "DEFAULT_ENTROPY_QUANTILE",
+    "EXECUTION_RULE_DEFAULTS",
     "EXECUTION_RULES",
     "ONLINE_TARGETS",
     "POLICY_CHUNKING_ARGUMENTS",

@@ -7,7 +7,7 @@ The maths it applies (entropies, ``L_t``, the auto δ) are the pure functions of
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -223,6 +223,18 @@ class AdaptiveChunkExecutor:
         self.action_history[:, :-1] = self.action_history[:, 1:]
         self.action_history[:, -1] = actions
         return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
+
+
+def length_shares(lengths: Sequence[int] | np.ndarray, chunk_size: int) -> list[float]:
+    """The ``L_t`` histogram of executed plans: the share of plans with ``L_t = 1 .. k`` (``(k,)`` fractions
+    summing to 1; zeros when there is no plan). Lengths above ``k`` are not counted."""
+    counts = np.bincount(np.asarray(lengths, dtype=np.int64), minlength=chunk_size + 1)[1 : chunk_size + 1]
+    return (counts / counts.sum()).tolist() if counts.sum() else [0.0] * chunk_size
+
+
+def format_length_shares(shares: Sequence[float]) -> str:
+    """An ``L_t`` histogram as whole percentages: ``[0.46, 0.28, 0.14, 0.05, 0.07] -> "46 28 14 5 7"``."""
+    return " ".join(f"{100 * p:.0f}" for p in shares)
 
 
 def resume_and_act(

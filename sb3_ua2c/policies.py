@@ -33,6 +33,7 @@ from sb3_ua2c.chunking import (
 from sb3_ua2c.config import (
     DEFAULT_ENTROPY_GROWTH,
     DEFAULT_ENTROPY_QUANTILE,
+    EXECUTION_RULE_DEFAULTS,
     check_arguments,
     check_spaces,
     hyperparameters,
@@ -271,12 +272,10 @@ class UA2CPolicy(BasePolicy):
         ``0.0``, ``None``). ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
         ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
         """
-        defaults = {"execution_rule": "threshold", "entropy_threshold": 0.0, "target_plan_length": None,
-                    "entropy_quantile": None, "entropy_growth": None}
-        unknown = sorted(set(rule) - set(defaults))
+        unknown = sorted(set(rule) - set(EXECUTION_RULE_DEFAULTS))
         if unknown:
-            raise ValueError(f"set_execution_rule takes {sorted(defaults)}, got {unknown}")
-        rule = {**defaults, **rule}
+            raise ValueError(f"set_execution_rule takes {sorted(EXECUTION_RULE_DEFAULTS)}, got {unknown}")
+        rule = {**EXECUTION_RULE_DEFAULTS, **rule}
         check_arguments(**rule, chunk_size=self.chunk_size)
         for name, value in rule.items():
             setattr(self, name, value)
@@ -325,21 +324,26 @@ class UA2CPolicy(BasePolicy):
         if obs_history.shape[0] < 2:
             raise ValueError(f"calibration needs at least 2 histories, got {obs_history.shape[0]}")
         with th.inference_mode():
-            entropy = th.cat([
-                self.candidate_entropy(obs_history[i:i + batch_size], action_history[i:i + batch_size], n_samples)
-                for i in range(0, obs_history.shape[0], batch_size)
-            ])  # (n, k)
+            batches = range(0, obs_history.shape[0], batch_size)
+            entropy = th.cat([self.sample_candidates(obs_history[i : i + batch_size],
+                                                     action_history[i : i + batch_size], n_samples)[1]
+                              for i in batches])  # (n, k)
         q = DEFAULT_ENTROPY_QUANTILE if self.entropy_quantile is None else self.entropy_quantile
         assert self.calibrated_thresholds is not None
         self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, q))
         return entropy
 
-    def candidate_entropy(self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int) -> th.Tensor:
-        """``H_u`` (:func:`~sb3_ua2c.chunking.chunk_entropy`) of ``n_samples`` fresh-noise candidates per history,
-        measured on the clipped actions that would be executed: ``(m, ℓ, ·)`` histories -> ``(m, k)``."""
+    def sample_candidates(
+        self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int,
+        generator: th.Generator | None = None, x0: th.Tensor | None = None,
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """``n_samples`` candidate chunks per history (:meth:`sample_chunks`, ``flow_steps`` Euler steps),
+        clipped to the action bounds as they would be executed, and their entropies ``H_u``
+        (:func:`~sb3_ua2c.chunking.chunk_entropy`): ``(m, ℓ, ·)`` histories -> ``(m, S, k, A)`` and
+        ``(m, k)``."""
         cond = self.actor.condition(self.flatten_history(obs_history, action_history))
-        samples = self.sample_chunks(cond, n_samples, self.flow_steps).clamp(-1.0, 1.0)  # (m, S, k, A)
-        return chunk_entropy(samples, self.discrete_dims, discrete=self.discrete_entropy)
+        clipped = self.sample_chunks(cond, n_samples, self.flow_steps, generator, x0).clamp(-1.0, 1.0)
+        return clipped, chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)
 
     def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
         """
@@ -428,11 +432,10 @@ class UA2CPolicy(BasePolicy):
             rows = [self.plan_tensors(obs_history[i : i + 1], action_history[i : i + 1], None, True, record_entropy)
                     for i in range(m)]
             return tuple(th.cat(parts) for parts in zip(*rows, strict=True))  # type: ignore[return-value]
-        cond = self.actor.condition(self.flatten_history(obs_history, action_history))
-        s, n_steps = self.n_candidates, self.flow_steps
+        s = self.n_candidates
         x0 = history_noise(obs_history, action_history, s, self.chunk_size) if deterministic else None
-        clipped = self.sample_chunks(cond, s, n_steps, generator, x0).clamp(-1.0, 1.0)  # (m, S, k, A)
-        entropy = chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)  # (m, k)
+        # (m, S, k, A) clipped candidates and their (m, k) entropies
+        clipped, entropy = self.sample_candidates(obs_history, action_history, s, generator, x0)
         obs_flat = obs_history.reshape(m, -1)
         q = self.critic(obs_flat, clipped)  # (n, m, S)
         lengths = self.plan_lengths(entropy)

@@ -41,6 +41,7 @@ from sb3_ua2c.chunking import (
     pessimistic_q,
 )
 from sb3_ua2c.config import (
+    EXECUTION_RULE_DEFAULTS,
     POLICY_CHUNKING_ARGUMENTS,
     check_arguments,
     check_policy_kwargs,
@@ -603,8 +604,7 @@ class UA2C(OffPolicyAlgorithm):
         an empty one). Kept by :meth:`save`.
         """
         self.policy.set_execution_rule(**rule)
-        for name in ("execution_rule", "entropy_threshold", "target_plan_length", "entropy_quantile",
-                     "entropy_growth"):
+        for name in EXECUTION_RULE_DEFAULTS:
             setattr(self, name, getattr(self.policy, name))
 
     def set_entropy_threshold(

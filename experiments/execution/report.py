@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from experiments.common.stats import paired_difference
+from sb3_ua2c.execution import format_length_shares
 
 MODES = ("deterministic", "sampled")
 
@@ -81,10 +82,6 @@ def _interval(p: Mapping[str, float] | None) -> str:
     return f"{p['difference']:+.1f} [{p['ci_low']:+.1f}, {p['ci_high']:+.1f}]"
 
 
-def _shares(shares: Sequence[float]) -> str:
-    return " ".join(f"{100 * s:.0f}" for s in shares)
-
-
 def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
     """Per rule, the means over every checkpoint and mode of: the rule's score minus fixed chunks', minus
     its random cut's, minus its fixed-``k'``'s, and its mean ``L_t`` (a descriptive summary of the tables)."""
@@ -147,7 +144,8 @@ def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapp
                 k_cut = next((v for k, v in paired.items() if k.endswith(":fixed_k")), None)
                 cells = [_interval(paired["fixed"]) if "fixed" in paired else "",
                          _interval(random_cut) if paired else "", _interval(k_cut) if paired else ""]
-                lines.append(f"| {arm} | {row['mean']:.1f} | {row['collision']:.2f} | {_shares(row['length_shares'])} "
+                shares = format_length_shares(row["length_shares"])
+                lines.append(f"| {arm} | {row['mean']:.1f} | {row['collision']:.2f} | {shares} "
                              f"| {' | '.join(cells)} |")
             lines.append("")
     return "\n".join(lines)

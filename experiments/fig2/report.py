@@ -22,6 +22,7 @@ from experiments.common.records import strict_json
 from experiments.common.stats import t_confidence_interval
 from experiments.fig2.manifest import RunPaths
 from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
+from sb3_ua2c.execution import format_length_shares
 
 Lines = list[str]
 
@@ -175,7 +176,7 @@ def _methods_table(summary: Mapping[str, Any]) -> Lines:
     if shares:
         lines += ["", "Executed lengths (share of plans with L_t = 1..k, %, mean over seeds):", "",
                   "| method | L_t = 1..k |", "|---|---|"]
-        lines += [f"| {label} | {' '.join(f'{100 * p:.0f}' for p in row)} |" for label, row in shares]
+        lines += [f"| {label} | {format_length_shares(row)} |" for label, row in shares]
     return lines
 
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from experiments.common.stats import iqm_with_ci, paired_difference, probability_of_improvement
+from sb3_ua2c.execution import format_length_shares
 
 PHASES = ("offline", "online")
 LABELS = {"adaptive": "UA2C (adaptive chunks)", "fixed": "fixed chunks (k = 5, δ = inf)", "onestep": "one-step (k = 1)"}
@@ -142,8 +143,8 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
     if shares:
         lines += ["", "Executed lengths L_t of the evaluation plans (share of plans with L_t = 1..k, %, mean over runs):",
                   "", "| arm | offline | online |", "|---|---|---|"]
-        lines += [f"| {LABELS.get(arm, arm)} | {' '.join(f'{100 * p:.0f}' for p in s['offline']['length_shares'])} "
-                  f"| {' '.join(f'{100 * p:.0f}' for p in s['online'].get('length_shares', []))} |" for arm, s in shares]
+        lines += [f"| {LABELS.get(arm, arm)} | {format_length_shares(s['offline']['length_shares'])} "
+                  f"| {format_length_shares(s['online'].get('length_shares', []))} |" for arm, s in shares]
     lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
               "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t interval:", "",
               "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",

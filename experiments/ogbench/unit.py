@@ -25,6 +25,7 @@ from experiments.common.records import recorded_path
 from experiments.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
 from experiments.ogbench.env import ENV_ID, OGBenchSingleTask
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import OfflineDataset
 
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
@@ -155,9 +156,8 @@ def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: 
         successes.append(float(success))
         lengths.append(steps)
         returns.append(total)
-    counts = np.bincount(np.asarray(plans, dtype=np.int64), minlength=model.chunk_size + 1)[1 : model.chunk_size + 1]
     return {"success": float(np.mean(successes)), "successes": successes, "lengths": lengths, "returns": returns,
-            "length_shares": (counts / max(counts.sum(), 1)).tolist()}
+            "length_shares": length_shares(plans, model.chunk_size)}
 
 
 class _OnlineCurve(BaseCallback):

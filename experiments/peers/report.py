@@ -29,6 +29,7 @@ from experiments.common.stats import (
     verdict,
 )
 from experiments.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
+from sb3_ua2c.execution import format_length_shares, length_shares
 
 #: Evaluation metrics reported per arm (keys of the evaluation episodes).
 METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step")
@@ -70,7 +71,7 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
     return {"mean": mean.tolist(), "ci_low": low.tolist(), "ci_high": high.tolist()}
 
 
-def length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evaluation") -> list[float] | None:
+def arm_length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evaluation") -> list[float] | None:
     """The ``L_t`` histogram of an arm's evaluation plans, pooled over its runs: the share of plans with
     ``L_t = 1 .. k`` (``k`` = the arm's ``chunk_size``, 1 for a peer); ``None`` when a record keeps no lengths
     (records made before 2026-12-04) or has no such evaluation."""
@@ -79,10 +80,10 @@ def length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evalu
     episodes = [e for r in records for e in r[evaluation]["episodes"]]
     if not episodes or any("plan_lengths" not in e for e in episodes):
         return None
-    lengths = np.asarray([n for e in episodes for n in e["plan_lengths"]], dtype=np.int64)
-    k = int(records[0].get("hyperparams", {}).get("chunk_size", max(lengths.max(initial=1), 1)))
-    counts = np.bincount(lengths, minlength=k + 1)[1 : k + 1]
-    return (counts / counts.sum()).tolist() if counts.sum() else None
+    lengths = [n for e in episodes for n in e["plan_lengths"]]
+    if not lengths:
+        return None
+    return length_shares(lengths, int(records[0].get("hyperparams", {}).get("chunk_size", max(lengths))))
 
 
 def lengths_table(summary: Mapping[str, Any]) -> list[str]:
@@ -92,7 +93,7 @@ def lengths_table(summary: Mapping[str, Any]) -> list[str]:
         return ["Not recorded in these runs (the records keep L_t per plan since 2026-12-04: rerun to see it)."]
 
     def cell(shares: list[float] | None) -> str:
-        return "–" if shares is None else " ".join(f"{100 * p:.0f}" for p in shares)
+        return "–" if shares is None else format_length_shares(shares)
 
     return ["| arm | offline: L_t = 1..k, % of plans | online |", "|---|---|---|",
             *(f"| {label} | {cell(shares.get('offline'))} | {cell(shares.get('online'))} |" for label, shares in rows)]
@@ -130,7 +131,8 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "curve_area": {"per_seed": areas, **(mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
                                              if np.all(np.isfinite(areas)) else {})},
         "offline_metrics": offline,
-        "length_shares": {"offline": length_shares(records, "offline_evaluation"), "online": length_shares(records)},
+        "length_shares": {"offline": arm_length_shares(records, "offline_evaluation"),
+                          "online": arm_length_shares(records)},
         "curve": {"env_steps": steps, **band},
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
         "cpu_seconds": {"mean_per_seed": float(np.mean(cpu)), "total": float(np.sum(cpu))},

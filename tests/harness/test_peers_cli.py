@@ -205,17 +205,17 @@ def test_headline_names_the_best_of_each_side():
 
 
 def test_length_shares_pool_the_plans_of_every_run_and_say_when_none_were_kept():
-    from experiments.peers.report import length_shares, lengths_table
+    from experiments.peers.report import arm_length_shares, lengths_table
 
     def record(lengths_per_episode, chunk_size=5):
         return {"hyperparams": {"chunk_size": chunk_size},
                 "evaluation": {"episodes": [{"plan_lengths": list(x)} for x in lengths_per_episode]}}
 
-    shares = length_shares([record([[1, 5], [5]]), record([[2, 5]])])
+    shares = arm_length_shares([record([[1, 5], [5]]), record([[2, 5]])])
     assert shares == [0.2, 0.2, 0.0, 0.0, 0.6]  # 5 plans: one 1, one 2, three 5
-    assert length_shares([{"hyperparams": {}, "evaluation": {"episodes": [{"plan_lengths": [1, 1]}]}}]) == [1.0]
+    assert arm_length_shares([{"hyperparams": {}, "evaluation": {"episodes": [{"plan_lengths": [1, 1]}]}}]) == [1.0]
     old = {"hyperparams": {}, "evaluation": {"episodes": [{"reward": 1.0}]}}
-    assert length_shares([old]) is None and length_shares([old], "offline_evaluation") is None
+    assert arm_length_shares([old]) is None and arm_length_shares([old], "offline_evaluation") is None
     summary = {"arms": {"a": {"label": "UA2C", "length_shares": {"offline": None, "online": shares}},
                         "b": {"label": "SAC", "length_shares": {"offline": None, "online": [1.0]}}}}
     assert lengths_table(summary)[2:] == ["| UA2C | – | 20 20 0 0 60 |", "| SAC | – | 100 |"]
