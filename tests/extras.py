@@ -7,8 +7,13 @@ from types import ModuleType
 
 import pytest
 
-EXTRA_OF = {"d3rlpy": "peers (then: pip install --no-deps d3rlpy==2.8.1 gym==0.26.2)", "rliable": "peers",
-            "ray": "peers", "ogbench": "ogbench"}
+#: the command that installs each optional module (d3rlpy pins an old gym, so it goes in without its deps)
+INSTALL = {
+    "d3rlpy": "pip install -e '.[peers]' && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2",
+    "rliable": "pip install -e '.[peers]'",
+    "ray": "pip install -e '.[peers]'",
+    "ogbench": "pip install -e '.[ogbench]'",
+}
 
 
 def in_ci() -> bool:
@@ -27,4 +32,4 @@ def require(module: str) -> ModuleType:
     try:
         return importlib.import_module(module)
     except ImportError as error:
-        unavailable(f"{module} is missing: pip install -e '.[{EXTRA_OF.get(module, module)}]' ({error})")
+        unavailable(f"{module} is missing: {INSTALL.get(module, f'pip install {module}')} ({error})")
