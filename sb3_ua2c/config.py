@@ -53,6 +53,9 @@ DEFAULT_ENTROPY_GROWTH = 0.5
 
 #: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
+#: the critic architectures (``critic_arch``): the paper's per-token Transformer, or an MLP over the
+#: flattened history and chunk (see :mod:`sb3_ua2c.networks`)
+CRITIC_ARCHS = ("transformer", "mlp")
 
 #: arguments of a policy class that are not hyperparameters (the spaces, and what SB3 passes itself)
 _POLICY_PLUMBING = ("self", "observation_space", "action_space", "lr_schedule")
@@ -97,9 +100,12 @@ def _entropy_threshold(name: str, value: Any) -> None:
         raise ValueError(f"{name} must not be -inf (it would execute one action per plan: use chunk_size=1)")
 
 
-def _execution_rule(name: str, value: Any) -> None:
-    if not isinstance(value, str) or value not in EXECUTION_RULES:
-        raise ValueError(f"{name} must be one of {list(EXECUTION_RULES)}, got {value!r}")
+def _one_of(choices: Sequence[str]) -> Callable[[str, Any], None]:
+    def check(name: str, value: Any) -> None:
+        if not isinstance(value, str) or value not in choices:
+            raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+
+    return check
 
 
 def _optional_fraction(name: str, value: Any) -> None:
@@ -115,11 +121,6 @@ def _optional_non_negative_number(name: str, value: Any) -> None:
 def _optional_number(name: str, value: Any) -> None:
     if value is not None and not _is_number(value):
         raise ValueError(f"{name} must be a number or None, got {value!r}")
-
-
-def _online_targets(name: str, value: Any) -> None:
-    if not isinstance(value, str) or value not in ONLINE_TARGETS:
-        raise ValueError(f"{name} must be one of {list(ONLINE_TARGETS)}, got {value!r}")
 
 
 def _net_arch(name: str, value: Any) -> None:
@@ -167,7 +168,7 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "target_flow_steps": _positive_int,
     "n_candidates": _positive_int,
     "n_target_candidates": _positive_int,
-    "execution_rule": _execution_rule,
+    "execution_rule": _one_of(EXECUTION_RULES),
     "entropy_threshold": _entropy_threshold,
     "target_plan_length": _optional_number,
     "entropy_quantile": _optional_fraction,
@@ -178,14 +179,17 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "commit_discrete": check_bool,
     "discrete_action_dims": _discrete_action_dims,
     "offline_ratio": _fraction,
-    "online_targets": _online_targets,
+    "online_targets": _one_of(ONLINE_TARGETS),
     # UA2CPolicy's networks and acting rule
     "n_elite": _positive_int,
     "net_arch": _net_arch,
+    "critic_arch": _one_of(CRITIC_ARCHS),
     "critic_embed_dim": _positive_int,
     "critic_n_layers": _positive_int,
     "critic_n_heads": _positive_int,
     "critic_ff_dim": _positive_int,
+    "critic_net_arch": _net_arch,
+    "critic_layer_norm": check_bool,
     "n_critics": _positive_int,
     "activation_fn": _subclass_of(th.nn.Module),
     "optimizer_class": _subclass_of(th.optim.Optimizer),
@@ -227,6 +231,11 @@ def check_arguments(**arguments: Any) -> None:
             raise ValueError(f"target_plan_length must be a number in [1, chunk_size={k}], got {target!r}")
     if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
         raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
+    if arguments.get("critic_net_arch") is not None and arguments.get("critic_arch", "transformer") != "mlp":
+        raise ValueError(
+            f"critic_net_arch applies to critic_arch='mlp' only, got it with critic_arch="
+            f"{arguments.get('critic_arch', 'transformer')!r}"
+        )
     if "critic_embed_dim" in arguments and arguments["critic_embed_dim"] % arguments.get("critic_n_heads", 1):
         raise ValueError(
             f"critic_n_heads={arguments['critic_n_heads']} must divide critic_embed_dim={arguments['critic_embed_dim']}"

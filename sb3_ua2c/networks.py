@@ -1,5 +1,6 @@
-"""Networks of UA2C: the flow-matching chunk actor (the velocity field of Eq. 2) and the twin Transformer
-chunk critics of Eq. 3, evaluated as one ensemble.
+"""Networks of UA2C: the flow-matching chunk actor (the velocity field of Eq. 2) and the twin chunk
+critics of Eq. 3, evaluated as one ensemble: the paper's Transformer critic (:class:`ChunkCritics`) or
+an MLP over the flattened (history, chunk) input as Q-chunking uses (:class:`MLPChunkCritics`).
 
 Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
 Mixed Traffic", §3.1.
@@ -8,6 +9,7 @@ Mixed Traffic", §3.1.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch as th
 from torch import nn
@@ -117,20 +119,40 @@ def _softmax(x: th.Tensor) -> th.Tensor:
 
 
 class _EnsembleLinear(nn.Module):
-    """``n`` independent linear layers applied in one batched matmul: ``(n, M, in) -> (n, M, out)``."""
+    """``n`` independent linear layers applied in one batched matmul: ``(n, M, in) -> (n, M, out)``.
 
-    def __init__(self, n: int, in_features: int, out_features: int) -> None:
+    Initialised as ``nn.Linear`` (uniform in ``±1/sqrt(in)``); ``bias=False`` leaves the bias out.
+    """
+
+    def __init__(self, n: int, in_features: int, out_features: int, bias: bool = True) -> None:
         super().__init__()
         bound = 1.0 / math.sqrt(in_features)
         self.weight = nn.Parameter(th.empty(n, in_features, out_features).uniform_(-bound, bound))
-        self.bias = nn.Parameter(th.empty(n, 1, out_features).uniform_(-bound, bound))
+        self.bias = nn.Parameter(th.empty(n, 1, out_features).uniform_(-bound, bound)) if bias else None
 
     def forward(self, x: th.Tensor) -> th.Tensor:
         if x.ndim == 2:  # shared input (M, in) for all members: one (M, in) x (in, n*out) matmul
             n, n_in, n_out = self.weight.shape
             stacked = self.weight.permute(1, 0, 2).reshape(n_in, n * n_out)  # (in, n*out)
-            return th.mm(x, stacked).reshape(-1, n, n_out).transpose(0, 1) + self.bias  # (n, M, out)
+            out = th.mm(x, stacked).reshape(-1, n, n_out).transpose(0, 1)  # (n, M, out)
+            return out if self.bias is None else out + self.bias
+        if self.bias is None:
+            return th.bmm(x, self.weight)
         return th.baddbmm(self.bias, x, self.weight)
+
+
+class _EnsembleLayerNorm(nn.Module):
+    """Layer norm with a per-member gain and bias, input ``(n, M, d)``."""
+
+    def __init__(self, n: int, dim: int, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(th.ones(n, 1, dim))
+        self.bias = nn.Parameter(th.zeros(n, 1, dim))
+        self.dim, self.eps = dim, eps
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        # mul and add: faster on CPU than one addcmul, whose backward broadcasts the gain
+        return F.layer_norm(x, (self.dim,), eps=self.eps) * self.weight + self.bias
 
 
 class _EnsembleRMSNorm(nn.Module):
@@ -250,4 +272,65 @@ class ChunkCritics(nn.Module):
         for block in self.blocks:
             x = block(x)
         x = self.norm(x.reshape(n, b * c * (k + 1), d)).reshape(n, b * c, (k + 1) * d)  # (n, B*C, (1+k)*d)
+        return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)
+
+
+class MLPChunkCritics(nn.Module):
+    """
+    Twin (``n_critics``) MLP chunk critics ``Q_phi_j(o_{t-ℓ+1:t}, a_{t:t+k-1})`` over the flattened
+    (observation history, chunk) input, as Q-chunking's critic (Li et al., 2025), evaluated in one
+    batched call: each layer holds the members' weights stacked, ``(n, in, out)``.
+
+    Each hidden layer is linear, then (optionally) a layer norm, then the activation; the value is a
+    linear read-out. The first layer is split into a history part, computed once per history, and a
+    chunk part, so that the ``C`` candidates of a history share the history's features. Same call as
+    :class:`ChunkCritics`.
+
+    :param obs_history_dim: ``ℓ * obs_dim``
+    :param chunk_size: ``k``
+    :param action_dim: action size
+    :param n_critics: number of critics (2 for clipped double-Q)
+    :param net_arch: hidden layer sizes (at least one)
+    :param layer_norm: a layer norm before each hidden activation (as RLPD's and Q-chunking's critics)
+    :param activation_fn: activation class
+    """
+
+    def __init__(
+        self,
+        obs_history_dim: int,
+        chunk_size: int,
+        action_dim: int,
+        n_critics: int = 2,
+        net_arch: Sequence[int] = (256, 256),
+        layer_norm: bool = True,
+        activation_fn: type[nn.Module] = nn.SiLU,
+    ) -> None:
+        super().__init__()
+        if len(net_arch) == 0:
+            raise ValueError("critic_net_arch must have at least one hidden layer")
+        self.n_critics = n_critics
+        self.obs_layer = _EnsembleLinear(n_critics, obs_history_dim, net_arch[0])
+        self.chunk_layer = _EnsembleLinear(n_critics, chunk_size * action_dim, net_arch[0], bias=False)
+        self.hidden = nn.ModuleList(
+            [_EnsembleLinear(n_critics, n_in, n_out) for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True)]
+        )
+        norms = [_EnsembleLayerNorm(n_critics, width) if layer_norm else nn.Identity() for width in net_arch]
+        self.norms = nn.ModuleList(norms)
+        self.act = activation_fn()
+        self.head = _EnsembleLinear(n_critics, net_arch[-1], 1)
+
+    def forward(self, obs_history: th.Tensor, chunks: th.Tensor) -> th.Tensor:
+        """
+        :param obs_history: flattened observation histories, shape ``(B, ℓ*obs_dim)``
+        :param chunks: ``C`` candidate chunks per history, shape ``(B, C, k, action_dim)``
+        :return: Q-values, shape ``(n_critics, B, C)``
+        """
+        b, c = chunks.shape[:2]
+        n = self.n_critics
+        obs = self.obs_layer(obs_history)  # (n, B, h): once per history
+        act = self.chunk_layer(chunks.reshape(b * c, -1))  # (B*C, k*a) -> (n, B*C, h)
+        x = (act.reshape(n, b, c, -1) + obs.unsqueeze(2)).reshape(n, b * c, -1)  # (n, B*C, h)
+        x = self.act(self.norms[0](x))
+        for layer, norm in zip(self.hidden, self.norms[1:], strict=True):
+            x = self.act(norm(layer(x)))
         return self.head(x).reshape(n, b, c)  # (n, B*C, 1) -> (n, B, C)

@@ -41,7 +41,7 @@ from sb3_ua2c.config import (
     policy_arguments,
 )
 from sb3_ua2c.execution import EntropyWindow, PlanResult, resume_and_act
-from sb3_ua2c.networks import ChunkCritics, VelocityField
+from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, VelocityField
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
@@ -81,6 +81,8 @@ _RULE_STATE = ("entropy_window.", "calibrated_thresholds")
 
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
 DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
+#: Hidden sizes of the MLP critics (``critic_arch="mlp"``) when ``critic_net_arch`` is not given: SAC's.
+DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
 
 class UA2CPolicy(BasePolicy):
@@ -115,10 +117,15 @@ class UA2CPolicy(BasePolicy):
     :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
         selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
     :param net_arch: hidden sizes of the velocity-field MLP
-    :param critic_embed_dim: token width of the critics
+    :param critic_arch: ``"transformer"`` (the paper's per-token critic, :class:`~sb3_ua2c.networks.ChunkCritics`)
+        or ``"mlp"`` (an MLP over the flattened history and chunk, :class:`~sb3_ua2c.networks.MLPChunkCritics`)
+    :param critic_embed_dim: token width of the Transformer critics
     :param critic_n_layers: Transformer blocks per critic
     :param critic_n_heads: attention heads
-    :param critic_ff_dim: feed-forward width
+    :param critic_ff_dim: feed-forward width of the Transformer critics
+    :param critic_net_arch: hidden sizes of the MLP critics (``None`` = :data:`DEFAULT_CRITIC_NET_ARCH`;
+        only with ``critic_arch="mlp"``)
+    :param critic_layer_norm: a layer norm before each hidden activation of the MLP critics
     :param n_critics: number of critics
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
@@ -149,10 +156,13 @@ class UA2CPolicy(BasePolicy):
         commit_discrete: bool = False,
         n_elite: int = 1,
         net_arch: list[int] | None = None,
+        critic_arch: str = "transformer",
         critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
         critic_n_heads: int = 1,
         critic_ff_dim: int = 64,
+        critic_net_arch: list[int] | None = None,
+        critic_layer_norm: bool = True,
         n_critics: int = 2,
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
@@ -186,10 +196,13 @@ class UA2CPolicy(BasePolicy):
         self.commit_discrete = commit_discrete
         self.n_elite = n_elite
         self.net_arch = list(DEFAULT_NET_ARCH) if net_arch is None else net_arch
+        self.critic_arch = critic_arch
         self.critic_embed_dim = critic_embed_dim
         self.critic_n_layers = critic_n_layers
         self.critic_n_heads = critic_n_heads
         self.critic_ff_dim = critic_ff_dim
+        self.critic_net_arch = critic_net_arch
+        self.critic_layer_norm = critic_layer_norm
         self.n_critics = n_critics
         self.activation_fn = activation_fn
         self.torch_compile = torch_compile
@@ -217,17 +230,7 @@ class UA2CPolicy(BasePolicy):
         self.actor = VelocityField(
             history_dim, self.chunk_size, self.action_dim, list(self.net_arch), self.activation_fn
         )
-        critic_args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim)
-        critic_kwargs = dict(
-            n_critics=self.n_critics,
-            embed_dim=self.critic_embed_dim,
-            n_layers=self.critic_n_layers,
-            n_heads=self.critic_n_heads,
-            ff_dim=self.critic_ff_dim,
-            activation_fn=self.activation_fn,
-        )
-        self.critic = ChunkCritics(*critic_args, **critic_kwargs)
-        self.critic_target = ChunkCritics(*critic_args, **critic_kwargs)
+        self.critic, self.critic_target = self._make_critics(), self._make_critics()
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
@@ -236,6 +239,21 @@ class UA2CPolicy(BasePolicy):
         )
         self.critic.optimizer = self.optimizer_class(  # type: ignore[assignment]
             self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
+
+    def _make_critics(self) -> ChunkCritics | MLPChunkCritics:
+        """The twin critics of ``critic_arch``, ``(B, ℓ*obs_dim), (B, C, k, a) -> (n_critics, B, C)``."""
+        args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim, self.n_critics)
+        if self.critic_arch == "mlp":
+            net_arch = DEFAULT_CRITIC_NET_ARCH if self.critic_net_arch is None else self.critic_net_arch
+            return MLPChunkCritics(*args, list(net_arch), self.critic_layer_norm, self.activation_fn)
+        return ChunkCritics(
+            *args,
+            embed_dim=self.critic_embed_dim,
+            n_layers=self.critic_n_layers,
+            n_heads=self.critic_n_heads,
+            ff_dim=self.critic_ff_dim,
+            activation_fn=self.activation_fn,
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
