@@ -9,7 +9,7 @@ The estimate (:func:`estimate_units`) prices every unit in CPU seconds on one co
 with Figure 2's :class:`~experiments.common.budget.CostModel`, the peer units with
 :class:`PeerCostModel`, calibrated on ``experiments/peers/measure_costs.py`` (CPU seconds of one unit at 10,000
 online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
-389, Cal-QL 2,190). The wall time is the sum over the stages (datasets, pre-training, arms) of the
+389, Cal-QL 2,190; CrossQ's update at 1.22x SAC's, measured side by side on 2026-12-04). The wall time is the sum over the stages (datasets, pre-training, arms) of the
 longest-first schedule of their units on the workers (:func:`stage_wall_seconds`).
 """
 
@@ -32,7 +32,9 @@ UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
     "ua2c_onestep": (1, None),
 }
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
-PEER_ARMS = ("sac", "tqc", "sac_offline_mix", "iql", "calql")
+PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "iql", "calql")
+#: Peer arms trained online from scratch by Stable-Baselines3 / sb3-contrib (``zoo_configs/<arm>.yml``).
+ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
 ARMS = (*UA2C_ARMS, *PEER_ARMS)
 D3RLPY_ARMS = ("iql", "calql")
 ARM_LABELS = {
@@ -41,6 +43,7 @@ ARM_LABELS = {
     "ua2c_onestep": "UA2C one-step (k=1)",
     "sac": "SB3 SAC (online)",
     "tqc": "sb3-contrib TQC (online)",
+    "crossq": "sb3-contrib CrossQ (online)",
     "sac_offline_mix": "SAC + offline data (RLPD-style)",
     "iql": "d3rlpy IQL (offline → online)",
     "calql": "d3rlpy Cal-QL (offline → online)",
@@ -143,7 +146,7 @@ class PeerCostModel:
     """
 
     sb3_update_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "sac_offline_mix": 19.6})
+        default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "crossq": 24.0, "sac_offline_mix": 19.6})
     sb3_env_ms: float = 0.5
     d3rlpy_offline_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 13.0, "calql": 125.6})
     d3rlpy_online_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 30.7, "calql": 143.3})

@@ -320,7 +320,8 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         "in the buffer and one gradient step per k env steps (Figure 2's cadence): the chunk arms make about "
         f"1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step), the one-step arm "
         "as many.",
-        "- SAC and TQC: online from scratch, hyperparameters from `zoo_configs/sac.yml` / `zoo_configs/tqc.yml` "
+        "- SAC, TQC and CrossQ: online from scratch, hyperparameters from `zoo_configs/sac.yml` / "
+        "`zoo_configs/tqc.yml` / `zoo_configs/crossq.yml` "
         "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
                                             if summary["budget"]["sb3_hyperparams"] else "")
         + "; the zoo's style-context wrapper is not applied, so they see the dataset's observation).",

@@ -22,6 +22,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from experiments.peers.budget import ONLINE_SB3_ARMS
 from experiments.peers.common import (
     EvalProtocol,
     PhaseClock,
@@ -117,7 +118,11 @@ def _algorithm(algo: str) -> type:
         from sb3_contrib import TQC
 
         return TQC
-    raise ValueError(f"algo must be 'sac' or 'tqc', got {algo!r}")
+    if algo == "crossq":
+        from sb3_contrib import CrossQ
+
+        return CrossQ
+    raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
 
 
 def _train_and_evaluate(
@@ -174,7 +179,7 @@ def run_sb3_online(
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
-    """One unit: SB3 SAC or sb3-contrib TQC trained online from scratch for ``online_steps`` env
+    """One unit: SB3 SAC, sb3-contrib TQC or sb3-contrib CrossQ trained online from scratch for ``online_steps`` env
     steps on the dataset's environment, then evaluated on the held-out scenarios.
 
     The dataset only defines the environment (and is recorded); its transitions are not used.
@@ -185,7 +190,7 @@ def run_sb3_online(
     :param online_steps: online environment steps
     :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
     :param eval_episodes: episodes per evaluation seed
-    :param algo: ``"sac"`` or ``"tqc"``
+    :param algo: ``"sac"``, ``"tqc"`` or ``"crossq"``
     :param hyperparams: constructor arguments that replace the zoo file's, key by key
     :param conf_file: zoo YAML file (default ``zoo_configs/<algo>.yml``)
     :return: the unit's record (:func:`~experiments.peers.common.unit_record`)

@@ -80,8 +80,8 @@ def test_yaml_keys_are_constructor_arguments_or_zoo_keys(config):
 
 def test_baselines_share_env_ids_and_budgets_with_ua2c():
     configs = {p.stem: yaml.safe_load(p.read_text()) for p in CONFIGS.glob("*.yml")}
-    assert set(configs) == {"ua2c", "sac", "tqc"}
-    assert set(configs["sac"]) == set(configs["tqc"]) == set(configs["ua2c"])
+    assert set(configs) == {"ua2c", "sac", "tqc", "crossq"}
+    assert set(configs["sac"]) == set(configs["tqc"]) == set(configs["crossq"]) == set(configs["ua2c"])
     # Same training budget and discount on each env id: the comparisons are like for like.
     for env_id in configs["ua2c"]:
         for key in ("n_timesteps", "gamma"):

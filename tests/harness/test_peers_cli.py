@@ -65,7 +65,7 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     pair = summary["pairs"]["ua2c_adaptive_vs_sac"]
     assert set(pair) >= {"ua2c", "peer", "reward", "collision"} and 0.0 <= pair["reward"]["probability"] <= 1.0
     md = (quick_run / "peers.md").read_text()
-    assert "zoo_configs/sac.yml" in md and "UNLIKE RLPD".lower() in md.lower() and "P(UA2C > peer)" in md
+    assert "zoo_configs/sac.yml" in md and "zoo_configs/crossq.yml" in md and "UNLIKE RLPD".lower() in md.lower() and "P(UA2C > peer)" in md
 
 
 def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
@@ -88,11 +88,11 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     capsys.readouterr()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "16 of 16 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 16 stored" in out
+    assert "18 of 18 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 18 stored" in out
     sac.unlink()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "15 of 16 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    assert "17 of 18 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
     again = json.loads(sac.read_text())
     assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
     # --rerun: the selected unit runs again without deleting anything by hand
