@@ -9,7 +9,9 @@ The estimate (:func:`estimate_units`) prices every unit in CPU seconds on one co
 with Figure 2's :class:`~experiments.common.budget.CostModel`, the peer units with
 :class:`PeerCostModel`, calibrated on ``experiments/peers/measure_costs.py`` (CPU seconds of one unit at 10,000
 online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
-389, Cal-QL 2,190; CrossQ's update at 1.22x SAC's, measured side by side on 2026-12-04). The wall time is the sum over the stages (datasets, pre-training, arms) of the
+389, Cal-QL 2,190; measured side by side with SAC or IQL on 2026-12-04 and scaled to them: CrossQ's
+update at 1.22x SAC's, ReBRAC's offline and online steps at 1.21x and 1.14x IQL's, BC's offline step
+at 0.27x IQL's). The wall time is the sum over the stages (datasets, pre-training, arms) of the
 longest-first schedule of their units on the workers (:func:`stage_wall_seconds`).
 """
 
@@ -32,11 +34,15 @@ UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
     "ua2c_onestep": (1, None),
 }
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
-PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "iql", "calql")
+PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "iql", "calql", "rebrac")
+#: Reference rows: behaviour cloning of the dataset (offline only)
+REFERENCE_ARMS = ("bc",)
 #: Peer arms trained online from scratch by Stable-Baselines3 / sb3-contrib (``zoo_configs/<arm>.yml``).
 ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
-ARMS = (*UA2C_ARMS, *PEER_ARMS)
-D3RLPY_ARMS = ("iql", "calql")
+ARMS = (*UA2C_ARMS, *PEER_ARMS, *REFERENCE_ARMS)
+D3RLPY_ARMS = ("iql", "calql", "rebrac", "bc")
+#: d3rlpy arms without an online phase
+OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
     "ua2c_adaptive": "UA2C adaptive chunks",
     "ua2c_fixed": "UA2C fixed chunks (δ=inf)",
@@ -47,6 +53,8 @@ ARM_LABELS = {
     "sac_offline_mix": "SAC + offline data (RLPD-style)",
     "iql": "d3rlpy IQL (offline → online)",
     "calql": "d3rlpy Cal-QL (offline → online)",
+    "rebrac": "d3rlpy ReBRAC (offline → online)",
+    "bc": "d3rlpy BC (offline only, reference)",
 }
 
 
@@ -123,7 +131,7 @@ class PeersBudget:
 
 
 #: Default: the Figure-2 dataset and offline budget (200 episodes, 6,000 gradient steps), 20 evaluation
-#: episodes, and 5,000 online env steps for every arm (about two hours for 5 seeds on 2 cores).
+#: episodes, and 5,000 online env steps for every arm (about two hours and ten minutes for 5 seeds on 2 cores).
 FULL_PEERS_BUDGET = PeersBudget()
 
 #: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
@@ -148,8 +156,10 @@ class PeerCostModel:
     sb3_update_ms: Mapping[str, float] = field(
         default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "crossq": 24.0, "sac_offline_mix": 19.6})
     sb3_env_ms: float = 0.5
-    d3rlpy_offline_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 13.0, "calql": 125.6})
-    d3rlpy_online_ms: Mapping[str, float] = field(default_factory=lambda: {"iql": 30.7, "calql": 143.3})
+    d3rlpy_offline_ms: Mapping[str, float] = field(
+        default_factory=lambda: {"iql": 13.0, "calql": 125.6, "rebrac": 15.8, "bc": 3.6})
+    d3rlpy_online_ms: Mapping[str, float] = field(
+        default_factory=lambda: {"iql": 30.7, "calql": 143.3, "rebrac": 35.1, "bc": 0.0})
     eval_ms_per_step: float = 0.5
 
 
@@ -162,11 +172,13 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
     """Estimated CPU seconds of one peer unit (one arm, one seed)."""
     c = costs or PeerCostModel()
     ms = 1e-3
-    evals = (2 if arm in D3RLPY_ARMS else 1) * budget.ua2c.eval_episodes * steps_per_episode(budget.ua2c)
+    evals = (2 if arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS else 1) * budget.ua2c.eval_episodes \
+        * steps_per_episode(budget.ua2c)
     total = evals * c.eval_ms_per_step * ms
     if arm in D3RLPY_ARMS:
         total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
-        return total + budget.online_steps * c.d3rlpy_online_ms[arm] * ms
+        online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps
+        return total + online * c.d3rlpy_online_ms[arm] * ms
     starts = int(budget.sb3_hyperparams.get("learning_starts", 1000))
     updates = max(budget.online_steps - starts, 0)
     return total + (updates * c.sb3_update_ms[arm] + (budget.online_steps - updates) * c.sb3_env_ms) * ms

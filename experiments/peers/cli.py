@@ -34,7 +34,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog,
         description="Head-to-head on MixedTraffic-v0: UA2C (Figure 2's adaptive, fixed and one-step arms) against "
-        "SB3 SAC, sb3-contrib TQC, SAC with the offline data, d3rlpy IQL and Cal-QL, on the Figure-2 protocol. "
+        "SB3 SAC, sb3-contrib TQC and CrossQ, SAC with the offline data, d3rlpy IQL, Cal-QL and ReBRAC, and a "
+        "d3rlpy BC reference row, on the Figure-2 protocol. "
         "Resumable: every (arm, seed) is a unit with its own result file; stored units are skipped.",
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=None,

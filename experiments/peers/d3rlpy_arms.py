@@ -1,4 +1,5 @@
-"""Peer arms built on d3rlpy: IQL and Cal-QL, offline on the seed's dataset, then online.
+"""Peer arms built on d3rlpy: IQL, Cal-QL and ReBRAC, offline on the seed's dataset, then online; and
+behaviour cloning (BC), offline only, as a reference row.
 
 Install. d3rlpy 2.8.1 pins ``gymnasium==1.0.0`` while this package runs a newer gymnasium; its code
 paths used here work on ours (``tests/test_peers.py`` runs them), so it is installed without its
@@ -47,7 +48,9 @@ from experiments.peers.common import (
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset
 
-ALGOS = ("iql", "calql")
+ALGOS = ("iql", "calql", "rebrac", "bc")
+#: algorithms fitted offline only (no ``fit_online``): their final evaluation is the offline one
+OFFLINE_ONLY = ("bc",)
 INSTALL = 'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2'
 
 
@@ -128,15 +131,39 @@ def _mixed_buffer(d3rlpy: Any, online: Any, offline: Any, offline_ratio: float) 
     return OfflineFirstMixedBuffer(online, offline, secondary_mix_ratio=offline_ratio)
 
 
+def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
+    """The settings an algorithm is published with, where d3rlpy's defaults are not them.
+
+    ReBRAC: d3rlpy's reproduction script (``reproductions/offline/rebrac.py``) with the betas it uses
+    for a dataset outside its table: actor and critic 3 × 256 (the critic with layer norm), learning
+    rates 1e-3, target smoothing 0.2 / 0.5, the actor updated every second step, β_actor = β_critic =
+    0.01, standardised observations (its batch of 1,024 is the budget's ``batch_size`` here).
+    """
+    if algo != "rebrac":
+        return {}
+    vector = d3rlpy.models.VectorEncoderFactory
+    return {
+        "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
+        "actor_encoder_factory": vector([256, 256, 256]),
+        "critic_encoder_factory": vector([256, 256, 256], use_layer_norm=True),
+        "target_smoothing_sigma": 0.2, "target_smoothing_clip": 0.5, "update_actor_interval": 2,
+        "actor_beta": 0.01, "critic_beta": 0.01,
+        "observation_scaler": d3rlpy.preprocessing.StandardObservationScaler(),
+    }
+
+
 def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: int, config_kwargs: Mapping[str, Any]) -> Any:
-    """The d3rlpy config of ``algo`` (its defaults, ``batch_size``, the action scaler, then ``config_kwargs``)."""
-    configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig}
+    """The d3rlpy config of ``algo``: its defaults, its :func:`published_settings`, ``batch_size``, the
+    action scaler, then ``config_kwargs``."""
+    configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig,
+               "rebrac": d3rlpy.algos.ReBRACConfig, "bc": d3rlpy.algos.BCConfig}
     if algo not in configs:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     scaler = d3rlpy.preprocessing.MinMaxActionScaler(minimum=action_space.low.astype(np.float32),
                                                      maximum=action_space.high.astype(np.float32))
+    settings = {**published_settings(d3rlpy, algo), **dict(config_kwargs)}
     try:
-        return configs[algo](batch_size=batch_size, action_scaler=scaler, **dict(config_kwargs))
+        return configs[algo](batch_size=batch_size, action_scaler=scaler, **settings)
     except TypeError as exc:
         raise ValueError(f"config_kwargs: {exc}") from exc
 
@@ -154,8 +181,9 @@ def run_d3rlpy(
     batch_size: int = 256,
     config_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """One unit: d3rlpy IQL or Cal-QL fitted offline on the seed's dataset, evaluated, fine-tuned
-    online for ``online_steps`` env steps, evaluated again (see the module docstring).
+    """One unit: d3rlpy IQL, Cal-QL or ReBRAC fitted offline on the seed's dataset, evaluated, fine-tuned
+    online for ``online_steps`` env steps, evaluated again (see the module docstring). BC
+    (:data:`OFFLINE_ONLY`) stops after the offline evaluation: its record has no online phase.
 
     :param out_dir: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``)
     :param dataset: the seed's dataset directory (or a loaded dataset)
@@ -163,11 +191,12 @@ def run_d3rlpy(
     :param online_steps: online environment steps
     :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
     :param eval_episodes: episodes per evaluation seed
-    :param algo: ``"iql"`` or ``"calql"``
+    :param algo: ``"iql"``, ``"calql"``, ``"rebrac"`` or ``"bc"``
     :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``)
     :param offline_ratio: fraction of each online minibatch drawn from the offline data
     :param batch_size: minibatch size (the SAC zoo entry's 256)
-    :param config_kwargs: further ``IQLConfig`` / ``CalQLConfig`` arguments (d3rlpy's defaults otherwise)
+    :param config_kwargs: further ``IQLConfig`` / ``CalQLConfig`` / ``ReBRACConfig`` / ``BCConfig`` arguments
+        (d3rlpy's defaults and :func:`published_settings` otherwise)
     :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
     """
     import torch as th
@@ -197,6 +226,11 @@ def run_d3rlpy(
     policy = D3rlpyPolicy(learner, ds.observation_space, ds.action_space)
     with clock.phase("evaluate_offline"):
         offline_evaluation = evaluation_record(policy, settings, protocol)
+    hyper = {"algo": algo, "d3rlpy": d3rlpy.__version__, "config": learner.config.serialize_to_dict()}
+    if algo in OFFLINE_ONLY:
+        notes = f"d3rlpy {algo}: {offline_steps} offline gradient steps, no online phase (a reference row)"
+        return unit_record(algo, seed, ds, protocol, 0, hyper, offline_evaluation, [], clock,
+                           offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
     env = make_env(**settings)
     try:
         ds.check_compatible(env)
@@ -215,9 +249,9 @@ def run_d3rlpy(
         env.close()
     with clock.phase("evaluate"):
         evaluation = evaluation_record(policy, settings, protocol)
-    hyper = {"algo": algo, "offline_ratio": float(offline_ratio), "d3rlpy": d3rlpy.__version__,
-             "config": learner.config.serialize_to_dict()}
+    hyper["offline_ratio"] = float(offline_ratio)
+    settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
     notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with one update per env "
-             f"step and {offline_ratio:g} of each batch from the offline data; d3rlpy's default hyperparameters")
+             f"step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
     return unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
                        clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
