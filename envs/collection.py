@@ -5,7 +5,6 @@ driving-style context c_t when the dataset records a ``style_classifier``)."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,9 +16,6 @@ from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset, write_datase
 
 #: UA2C arguments for ``MixedTraffic-v0`` (the lane change, action dim 1, is categorical).
 TRAFFIC_DEFAULTS: dict[str, Any] = {"discrete_action_dims": {1: [-1.0, 0.0, 1.0]}}
-
-
-BehaviourPolicy = Callable[[np.ndarray, dict[str, Any], np.random.Generator], np.ndarray | None]
 
 
 #: ``BehaviourConfig.driver_style`` values (the middle three are ``envs.STYLES``).
@@ -104,6 +100,66 @@ def make_env(
     return env
 
 
+class BehaviourDriver:
+    """The behaviour policy of a :class:`BehaviourConfig` driving a ``MixedTraffic-v0`` (possibly
+    wrapped), one episode at a time: :meth:`reset` starts an episode (SUMO's driver or the random
+    policy, and the driver style), :meth:`step` makes one step (takeovers, lane changes) and returns
+    the action the AV performed (``info["applied_action"]``, clipped to the action space).
+
+    :param env: the environment (its unwrapped env must offer ``set_ego_controller``)
+    :param behaviour: the behaviour policy
+    :param rng: the behaviour's own randomness
+    """
+
+    def __init__(self, env: gym.Env, behaviour: BehaviourConfig, rng: np.random.Generator) -> None:
+        if not hasattr(env.unwrapped, "set_ego_controller"):
+            raise ValueError(
+                f"the behaviour policy needs a MixedTraffic env (with set_ego_controller), got {type(env.unwrapped).__name__}"
+            )
+        self.env, self.behaviour, self.rng = env, behaviour, rng
+        self.low = env.action_space.low.astype(np.float64)
+        self.high = env.action_space.high.astype(np.float64)
+        self.sumo_driven = False
+        self.last_accel = 0.0
+        self.takeover_left, self.takeover_accel = 0, 0.0  # steps left in the current takeover, its acceleration
+
+    def reset(self, seed: int) -> tuple[Any, dict[str, Any]]:
+        """Start an episode on the scenario of ``seed``: ``env.reset``'s observation and info."""
+        b, base = self.behaviour, self.env.unwrapped
+        self.sumo_driven = bool(self.rng.random() < b.sumo_fraction)
+        obs, info = self.env.reset(seed=seed, options={"ego_controller": "sumo" if self.sumo_driven else "agent"})
+        style = b.driver_style
+        if style == "mixed":
+            style = DRIVER_STYLES[1 + int(self.rng.integers(3))]
+        if self.sumo_driven and style != "default":
+            base.set_ego_driver_style(style)
+        self.last_accel, self.takeover_left, self.takeover_accel = 0.0, 0, 0.0
+        return obs, info
+
+    def step(self) -> tuple[Any, float, bool, bool, dict[str, Any], np.ndarray]:
+        """One step: ``env.step``'s five values and the performed action, shape ``(action_dim,)``."""
+        b, rng = self.behaviour, self.rng
+        lane_change = float(rng.choice((-1.0, 1.0))) if rng.random() < b.lane_change_prob else 0.0
+        if self.sumo_driven:
+            starts = bool(rng.random() < b.perturb_prob)
+            noise = float(rng.standard_normal())  # drawn every step: the same stream for any perturb_steps
+            if self.takeover_left == 0 and starts:
+                self.takeover_left = b.perturb_steps
+                self.takeover_accel = self.last_accel + b.accel_noise * noise
+            else:
+                lane_change = 0.0  # random lane changes only at the first step of a takeover
+            self.env.unwrapped.set_ego_controller("agent" if self.takeover_left > 0 else "sumo")
+            action = np.array([self.takeover_accel, lane_change])
+            self.takeover_left = max(self.takeover_left - 1, 0)
+        else:
+            action = np.array([rng.uniform(self.low[0], self.high[0]), lane_change])
+        action = np.clip(action, self.low, self.high).astype(self.env.action_space.dtype)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        performed = np.asarray(info["applied_action"], dtype=np.float64)
+        self.last_accel = float(performed[0])
+        return obs, float(reward), bool(terminated), bool(truncated), info, np.clip(performed, self.low, self.high)
+
+
 def collect_episodes(
     env: gym.Env,
     n_episodes: int,
@@ -124,12 +180,7 @@ def collect_episodes(
     :return: the episodes, actions in the environment's units
     """
     check_int("n_episodes", n_episodes)
-    behaviour = behaviour or BehaviourConfig()
-    base = env.unwrapped
-    if not hasattr(base, "set_ego_controller"):
-        raise ValueError(f"collect_episodes needs a MixedTraffic env (with set_ego_controller), got {type(base).__name__}")
-    low, high = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
-    rng = np.random.default_rng(seed)
+    driver = BehaviourDriver(env, behaviour or BehaviourConfig(), np.random.default_rng(seed))
     episodes = []
     iterator = range(n_episodes)
     if progress_bar:
@@ -137,41 +188,16 @@ def collect_episodes(
 
         iterator = tqdm(iterator, desc="collect", unit="episode")
     for i in iterator:
-        sumo_driven = bool(rng.random() < behaviour.sumo_fraction)
-        obs, info = env.reset(seed=seed + i, options={"ego_controller": "sumo" if sumo_driven else "agent"})
-        style = behaviour.driver_style
-        if style == "mixed":
-            style = DRIVER_STYLES[1 + int(rng.integers(3))]
-        if sumo_driven and style != "default":
-            base.set_ego_driver_style(style)
+        obs, _ = driver.reset(seed + i)
         observations, actions, rewards, terminations, truncations = [obs], [], [], [], []
-        last_accel = 0.0
-        takeover_left, takeover_accel = 0, 0.0  # steps left in the current takeover, its acceleration
         done = False
         while not done:
-            lane_change = float(rng.choice((-1.0, 1.0))) if rng.random() < behaviour.lane_change_prob else 0.0
-            if sumo_driven:
-                starts = bool(rng.random() < behaviour.perturb_prob)
-                noise = float(rng.standard_normal())  # drawn every step: the same stream for any perturb_steps
-                if takeover_left == 0 and starts:
-                    takeover_left = behaviour.perturb_steps
-                    takeover_accel = last_accel + behaviour.accel_noise * noise
-                else:
-                    lane_change = 0.0  # random lane changes only at the first step of a takeover
-                base.set_ego_controller("agent" if takeover_left > 0 else "sumo")
-                action = np.array([takeover_accel, lane_change])
-                takeover_left = max(takeover_left - 1, 0)
-            else:
-                action = np.array([rng.uniform(low[0], high[0]), lane_change])
-            action = np.clip(action, low, high).astype(env.action_space.dtype)
-            obs, reward, terminated, truncated, info = env.step(action)
-            performed = np.asarray(info["applied_action"], dtype=np.float64)
-            last_accel = float(performed[0])
+            obs, reward, terminated, truncated, _, performed = driver.step()
             observations.append(obs)
-            actions.append(np.clip(performed, low, high))
-            rewards.append(float(reward))
-            terminations.append(bool(terminated))
-            truncations.append(bool(truncated))
+            actions.append(performed)
+            rewards.append(reward)
+            terminations.append(terminated)
+            truncations.append(truncated)
             done = terminated or truncated
         episodes.append(
             Episode(

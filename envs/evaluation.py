@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from envs.collection import make_env
+from envs.collection import BehaviourConfig, BehaviourDriver, make_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.execution import length_shares
@@ -109,12 +109,33 @@ def _run_episode(model: Any, env: Any, seed: int, deterministic: bool) -> Episod
         return _drive_episode(model, env, seed, deterministic)
 
 
+class _EpisodeMeter:
+    """The metrics of :class:`EpisodeMetrics`, accumulated step by step from ``MixedTraffic-v0``'s info."""
+
+    def __init__(self) -> None:
+        self.total, self.jerk, self.speeds, self.steps = 0.0, 0.0, [], 0
+        self.collision = self.merged = False
+
+    def add(self, reward: float, info: dict[str, Any]) -> None:
+        self.total += float(reward)
+        self.jerk += abs(float(info.get("jerk", 0.0)))
+        self.speeds.append(float(info.get("av_speed", math.nan)))
+        self.collision |= bool(info.get("collision", False))
+        self.merged |= bool(info.get("merge_done", False))
+        self.steps += 1
+
+    def metrics(self, seed: int, lengths: list[int]) -> EpisodeMetrics:
+        return EpisodeMetrics(
+            seed=seed, reward=self.total, length=self.steps, cumulative_jerk=self.jerk, collision=self.collision,
+            merge_success=self.merged, mean_speed=float(np.nanmean(self.speeds)),
+            mean_executed_length=float(np.mean(lengths)), plan_lengths=tuple(lengths),
+        )
+
+
 def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> EpisodeMetrics:
     obs, info = env.reset(seed=seed)
     state, start = None, np.ones(1, dtype=bool)
-    total, jerk, speeds, lengths = 0.0, 0.0, [], []
-    collision = merged = False
-    steps = 0
+    meter, lengths = _EpisodeMeter(), []
     done = False
     while not done:
         action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
@@ -124,18 +145,46 @@ def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> Epis
             lengths.append(int(state.plan_length[0]))
         start = np.zeros(1, dtype=bool)
         obs, reward, terminated, truncated, info = env.step(action)
-        total += float(reward)
-        jerk += abs(float(info.get("jerk", 0.0)))
-        speeds.append(float(info.get("av_speed", math.nan)))
-        collision |= bool(info.get("collision", False))
-        merged |= bool(info.get("merge_done", False))
-        steps += 1
+        meter.add(reward, info)
         done = terminated or truncated
-    return EpisodeMetrics(
-        seed=seed, reward=total, length=steps, cumulative_jerk=jerk, collision=collision,
-        merge_success=merged, mean_speed=float(np.nanmean(speeds)), mean_executed_length=float(np.mean(lengths)),
-        plan_lengths=tuple(lengths),
-    )
+    return meter.metrics(seed, lengths)
+
+
+def evaluate_behaviour(
+    behaviour: BehaviourConfig | None = None,
+    n_episodes: int = 5,
+    seeds: tuple[int, ...] = (0,),
+    env_settings_: dict[str, Any] | None = None,
+) -> list[EpisodeMetrics]:
+    """The behaviour policy that collects the datasets (:class:`~envs.collection.BehaviourDriver`) on the
+    scenarios :func:`evaluate` uses: episode ``i`` of seed ``s`` is reset with seed ``1000 * s + i``,
+    and the behaviour's own randomness is seeded with it too. One action per decision (L_t = 1).
+
+    :param behaviour: the behaviour policy (default :class:`~envs.collection.BehaviourConfig`; a
+        dataset's is in its metadata, ``behaviour_config``)
+    :param n_episodes: episodes per seed
+    :param seeds: evaluation seeds
+    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
+    """
+    check_int("n_episodes", n_episodes)
+    behaviour = behaviour or BehaviourConfig()
+    env = make_env(**dict(env_settings_ or {"env_id": "MixedTraffic-v0"}))
+    try:
+        results = []
+        for s in seeds:
+            for i in range(n_episodes):
+                seed = 1000 * int(s) + i
+                driver = BehaviourDriver(env, behaviour, np.random.default_rng(seed))
+                driver.reset(seed)
+                meter, done = _EpisodeMeter(), False
+                while not done:
+                    _, reward, terminated, truncated, info, _ = driver.step()
+                    meter.add(reward, info)
+                    done = terminated or truncated
+                results.append(meter.metrics(seed, [1] * meter.steps))
+        return results
+    finally:
+        env.close()
 
 
 SUMMARY_KEYS = (
@@ -169,4 +218,6 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "format_table", "plan_length_shares", "summarize"]
+__all__ = [
+    "SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "evaluate_behaviour", "format_table", "plan_length_shares", "summarize",
+]

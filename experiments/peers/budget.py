@@ -35,8 +35,8 @@ UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
 }
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
 PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "iql", "calql", "rebrac")
-#: Reference rows: behaviour cloning of the dataset (offline only)
-REFERENCE_ARMS = ("bc",)
+#: Reference rows, nothing learned online: the dataset's behaviour policy and behaviour cloning of the dataset
+REFERENCE_ARMS = ("behaviour", "bc")
 #: Peer arms trained online from scratch by Stable-Baselines3 / sb3-contrib (``zoo_configs/<arm>.yml``).
 ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
 ARMS = (*UA2C_ARMS, *PEER_ARMS, *REFERENCE_ARMS)
@@ -54,6 +54,7 @@ ARM_LABELS = {
     "iql": "d3rlpy IQL (offline → online)",
     "calql": "d3rlpy Cal-QL (offline → online)",
     "rebrac": "d3rlpy ReBRAC (offline → online)",
+    "behaviour": "behaviour policy of the data (reference)",
     "bc": "d3rlpy BC (offline only, reference)",
 }
 
@@ -175,6 +176,8 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
     evals = (2 if arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS else 1) * budget.ua2c.eval_episodes \
         * steps_per_episode(budget.ua2c)
     total = evals * c.eval_ms_per_step * ms
+    if arm == "behaviour":
+        return total
     if arm in D3RLPY_ARMS:
         total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
         online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps

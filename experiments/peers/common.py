@@ -162,11 +162,50 @@ class PhaseClock:
 
 def evaluation_record(policy: Any, settings: Mapping[str, Any], protocol: EvalProtocol) -> dict[str, Any]:
     """``policy`` (SB3 ``predict``) on the protocol's scenarios: per-episode metrics and their means."""
-    from envs.evaluation import evaluate, summarize
+    from envs.evaluation import evaluate
 
-    episodes = evaluate(policy, n_episodes=protocol.episodes, seeds=protocol.seeds, env_settings_=dict(settings))
+    return episodes_record(evaluate(policy, n_episodes=protocol.episodes, seeds=protocol.seeds,
+                                    env_settings_=dict(settings)))
+
+
+def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
+    """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as a record: per episode and their means."""
+    from envs.evaluation import summarize
+
     rows = [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
-    return {"summary": summarize(episodes), "episodes": rows}
+    return {"summary": summarize(list(episodes)), "episodes": rows}
+
+
+def run_behaviour(
+    out_dir: str | os.PathLike,
+    dataset: str | os.PathLike | OfflineDataset,
+    seed: int,
+    online_steps: int,
+    eval_seeds: Sequence[int],
+    eval_episodes: int,
+) -> dict[str, Any]:
+    """One unit, the reference row of the data: the dataset's behaviour policy (its ``behaviour_config``,
+    :func:`envs.evaluation.evaluate_behaviour`) on the protocol's scenarios. Nothing is trained; the record
+    has no online phase, and its one evaluation stands as the offline and the final one.
+
+    Parameters as the other units' (``out_dir`` and ``online_steps`` are not used).
+    """
+    from envs.collection import BehaviourConfig
+    from envs.evaluation import evaluate_behaviour
+    from sb3_ua2c.pipeline import env_settings
+
+    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
+    ds = read_dataset(dataset)
+    config = ds.metadata.get("behaviour_config")
+    if config is None:
+        raise ValueError(f"dataset {ds.path} records no behaviour_config: it was not collected by envs.collection")
+    clock = PhaseClock()
+    with clock.phase("evaluate"):
+        evaluation = episodes_record(evaluate_behaviour(BehaviourConfig.from_dict(dict(config)), protocol.episodes,
+                                                        protocol.seeds, env_settings(ds)))
+    notes = "the dataset's behaviour policy (its behaviour_config) on the evaluation scenarios; nothing trained"
+    return unit_record("behaviour", seed, ds, protocol, 0, {"behaviour_config": dict(config)}, evaluation, [], clock,
+                       offline_evaluation=evaluation, notes=notes)
 
 
 

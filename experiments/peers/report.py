@@ -332,7 +332,8 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         f"- SAC + offline data: {summary['arms'].get('sac_offline_mix', {}).get('notes', 'not run')}.",
         "- IQL and Cal-QL: d3rlpy 2.8.1 with its default hyperparameters, ReBRAC with the settings of d3rlpy's "
         f"reproduction; batch {summary['budget']['d3rlpy_batch_size']}, offline on the dataset, then `fit_online` "
-        "with half of each batch from the offline data. BC (d3rlpy, offline only) is a reference row.",
+        "with half of each batch from the offline data. Reference rows, nothing learned online: the dataset's "
+        "behaviour policy on the same scenarios, and d3rlpy BC (offline only).",
     ]
 
 

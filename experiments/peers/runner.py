@@ -110,6 +110,7 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
     from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
+    from experiments.peers.common import run_behaviour
     from experiments.peers.ua2c_arms import run_ua2c_arm
 
     common = {"out_dir": str(paths.seed_work(seed) / arm), "dataset": str(paths.seed_work(seed) / "dataset"),
@@ -123,6 +124,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
         fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_hyperparams}
     elif arm == "sac_offline_mix":
         fn, kwargs = run_sb3_offline_mix, {"hyperparams": budget.sb3_hyperparams}
+    elif arm == "behaviour":
+        fn, kwargs = run_behaviour, {}
     elif arm in D3RLPY_ARMS:
         fn, kwargs = run_d3rlpy, {"algo": arm, "offline_steps": budget.offline_steps(arm),
                                   "batch_size": budget.d3rlpy_batch_size}

@@ -15,7 +15,6 @@ from experiments.peers import cli
 from experiments.peers.budget import (
     ARMS,
     FULL_PEERS_BUDGET,
-    OFFLINE_ONLY_ARMS,
     PEER_ARMS,
     REFERENCE_ARMS,
     UA2C_ARMS,
@@ -34,7 +33,7 @@ from experiments.peers.report import (
     verdicts,
 )
 
-OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql", "rebrac", "bc"}
+OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql", "rebrac", "bc", "behaviour"}
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +54,8 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     summary = json.loads((quick_run / "peers.json").read_text())
     assert sorted(summary["arms"]) == sorted(ARMS) and summary["seeds"] == [0, 1]
     assert len(summary["pairs"]) == len(UA2C_ARMS) * (len(PEER_ARMS) + len(REFERENCE_ARMS))
-    for bc in _records(quick_run, "bc"):  # the reference row: offline only, its final evaluation the offline one
-        assert bc["online_steps"] == 0 and bc["online_episodes"] == [] and bc["evaluation"] == bc["offline_evaluation"]
+    for ref in (*_records(quick_run, "bc"), *_records(quick_run, "behaviour")):  # no online phase, one evaluation
+        assert ref["online_steps"] == 0 and ref["online_episodes"] == [] and ref["evaluation"] == ref["offline_evaluation"]
     assert summary["arms"]["bc"]["curve"] is None and summary["arms"]["rebrac"]["curve"] is not None
     rebrac = _records(quick_run, "rebrac")[0]["hyperparams"]["config"]
     assert rebrac["actor_beta"] == 0.01 and rebrac["critic_encoder_factory"]["params"]["use_layer_norm"] is True
@@ -80,7 +79,7 @@ def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
         records = [json.loads((quick_run / "peers_raw" / f"seed{s}" / f"{a}.json").read_text()) for a in ARMS]
         assert {r["dataset"]["path"] for r in records} == {str(quick_run / "peers_work" / f"seed{s}" / "dataset")}
         assert {r["dataset"]["seed"] for r in records} == {DATASET_SEED_BASE + 10_000 * s}
-        assert {r["online_steps"] for r in records if r["arm"] not in OFFLINE_ONLY_ARMS} == {30}
+        assert {r["online_steps"] for r in records if r["arm"] not in REFERENCE_ARMS} == {30}
         assert {tuple(e["seed"] for e in r["evaluation"]["episodes"]) for r in records} == {(2_000_000 + 1000 * s,)}
     adaptive, fixed = _records(quick_run, "ua2c_adaptive")[0], _records(quick_run, "ua2c_fixed")[0]
     assert adaptive["hyperparams"]["delta"] == 0.0 and fixed["hyperparams"]["delta"] == "inf"
@@ -95,11 +94,11 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     capsys.readouterr()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "22 of 22 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 22 stored" in out
+    assert "24 of 24 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 24 stored" in out
     sac.unlink()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "21 of 22 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    assert "23 of 24 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
     again = json.loads(sac.read_text())
     assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
     # --rerun: the selected unit runs again without deleting anything by hand

@@ -431,3 +431,24 @@ def test_generic_stages_refuse_what_they_cannot_build(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="needs a dataset or env_settings_"):
         finetune(tmp_path / "missing.zip", tmp_path / "y.zip", 10)
     assert not (tmp_path / "x.zip").exists()
+
+
+def test_the_behaviour_policy_is_evaluated_on_the_scenarios_it_collects():
+    # evaluate_behaviour's episode 0 of seed 2 is scenario 2000 with the behaviour's generator seeded 2000:
+    # the episode collect_episodes makes with seed 2000, step for step
+    from envs.collection import BehaviourConfig, collect_episodes, make_env
+    from envs.evaluation import evaluate_behaviour
+
+    settings = {"env_id": "MixedTraffic-v0", "env_kwargs": {"time_limit": 10.0}}
+    behaviour = BehaviourConfig(perturb_prob=0.2, perturb_steps=3)
+    (metrics,) = evaluate_behaviour(behaviour, n_episodes=1, seeds=(2,), env_settings_=settings)
+    env = make_env(**settings)
+    try:
+        (episode,) = collect_episodes(env, 1, behaviour, seed=2000)
+    finally:
+        env.close()
+    assert metrics.seed == 2000 and metrics.length == len(episode) == 50
+    assert metrics.reward == pytest.approx(float(episode.rewards.sum()), abs=1e-9)
+    assert metrics.plan_lengths == (1,) * 50 and metrics.mean_executed_length == 1.0
+    other = evaluate_behaviour(BehaviourConfig(sumo_fraction=0.0), n_episodes=1, seeds=(2,), env_settings_=settings)
+    assert other[0].reward != metrics.reward  # the config is used: a random driver scores otherwise
