@@ -11,7 +11,7 @@ with Figure 2's :class:`~experiments.common.budget.CostModel`, the peer units wi
 online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
 389, Cal-QL 2,190; measured side by side with SAC or IQL on 2026-12-04 and scaled to them: CrossQ's
 update at 1.22x SAC's, ReBRAC's offline and online steps at 1.21x and 1.14x IQL's, BC's offline step
-at 0.27x IQL's). The wall time is the sum over the stages (datasets, pre-training, arms) of the
+at 0.27x IQL's, RLPD's env step with one update at 1.19x IQL's). The wall time is the sum over the stages (datasets, pre-training, arms) of the
 longest-first schedule of their units on the workers (:func:`stage_wall_seconds`).
 """
 
@@ -34,13 +34,13 @@ UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
     "ua2c_onestep": (1, None),
 }
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
-PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "iql", "calql", "rebrac")
+PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "rlpd", "iql", "calql", "rebrac")
 #: Reference rows, nothing learned online: the dataset's behaviour policy and behaviour cloning of the dataset
 REFERENCE_ARMS = ("behaviour", "bc")
 #: Peer arms trained online from scratch by Stable-Baselines3 / sb3-contrib (``zoo_configs/<arm>.yml``).
 ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
 ARMS = (*UA2C_ARMS, *PEER_ARMS, *REFERENCE_ARMS)
-D3RLPY_ARMS = ("iql", "calql", "rebrac", "bc")
+D3RLPY_ARMS = ("rlpd", "iql", "calql", "rebrac", "bc")
 #: d3rlpy arms without an online phase
 OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
@@ -50,7 +50,8 @@ ARM_LABELS = {
     "sac": "SB3 SAC (online)",
     "tqc": "sb3-contrib TQC (online)",
     "crossq": "sb3-contrib CrossQ (online)",
-    "sac_offline_mix": "SAC + offline data (RLPD-style)",
+    "sac_offline_mix": "SAC + offline data (symmetric sampling)",
+    "rlpd": "RLPD (d3rlpy SAC, layer-norm critics)",
     "iql": "d3rlpy IQL (offline → online)",
     "calql": "d3rlpy Cal-QL (offline → online)",
     "rebrac": "d3rlpy ReBRAC (offline → online)",
@@ -72,12 +73,15 @@ class PeersBudget:
     :param d3rlpy_batch_size: minibatch size of IQL and Cal-QL (the SAC zoo entry's 256)
     :param calql_offline_steps: offline gradient steps of Cal-QL (``None``: ``ua2c.pretrain_steps``,
         like every other offline phase)
+    :param rlpd_updates_per_step: gradient steps per online env step of the RLPD arm (its update-to-data
+        ratio; RLPD's paper: 20, here as many as the budget allows)
     """
 
     ua2c: Fig2Budget = field(default_factory=lambda: FULL_BUDGET.replace(finetune_steps=5000))
     sb3_hyperparams: Mapping[str, Any] = field(default_factory=dict)
     d3rlpy_batch_size: int = 256
     calql_offline_steps: int | None = None
+    rlpd_updates_per_step: int = 4
 
     def __post_init__(self) -> None:
         if not isinstance(self.ua2c, Fig2Budget):
@@ -87,6 +91,7 @@ class PeersBudget:
         check_int("PeersBudget.d3rlpy_batch_size", self.d3rlpy_batch_size)
         if self.calql_offline_steps is not None:
             check_int("PeersBudget.calql_offline_steps", self.calql_offline_steps)
+        check_int("PeersBudget.rlpd_updates_per_step", self.rlpd_updates_per_step)
         object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
 
     @property
@@ -98,7 +103,13 @@ class PeersBudget:
         """Offline gradient steps of ``arm`` (0 for the arms without an offline phase)."""
         if arm == "calql" and self.calql_offline_steps is not None:
             return self.calql_offline_steps
+        if arm == "rlpd":  # RLPD learns online from the start, with the offline data in half of each batch
+            return 0
         return self.ua2c.pretrain_steps if arm in UA2C_ARMS or arm in D3RLPY_ARMS else 0
+
+    def updates_per_step(self, arm: str) -> int:
+        """Gradient steps per online env step of a peer arm (the UA2C arms: see ``Fig2Budget``)."""
+        return self.rlpd_updates_per_step if arm == "rlpd" else 1
 
     def chunk_length(self, arm: str) -> int:
         """Chunk length of a UA2C arm."""
@@ -112,7 +123,8 @@ class PeersBudget:
 
     def to_dict(self) -> dict[str, Any]:
         return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
-                "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps}
+                "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps,
+                "rlpd_updates_per_step": self.rlpd_updates_per_step}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
@@ -132,7 +144,7 @@ class PeersBudget:
 
 
 #: Default: the Figure-2 dataset and offline budget (200 episodes, 6,000 gradient steps), 20 evaluation
-#: episodes, and 5,000 online env steps for every arm (about two hours and ten minutes for 5 seeds on 2 cores).
+#: episodes, and 5,000 online env steps for every arm (about two hours and forty minutes for 5 seeds on 2 cores).
 FULL_PEERS_BUDGET = PeersBudget()
 
 #: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
@@ -150,7 +162,8 @@ class PeerCostModel:
     :param sb3_update_ms: one SB3 gradient step with its env step (after ``learning_starts``), per arm
     :param sb3_env_ms: one SB3 env step without an update (the random ``learning_starts`` steps)
     :param d3rlpy_offline_ms: one d3rlpy offline gradient step, per arm
-    :param d3rlpy_online_ms: one d3rlpy online env step with its update, per arm
+    :param d3rlpy_online_ms: one d3rlpy online env step with its update, per arm (RLPD: per update, times
+        its updates per env step)
     :param eval_ms_per_step: evaluation, per env step
     """
 
@@ -158,9 +171,9 @@ class PeerCostModel:
         default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "crossq": 24.0, "sac_offline_mix": 19.6})
     sb3_env_ms: float = 0.5
     d3rlpy_offline_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"iql": 13.0, "calql": 125.6, "rebrac": 15.8, "bc": 3.6})
+        default_factory=lambda: {"iql": 13.0, "calql": 125.6, "rebrac": 15.8, "bc": 3.6, "rlpd": 0.0})
     d3rlpy_online_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"iql": 30.7, "calql": 143.3, "rebrac": 35.1, "bc": 0.0})
+        default_factory=lambda: {"iql": 30.7, "calql": 143.3, "rebrac": 35.1, "bc": 0.0, "rlpd": 36.5})
     eval_ms_per_step: float = 0.5
 
 
@@ -173,14 +186,15 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
     """Estimated CPU seconds of one peer unit (one arm, one seed)."""
     c = costs or PeerCostModel()
     ms = 1e-3
-    evals = (2 if arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS else 1) * budget.ua2c.eval_episodes \
+    two_evals = arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS and budget.offline_steps(arm) > 0
+    evals = (2 if two_evals else 1) * budget.ua2c.eval_episodes \
         * steps_per_episode(budget.ua2c)
     total = evals * c.eval_ms_per_step * ms
     if arm == "behaviour":
         return total
     if arm in D3RLPY_ARMS:
         total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
-        online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps
+        online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps * budget.updates_per_step(arm)
         return total + online * c.d3rlpy_online_ms[arm] * ms
     starts = int(budget.sb3_hyperparams.get("learning_starts", 1000))
     updates = max(budget.online_steps - starts, 0)

@@ -48,9 +48,15 @@ from experiments.peers.common import (
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset
 
-ALGOS = ("iql", "calql", "rebrac", "bc")
+ALGOS = ("iql", "calql", "rebrac", "rlpd", "bc")
 #: algorithms fitted offline only (no ``fit_online``): their final evaluation is the offline one
 OFFLINE_ONLY = ("bc",)
+#: What the ``rlpd`` arm changes from RLPD as published (Ball et al., 2023), stated in its record.
+RLPD_DIFFERENCES = (
+    "d3rlpy SAC with RLPD's layer-norm critics, symmetric sampling (half of each batch from the offline data) "
+    "and no offline pre-training; unlike RLPD: 2 critics, both in every target (RLPD: an ensemble of 10, 2 drawn "
+    "per target), and the update-to-data ratio of the budget (RLPD: 20)"
+)
 INSTALL = 'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2'
 
 
@@ -134,14 +140,25 @@ def _mixed_buffer(d3rlpy: Any, online: Any, offline: Any, offline_ratio: float) 
 def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
     """The settings an algorithm is published with, where d3rlpy's defaults are not them.
 
+    RLPD (Ball et al., 2023) on d3rlpy's SAC: layer-norm critics 256 × 256, learning rates 3e-4,
+    initial temperature 1, τ = 0.005; with symmetric sampling and several updates per env step set by
+    the unit (:data:`RLPD_DIFFERENCES`).
+
     ReBRAC: d3rlpy's reproduction script (``reproductions/offline/rebrac.py``) with the betas it uses
     for a dataset outside its table: actor and critic 3 × 256 (the critic with layer norm), learning
     rates 1e-3, target smoothing 0.2 / 0.5, the actor updated every second step, β_actor = β_critic =
     0.01, standardised observations (its batch of 1,024 is the budget's ``batch_size`` here).
     """
+    vector = d3rlpy.models.VectorEncoderFactory
+    if algo == "rlpd":
+        return {
+            "actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "temp_learning_rate": 3e-4,
+            "actor_encoder_factory": vector([256, 256]),
+            "critic_encoder_factory": vector([256, 256], use_layer_norm=True),
+            "n_critics": 2, "initial_temperature": 1.0, "tau": 0.005,
+        }
     if algo != "rebrac":
         return {}
-    vector = d3rlpy.models.VectorEncoderFactory
     return {
         "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
         "actor_encoder_factory": vector([256, 256, 256]),
@@ -155,8 +172,8 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
 def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: int, config_kwargs: Mapping[str, Any]) -> Any:
     """The d3rlpy config of ``algo``: its defaults, its :func:`published_settings`, ``batch_size``, the
     action scaler, then ``config_kwargs``."""
-    configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig,
-               "rebrac": d3rlpy.algos.ReBRACConfig, "bc": d3rlpy.algos.BCConfig}
+    configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig, "rebrac": d3rlpy.algos.ReBRACConfig,
+               "rlpd": d3rlpy.algos.SACConfig, "bc": d3rlpy.algos.BCConfig}
     if algo not in configs:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     scaler = d3rlpy.preprocessing.MinMaxActionScaler(minimum=action_space.low.astype(np.float32),
@@ -179,11 +196,13 @@ def run_d3rlpy(
     offline_steps: int = 6000,
     offline_ratio: float = 0.5,
     batch_size: int = 256,
+    updates_per_step: int = 1,
     config_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One unit: d3rlpy IQL, Cal-QL or ReBRAC fitted offline on the seed's dataset, evaluated, fine-tuned
     online for ``online_steps`` env steps, evaluated again (see the module docstring). BC
-    (:data:`OFFLINE_ONLY`) stops after the offline evaluation: its record has no online phase.
+    (:data:`OFFLINE_ONLY`) stops after the offline evaluation: its record has no online phase. With
+    ``offline_steps=0`` (RLPD) there is no offline phase and no offline evaluation.
 
     :param out_dir: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``)
     :param dataset: the seed's dataset directory (or a loaded dataset)
@@ -191,23 +210,27 @@ def run_d3rlpy(
     :param online_steps: online environment steps
     :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
     :param eval_episodes: episodes per evaluation seed
-    :param algo: ``"iql"``, ``"calql"``, ``"rebrac"`` or ``"bc"``
-    :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``)
+    :param algo: one of :data:`ALGOS`
+    :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``; 0: none)
     :param offline_ratio: fraction of each online minibatch drawn from the offline data
     :param batch_size: minibatch size (the SAC zoo entry's 256)
-    :param config_kwargs: further ``IQLConfig`` / ``CalQLConfig`` / ``ReBRACConfig`` / ``BCConfig`` arguments
-        (d3rlpy's defaults and :func:`published_settings` otherwise)
+    :param updates_per_step: gradient steps per online env step (the update-to-data ratio)
+    :param config_kwargs: further arguments of the algorithm's d3rlpy config (d3rlpy's defaults and
+        :func:`published_settings` otherwise)
     :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
     """
     import torch as th
 
-    from envs.collection import make_env
     from sb3_ua2c.pipeline import env_settings
 
-    for name, value in (("online_steps", online_steps), ("offline_steps", offline_steps), ("batch_size", batch_size)):
+    for name, value in (("online_steps", online_steps), ("batch_size", batch_size),
+                        ("updates_per_step", updates_per_step)):
         check_int(name, value)
+    check_int("offline_steps", offline_steps, low=0)
     if isinstance(offline_ratio, bool) or not isinstance(offline_ratio, int | float) or not 0.0 <= offline_ratio <= 1.0:
         raise ValueError(f"offline_ratio must be a number in [0, 1], got {offline_ratio!r}")
+    if algo in OFFLINE_ONLY and offline_steps == 0:
+        raise ValueError(f"offline_steps must be >= 1 for {algo!r}, which has no online phase")
     protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
     ds = read_dataset(dataset)
     d3rlpy = import_d3rlpy()
@@ -216,42 +239,55 @@ def run_d3rlpy(
     out = Path(out_dir)
     logs = d3rlpy.logging.FileAdapterFactory(root_dir=str(out / "d3rlpy"))
     settings = env_settings(ds)
-    config = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {})
-    learner = config.create(device="cpu:0")
+    learner = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {}).create(device="cpu:0")
     offline = d3rlpy.dataset.create_infinite_replay_buffer(episodes=d3rlpy_episodes(ds.episodes))
-    clock = PhaseClock()
-    with clock.phase("offline"):
-        learner.fit(offline, n_steps=offline_steps, n_steps_per_epoch=offline_steps, experiment_name="offline",
-                    with_timestamp=False, logger_adapter=logs, show_progress=False)
     policy = D3rlpyPolicy(learner, ds.observation_space, ds.action_space)
-    with clock.phase("evaluate_offline"):
-        offline_evaluation = evaluation_record(policy, settings, protocol)
+    clock = PhaseClock()
+    offline_evaluation = None
+    if offline_steps:
+        with clock.phase("offline"):
+            learner.fit(offline, n_steps=offline_steps, n_steps_per_epoch=offline_steps, experiment_name="offline",
+                        with_timestamp=False, logger_adapter=logs, show_progress=False)
+        with clock.phase("evaluate_offline"):
+            offline_evaluation = evaluation_record(policy, settings, protocol)
     hyper = {"algo": algo, "d3rlpy": d3rlpy.__version__, "config": learner.config.serialize_to_dict()}
     if algo in OFFLINE_ONLY:
         notes = f"d3rlpy {algo}: {offline_steps} offline gradient steps, no online phase (a reference row)"
         return unit_record(algo, seed, ds, protocol, 0, hyper, offline_evaluation, [], clock,
                            offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+    with clock.phase("online"):
+        _fit_online(d3rlpy, learner, ds, settings, offline, seed, out, logs, online_steps, offline_ratio,
+                    updates_per_step)
+    with clock.phase("evaluate"):
+        evaluation = evaluation_record(policy, settings, protocol)
+    hyper.update(offline_ratio=float(offline_ratio), updates_per_step=updates_per_step)
+    settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
+    if algo == "rlpd":
+        notes = RLPD_DIFFERENCES + f"; {updates_per_step} updates per env step here"
+    else:
+        notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with {updates_per_step} "
+                 f"update(s) per env step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
+    return unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
+                       clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+
+
+def _fit_online(d3rlpy: Any, learner: Any, ds: OfflineDataset, settings: Mapping[str, Any], offline: Any, seed: int,
+                out: Path, logs: Any, online_steps: int, offline_ratio: float, updates_per_step: int) -> None:
+    """``fit_online`` on the dataset's environment, ``offline_ratio`` of each batch from ``offline``."""
+    from stable_baselines3.common.monitor import Monitor
+
+    from envs.collection import make_env
+
     env = make_env(**settings)
     try:
         ds.check_compatible(env)
         env.reset(seed=seed)  # fit_online resets without a seed: the episodes continue this generator
         env.action_space.seed(seed)
-        from stable_baselines3.common.monitor import Monitor
-
         env = Monitor(env, str(out / "online"), info_keywords=("collision",))
         online = d3rlpy.dataset.create_infinite_replay_buffer(env=env)
         buffer = _mixed_buffer(d3rlpy, online, offline, float(offline_ratio))
-        with clock.phase("online"):
-            learner.fit_online(env, buffer, n_steps=online_steps, n_steps_per_epoch=online_steps,
-                               experiment_name="online", with_timestamp=False, logger_adapter=logs,
-                               show_progress=False)
+        learner.fit_online(env, buffer, n_steps=online_steps, n_steps_per_epoch=online_steps,
+                           n_updates=updates_per_step, experiment_name="online", with_timestamp=False,
+                           logger_adapter=logs, show_progress=False)
     finally:
         env.close()
-    with clock.phase("evaluate"):
-        evaluation = evaluation_record(policy, settings, protocol)
-    hyper["offline_ratio"] = float(offline_ratio)
-    settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
-    notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with one update per env "
-             f"step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
-    return unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                       clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)

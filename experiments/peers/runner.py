@@ -128,7 +128,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
         fn, kwargs = run_behaviour, {}
     elif arm in D3RLPY_ARMS:
         fn, kwargs = run_d3rlpy, {"algo": arm, "offline_steps": budget.offline_steps(arm),
-                                  "batch_size": budget.d3rlpy_batch_size}
+                                  "batch_size": budget.d3rlpy_batch_size,
+                                  "updates_per_step": budget.updates_per_step(arm)}
     else:
         raise ValueError(f"arms: unknown arm {arm!r}")
     return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))

@@ -33,7 +33,7 @@ from experiments.peers.report import (
     verdicts,
 )
 
-OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql", "rebrac", "bc", "behaviour"}
+OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql", "rebrac", "bc", "behaviour"}  # rlpd: none
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +57,10 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     for ref in (*_records(quick_run, "bc"), *_records(quick_run, "behaviour")):  # no online phase, one evaluation
         assert ref["online_steps"] == 0 and ref["online_episodes"] == [] and ref["evaluation"] == ref["offline_evaluation"]
     assert summary["arms"]["bc"]["curve"] is None and summary["arms"]["rebrac"]["curve"] is not None
+    rlpd = _records(quick_run, "rlpd")[0]
+    assert rlpd["offline_steps"] == 0 and rlpd["hyperparams"]["updates_per_step"] == 4
+    assert rlpd["hyperparams"]["config"]["critic_encoder_factory"]["params"]["use_layer_norm"] is True
+    assert "unlike RLPD" in rlpd["notes"]
     rebrac = _records(quick_run, "rebrac")[0]["hyperparams"]["config"]
     assert rebrac["actor_beta"] == 0.01 and rebrac["critic_encoder_factory"]["params"]["use_layer_norm"] is True
     assert summary["budget"]["ua2c"]["finetune_steps"] == 30 and "WITHOUT" in summary["observation"]
@@ -94,11 +98,11 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     capsys.readouterr()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "24 of 24 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 24 stored" in out
+    assert "26 of 26 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 26 stored" in out
     sac.unlink()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "23 of 24 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    assert "25 of 26 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
     again = json.loads(sac.read_text())
     assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
     # --rerun: the selected unit runs again without deleting anything by hand
@@ -181,7 +185,7 @@ def test_binned_curve_carries_the_last_return_forward():
     np.testing.assert_allclose(binned_curve(episodes, 100, bins=4), [np.nan, 2.0, 2.0, 5.0])
 
 
-def test_estimate_reproduces_the_measured_peer_units_and_fits_two_and_a_quarter_hours():
+def test_estimate_reproduces_the_measured_peer_units_and_fits_three_hours():
     at_10k = FULL_PEERS_BUDGET.with_online_steps(10_000)
     measured = {"sac": 180, "tqc": 319, "sac_offline_mix": 180, "iql": 389, "calql": 2190}  # experiments/peers/measure_costs.py
     for arm, seconds in measured.items():
@@ -190,7 +194,7 @@ def test_estimate_reproduces_the_measured_peer_units_and_fits_two_and_a_quarter_
     assert stage_wall_seconds([3, 5, 3, 4, 3], 2) == 10
     assert stage_wall_seconds([3, 5], 4) == 5
     full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
-    assert full["wall"] < 2.25 * 3600 and full["cpu"] > full["wall"]
+    assert full["wall"] < 3 * 3600 and full["cpu"] > full["wall"]
 
 
 def test_headline_names_the_best_of_each_side():
