@@ -144,6 +144,10 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
     initial temperature 1, τ = 0.005; with symmetric sampling and several updates per env step set by
     the unit (:data:`RLPD_DIFFERENCES`).
 
+    Cal-QL: d3rlpy's reproduction script (``reproductions/finetuning/cal_ql_finetune.py``): learning
+    rates 3e-4 and ``alpha_threshold`` 0.8 (d3rlpy's defaults: 1e-4 for the actor, 10); its 1M offline
+    steps are the budget's here.
+
     ReBRAC: d3rlpy's reproduction script (``reproductions/offline/rebrac.py``) with the betas it uses
     for a dataset outside its table: actor and critic 3 × 256 (the critic with layer norm), learning
     rates 1e-3, target smoothing 0.2 / 0.5, the actor updated every second step, β_actor = β_critic =
@@ -157,6 +161,8 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
             "critic_encoder_factory": vector([256, 256], use_layer_norm=True),
             "n_critics": 2, "initial_temperature": 1.0, "tau": 0.005,
         }
+    if algo == "calql":  # d3rlpy's Cal-QL reproduction (its reward shift is AntMaze's, not taken)
+        return {"actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "alpha_threshold": 0.8}
     if algo != "rebrac":
         return {}
     return {

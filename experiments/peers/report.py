@@ -330,8 +330,8 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
                                             if summary["budget"]["sb3_hyperparams"] else "")
         + "; the zoo's style-context wrapper is not applied, so they see the dataset's observation).",
         f"- SAC + offline data: {summary['arms'].get('sac_offline_mix', {}).get('notes', 'not run')}.",
-        "- IQL and Cal-QL: d3rlpy 2.8.1 with its default hyperparameters, ReBRAC with the settings of d3rlpy's "
-        f"reproduction; batch {summary['budget']['d3rlpy_batch_size']}, offline on the dataset, then `fit_online` "
+        "- IQL: d3rlpy 2.8.1 with its default hyperparameters; Cal-QL and ReBRAC with the settings of d3rlpy's "
+        f"reproductions; batch {summary['budget']['d3rlpy_batch_size']}, offline on the dataset, then `fit_online` "
         "with half of each batch from the offline data. Reference rows, nothing learned online: the dataset's "
         "behaviour policy on the same scenarios, and d3rlpy BC (offline only).",
     ]

@@ -61,6 +61,7 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     assert rlpd["offline_steps"] == 0 and rlpd["hyperparams"]["updates_per_step"] == 4
     assert rlpd["hyperparams"]["config"]["critic_encoder_factory"]["params"]["use_layer_norm"] is True
     assert "unlike RLPD" in rlpd["notes"]
+    assert _records(quick_run, "calql")[0]["hyperparams"]["config"]["alpha_threshold"] == 0.8
     rebrac = _records(quick_run, "rebrac")[0]["hyperparams"]["config"]
     assert rebrac["actor_beta"] == 0.01 and rebrac["critic_encoder_factory"]["params"]["use_layer_norm"] is True
     assert summary["budget"]["ua2c"]["finetune_steps"] == 30 and "WITHOUT" in summary["observation"]
