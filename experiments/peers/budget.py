@@ -32,7 +32,11 @@ UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
     "ua2c_adaptive": ("k", "delta"),
     "ua2c_fixed": ("k", "inf"),
     "ua2c_onestep": (1, None),
+    "ua2c_adaptive_per_step": ("k", "delta"),
 }
+#: UA2C arms fine-tuned with one gradient step per env step, the peers' update budget (the other UA2C
+#: arms: one per ``chunk_size`` env steps, Figure 2's cadence)
+UA2C_PER_STEP_ARMS = ("ua2c_adaptive_per_step",)
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
 PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "rlpd", "iql", "calql", "rebrac")
 #: Reference rows, nothing learned online: the dataset's behaviour policy and behaviour cloning of the dataset
@@ -47,6 +51,7 @@ ARM_LABELS = {
     "ua2c_adaptive": "UA2C adaptive chunks",
     "ua2c_fixed": "UA2C fixed chunks (δ=inf)",
     "ua2c_onestep": "UA2C one-step (k=1)",
+    "ua2c_adaptive_per_step": "UA2C adaptive, one update per env step",
     "sac": "SB3 SAC (online)",
     "tqc": "sb3-contrib TQC (online)",
     "crossq": "sb3-contrib CrossQ (online)",
@@ -144,7 +149,7 @@ class PeersBudget:
 
 
 #: Default: the Figure-2 dataset and offline budget (200 episodes, 6,000 gradient steps), 20 evaluation
-#: episodes, and 5,000 online env steps for every arm (about two hours and forty minutes for 5 seeds on 2 cores).
+#: episodes, and 5,000 online env steps for every arm (about two hours and fifty minutes for 5 seeds on 2 cores).
 FULL_PEERS_BUDGET = PeersBudget()
 
 #: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
@@ -213,10 +218,11 @@ def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> d
     for arm in UA2C_ARMS:
         k = budget.chunk_length(arm)
         extra = extra_kweights(b.arm_kwargs(k))
-        plan_length = 1.0 if k == 1 else c.adaptive_plan_length if arm == "ua2c_adaptive" else float(k)
-        # one update per chunk_size env steps for every UA2C arm (Figure 2's Phase-2 cadence)
+        plan_length = 1.0 if k == 1 else float(k) if budget.delta(arm) == float("inf") else c.adaptive_plan_length
+        # one update per chunk_size env steps (Figure 2's Phase-2 cadence), or per env step
+        steps_per_update = 1 if arm in UA2C_PER_STEP_ARMS else b.chunk_size
         online_ms = (c.finetune_ms_per_env_step + c.replan_ms(extra) / plan_length
-                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight) / b.chunk_size)
+                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight) / steps_per_update)
         eval_ms = c.eval_ms_per_step + extra / plan_length * c.plan_ms_per_kweight
         out[arm] = (budget.online_steps * online_ms + 2 * b.eval_episodes * spe * eval_ms) * ms
     return out
@@ -263,7 +269,7 @@ def format_estimate(estimate: Mapping[str, Any], workers: int) -> str:
              f"  dataset {estimate['dataset'] / 60:.1f} min/seed; "
              + ", ".join(f"pretrain k={k} {s / 60:.1f} min/seed" for k, s in estimate["pretrain"].items())]
     for arm, s in estimate["arms"].items():
-        lines.append(f"  {arm:16s} {s / 60:6.1f} min/unit  {s * n / 60:7.1f} min over seeds")
+        lines.append(f"  {arm:22s} {s / 60:6.1f} min/unit  {s * n / 60:7.1f} min over seeds")
     lines.append(f"  total {totals['cpu'] / 60:.0f} CPU-min, ~{totals['wall'] / 60:.0f} min wall on {workers} "
                  "worker(s) (dedicated cores, before resuming)")
     return "\n".join(lines)

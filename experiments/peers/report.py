@@ -321,9 +321,10 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         "thresholds) for every arm.",
         f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
         "δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the offline data "
-        "in the buffer and one gradient step per k env steps (Figure 2's cadence): the chunk arms make about "
-        f"1/{b['chunk_size']} of the updates of SAC, TQC and the d3rlpy arms (one per env step), the one-step arm "
-        "as many.",
+        "in the buffer and one gradient step per k env steps (Figure 2's cadence), the one-step arm too: about "
+        f"1/{b['chunk_size']} of the updates of SAC, TQC, CrossQ and the d3rlpy arms (one per env step; RLPD "
+        f"{summary['budget'].get('rlpd_updates_per_step', 1)}). \"UA2C adaptive, one update per env step\" is the "
+        "adaptive arm at the peers' update budget.",
         "- SAC, TQC and CrossQ: online from scratch, hyperparameters from `zoo_configs/sac.yml` / "
         "`zoo_configs/tqc.yml` / `zoo_configs/crossq.yml` "
         "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"

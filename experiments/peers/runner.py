@@ -24,7 +24,14 @@ from typing import Any
 from experiments.common.budget import finetune_overrides
 from experiments.common.names import DATASET_SEED_BASE, EVAL_SEED_BASE
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
-from experiments.peers.budget import D3RLPY_ARMS, ONLINE_SB3_ARMS, UA2C_ARMS, PeersBudget, estimate_units
+from experiments.peers.budget import (
+    D3RLPY_ARMS,
+    ONLINE_SB3_ARMS,
+    UA2C_ARMS,
+    UA2C_PER_STEP_ARMS,
+    PeersBudget,
+    estimate_units,
+)
 
 MANIFEST = "peers_budget.json"
 
@@ -118,8 +125,11 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
     fn: Callable[..., Any]
     if arm in UA2C_ARMS:
         record = pretrained[f"seed{seed}/pretrain_k{budget.chunk_length(arm)}"]
+        overrides = finetune_overrides(budget.ua2c)
+        if arm in UA2C_PER_STEP_ARMS:  # the peers' update budget: one gradient step per env step
+            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}
         fn, kwargs = run_ua2c_arm, {"arm": arm, "checkpoint": record["checkpoint"], "delta": budget.delta(arm),
-                                    "finetune_overrides": finetune_overrides(budget.ua2c), "pretrain_record": record}
+                                    "finetune_overrides": overrides, "pretrain_record": record}
     elif arm in ONLINE_SB3_ARMS:
         fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_hyperparams}
     elif arm == "sac_offline_mix":

@@ -33,7 +33,7 @@ from experiments.peers.report import (
     verdicts,
 )
 
-OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "iql", "calql", "rebrac", "bc", "behaviour"}  # rlpd: none
+OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "ua2c_adaptive_per_step", "iql", "calql", "rebrac", "bc", "behaviour"}  # rlpd: none
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +89,8 @@ def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
     adaptive, fixed = _records(quick_run, "ua2c_adaptive")[0], _records(quick_run, "ua2c_fixed")[0]
     assert adaptive["hyperparams"]["delta"] == 0.0 and fixed["hyperparams"]["delta"] == "inf"
     assert adaptive["hyperparams"]["finetune_overrides"] == {"train_freq": 3, "gradient_steps": 1}
+    per_step = _records(quick_run, "ua2c_adaptive_per_step")[0]["hyperparams"]
+    assert per_step["finetune_overrides"] == {"train_freq": 1, "gradient_steps": 1} and per_step["delta"] == 0.0
     assert _records(quick_run, "iql")[0]["offline_steps"] == 8  # the UA2C arms' pretrain_steps
 
 
@@ -99,11 +101,11 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     capsys.readouterr()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "26 of 26 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 26 stored" in out
+    assert "28 of 28 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 28 stored" in out
     sac.unlink()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "25 of 26 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    assert "27 of 28 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
     again = json.loads(sac.read_text())
     assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
     # --rerun: the selected unit runs again without deleting anything by hand
