@@ -62,6 +62,7 @@ ARM_LABELS = {
     "rebrac": "d3rlpy ReBRAC (offline → online)",
     "behaviour": "behaviour policy of the data (reference)",
     "bc": "d3rlpy BC (offline only, reference)",
+    "iql_best_of_n": "d3rlpy IQL acting by the best of N actions under its critic",
 }
 
 
@@ -80,6 +81,8 @@ class PeersBudget:
         like every other offline phase)
     :param rlpd_updates_per_step: gradient steps per online env step of the RLPD arm (its update-to-data
         ratio; RLPD's paper: 20, here as many as the budget allows)
+    :param iql_best_of_n: IQL's final policy is also evaluated acting as UA2C does, by the best of this
+        many sampled actions under its critic (the report's row ``iql_best_of_n``; 0: not)
     """
 
     ua2c: Fig2Budget = field(default_factory=lambda: FULL_BUDGET.replace(finetune_steps=5000))
@@ -87,6 +90,7 @@ class PeersBudget:
     d3rlpy_batch_size: int = 256
     calql_offline_steps: int | None = None
     rlpd_updates_per_step: int = 4
+    iql_best_of_n: int = 32
 
     def __post_init__(self) -> None:
         if not isinstance(self.ua2c, Fig2Budget):
@@ -97,6 +101,7 @@ class PeersBudget:
         if self.calql_offline_steps is not None:
             check_int("PeersBudget.calql_offline_steps", self.calql_offline_steps)
         check_int("PeersBudget.rlpd_updates_per_step", self.rlpd_updates_per_step)
+        check_int("PeersBudget.iql_best_of_n", self.iql_best_of_n, low=0)
         object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
 
     @property
@@ -129,7 +134,7 @@ class PeersBudget:
     def to_dict(self) -> dict[str, Any]:
         return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
                 "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps,
-                "rlpd_updates_per_step": self.rlpd_updates_per_step}
+                "rlpd_updates_per_step": self.rlpd_updates_per_step, "iql_best_of_n": self.iql_best_of_n}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
@@ -192,7 +197,8 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
     c = costs or PeerCostModel()
     ms = 1e-3
     two_evals = arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS and budget.offline_steps(arm) > 0
-    evals = (2 if two_evals else 1) * budget.ua2c.eval_episodes \
+    best_of_n = arm == "iql" and budget.iql_best_of_n > 0  # one more evaluation, acting by best-of-N
+    evals = (2 if two_evals else 1) * budget.ua2c.eval_episodes * (1 + best_of_n) \
         * steps_per_episode(budget.ua2c)
     total = evals * c.eval_ms_per_step * ms
     if arm == "behaviour":

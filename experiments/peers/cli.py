@@ -102,7 +102,7 @@ def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command:
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})
-    estimate = estimate_units(budget, list(summary["arms"]), len(seeds))
+    estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS], len(seeds))  # run units only
     return {"command": command, "date": date, "seeds": seeds, "budget": budget.to_dict(),
             "estimate": {**estimate_wall(estimate, workers), "workers": workers, "per_unit": estimate},
             "observation": observation_text(records), **summary}

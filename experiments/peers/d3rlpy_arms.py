@@ -104,6 +104,37 @@ class D3rlpyPolicy:
         return (act[0] if single else act), None
 
 
+class BestOfNPolicy(D3rlpyPolicy):
+    """UA2C's way of acting for a d3rlpy peer: draw ``n`` actions from its policy and execute the one its
+    critic values most (``predict_value``), whatever ``deterministic`` says.
+
+    :param n: actions drawn per decision
+    (the other parameters are :class:`D3rlpyPolicy`'s)
+    """
+
+    def __init__(self, algo: Any, observation_space: spaces.Space, action_space: spaces.Box, n: int) -> None:
+        super().__init__(algo, observation_space, action_space)
+        check_int("best_of_n", n)
+        self.n = n
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.shape == self.observation_space.shape
+        batch = obs[None] if single else obs  # (m, *obs_shape)
+        repeated = np.repeat(batch, self.n, axis=0)  # (m * n, *obs_shape)
+        actions = np.asarray(self.algo.sample_action(repeated))  # (m * n, action_dim)
+        values = np.asarray(self.algo.predict_value(repeated, actions)).reshape(len(batch), self.n)
+        best = actions.reshape(len(batch), self.n, -1)[np.arange(len(batch)), values.argmax(axis=1)]  # (m, a)
+        act = np.clip(best.astype(self.action_space.dtype), self.action_space.low, self.action_space.high)
+        return (act[0] if single else act), None
+
+
 def d3rlpy_episodes(episodes: Sequence[Episode]) -> list[Any]:
     """Our episodes as d3rlpy ``Episode`` objects that keep every transition.
 
@@ -203,6 +234,7 @@ def run_d3rlpy(
     offline_ratio: float = 0.5,
     batch_size: int = 256,
     updates_per_step: int = 1,
+    best_of_n: int = 0,
     config_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One unit: d3rlpy IQL, Cal-QL or ReBRAC fitted offline on the seed's dataset, evaluated, fine-tuned
@@ -221,6 +253,8 @@ def run_d3rlpy(
     :param offline_ratio: fraction of each online minibatch drawn from the offline data
     :param batch_size: minibatch size (the SAC zoo entry's 256)
     :param updates_per_step: gradient steps per online env step (the update-to-data ratio)
+    :param best_of_n: also evaluate the final policy acting by the best of ``best_of_n`` sampled actions
+        under its critic (:class:`BestOfNPolicy`), into the record's ``evaluation_best_of_n`` (0: not)
     :param config_kwargs: further arguments of the algorithm's d3rlpy config (d3rlpy's defaults and
         :func:`published_settings` otherwise)
     :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
@@ -233,6 +267,7 @@ def run_d3rlpy(
                         ("updates_per_step", updates_per_step)):
         check_int(name, value)
     check_int("offline_steps", offline_steps, low=0)
+    check_int("best_of_n", best_of_n, low=0)
     if isinstance(offline_ratio, bool) or not isinstance(offline_ratio, int | float) or not 0.0 <= offline_ratio <= 1.0:
         raise ValueError(f"offline_ratio must be a number in [0, 1], got {offline_ratio!r}")
     if algo in OFFLINE_ONLY and offline_steps == 0:
@@ -266,6 +301,11 @@ def run_d3rlpy(
                     updates_per_step)
     with clock.phase("evaluate"):
         evaluation = evaluation_record(policy, settings, protocol)
+    extra = {}
+    if best_of_n:
+        with clock.phase("evaluate_best_of_n"):
+            best = BestOfNPolicy(learner, ds.observation_space, ds.action_space, best_of_n)
+            extra["evaluation_best_of_n"] = {"n": best_of_n, **evaluation_record(best, settings, protocol)}
     hyper.update(offline_ratio=float(offline_ratio), updates_per_step=updates_per_step)
     settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
     if algo == "rlpd":
@@ -273,8 +313,9 @@ def run_d3rlpy(
     else:
         notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with {updates_per_step} "
                  f"update(s) per env step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
-    return unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                       clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+    record = unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
+                         clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+    return {**record, **extra}
 
 
 def _fit_online(d3rlpy: Any, learner: Any, ds: OfflineDataset, settings: Mapping[str, Any], offline: Any, seed: int,

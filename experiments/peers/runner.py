@@ -139,7 +139,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
     elif arm in D3RLPY_ARMS:
         fn, kwargs = run_d3rlpy, {"algo": arm, "offline_steps": budget.offline_steps(arm),
                                   "batch_size": budget.d3rlpy_batch_size,
-                                  "updates_per_step": budget.updates_per_step(arm)}
+                                  "updates_per_step": budget.updates_per_step(arm),
+                                  "best_of_n": budget.iql_best_of_n if arm == "iql" else 0}
     else:
         raise ValueError(f"arms: unknown arm {arm!r}")
     return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))
@@ -175,4 +176,8 @@ def load_records(paths: PeersPaths, seeds: Sequence[int] | None = None) -> dict[
         for f in sorted(d.glob("*.json")):
             record = json.loads(f.read_text())
             out.setdefault(record["arm"], []).append(record)
+            if record.get("evaluation_best_of_n"):  # the same policy acting by best-of-N: a row of its own
+                best = {**record, "arm": f"{record['arm']}_best_of_n", "evaluation": record["evaluation_best_of_n"],
+                        "offline_evaluation": None}
+                out.setdefault(best["arm"], []).append(best)
     return out

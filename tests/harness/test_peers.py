@@ -124,6 +124,26 @@ def test_d3rlpy_policy_adapter_has_sb3_predict():
     assert policy.predict(np.zeros((2, 3)), deterministic=False)[0].tolist() == [[-1.0, 0.0]] * 2
 
 
+def test_best_of_n_acts_by_the_critics_best_sample_per_observation():
+    from experiments.peers.d3rlpy_arms import BestOfNPolicy
+
+    class Sampler:  # the samples of one observation are 0.1 * (0, 1, 2, 3); the critic likes -|a - target|
+        def sample_action(self, x):
+            return np.stack([0.1 * (np.arange(len(x)) % 4), np.zeros(len(x))], axis=1)
+
+        def predict_value(self, x, action):
+            target = x[:, 0]  # observation 0 wants 0.2, observation 1 wants 0.3
+            return -np.abs(action[:, 0] - target)
+
+    policy = BestOfNPolicy(Sampler(), OBS_SPACE, ACTION_SPACE, n=4)
+    obs = np.array([[0.2, 0.0, 0.0], [0.3, 0.0, 0.0]], dtype=np.float32)
+    actions, _ = policy.predict(obs)
+    np.testing.assert_allclose(actions, [[0.2, 0.0], [0.3, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(policy.predict(obs[1])[0], [0.3, 0.0], atol=1e-6)
+    with pytest.raises(ValueError, match="best_of_n"):
+        BestOfNPolicy(Sampler(), OBS_SPACE, ACTION_SPACE, n=0)
+
+
 class ConstantPolicy:
     """A policy with SB3's predict that always brakes gently."""
 

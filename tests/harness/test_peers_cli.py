@@ -52,8 +52,11 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     for name in ("peers.md", "peers.json", "peers_curves.png", "peers_iqm.png"):
         assert (quick_run / name).is_file(), name
     summary = json.loads((quick_run / "peers.json").read_text())
-    assert sorted(summary["arms"]) == sorted(ARMS) and summary["seeds"] == [0, 1]
-    assert len(summary["pairs"]) == len(UA2C_ARMS) * (len(PEER_ARMS) + len(REFERENCE_ARMS))
+    assert sorted(summary["arms"]) == sorted([*ARMS, "iql_best_of_n"]) and summary["seeds"] == [0, 1]
+    assert len(summary["pairs"]) == len(UA2C_ARMS) * (len(PEER_ARMS) + len(REFERENCE_ARMS) + 1)
+    for iql in _records(quick_run, "iql"):  # the best-of-N row: the same policy, its own evaluation
+        assert iql["evaluation_best_of_n"]["n"] == 32
+        assert [e["seed"] for e in iql["evaluation_best_of_n"]["episodes"]] == [e["seed"] for e in iql["evaluation"]["episodes"]]
     for ref in (*_records(quick_run, "bc"), *_records(quick_run, "behaviour")):  # no online phase, one evaluation
         assert ref["online_steps"] == 0 and ref["online_episodes"] == [] and ref["evaluation"] == ref["offline_evaluation"]
     assert summary["arms"]["bc"]["curve"] is None and summary["arms"]["rebrac"]["curve"] is not None
@@ -68,7 +71,8 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     for arm, stats in summary["arms"].items():
         assert set(stats["metrics"]) == {"reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_step"}
         assert (stats["offline_metrics"] is not None) == (arm in OFFLINE_ARMS), arm
-        rewards = [r["evaluation"]["episodes"][0]["reward"] for r in _records(quick_run, arm)]
+        evaluation = "evaluation_best_of_n" if arm == "iql_best_of_n" else "evaluation"
+        rewards = [r[evaluation]["episodes"][0]["reward"] for r in _records(quick_run, arm.removesuffix("_best_of_n"))]
         # 2 seeds x 1 episode: the 25 % trimmed mean trims nothing, the IQM is the mean
         assert stats["metrics"]["reward"]["iqm"] == pytest.approx(np.mean(rewards), abs=1e-9)
         assert stats["metrics"]["reward"]["ci_low"] == pytest.approx(min(rewards))
