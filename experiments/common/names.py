@@ -43,6 +43,12 @@ METHOD_LABELS.update({f"{m}_sampled": f"{METHOD_LABELS[m]}, sampled" for m in SA
 DATASET_SEED_BASE = 1_000_000  # episode i of run seed s: 1_000_000 + 10_000 s + i
 STYLE_SEED_BASE = 3_000_000  # episode i of run seed s: 3_000_000 + 10_000 s + i
 EVAL_SEED_BASE = 2_000  # evaluate() resets episode i of seed e with 1000 * e + i -> 2_000_000 + 1000 s + i
+#: Evaluation scenarios by role: episode i of run seed s is SUMO scenario 1000 * (base + s) + i.
+#: Figure 2's held-out scenarios (``EVAL_SEED_BASE``) served UA2C's earlier choices; new choices are made on
+#: the validation scenarios, reported numbers come from the test scenarios.
+VALIDATION_SEED_BASE = 3_000
+TEST_SEED_BASE = 4_000
+SCENARIO_BASES = {"figure2": EVAL_SEED_BASE, "validation": VALIDATION_SEED_BASE, "test": TEST_SEED_BASE}
 MAX_SEED = 100
 
 

@@ -19,10 +19,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from experiments.common.names import SCENARIO_BASES
 from experiments.execution.controls import RULES
 
 PROG = "python -m experiments.execution"
-ROLES = {"development": "VALIDATION_SEED_BASE", "confirmation": "TEST_SEED_BASE"}
+#: the scenarios of each role (:data:`~experiments.common.names.SCENARIO_BASES`)
+ROLES = {"development": "validation", "confirmation": "test"}
 #: one evaluation episode (20 s of traffic, one replanning per step at worst) and one run's training, in
 #: CPU seconds on one thread of these 2-core machines (make main: 10 s data, 55 s Phase 1, 47 s Phase 2)
 EPISODE_SECONDS = 0.6
@@ -93,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
     work = Path(args.work) if args.work else out / "execution_work"
     name = f"execution_{args.role}"
-    base = getattr(unit, ROLES[args.role])
+    base = SCENARIO_BASES[ROLES[args.role]]
     units = [Unit(f"seed{s}", unit.run_seed,
                   dict(seed=s, work=str(work / args.role), budget=budget, online_rules=args.online,
                        screened_rules=args.rules, scenario_base=base, own_rule_only=args.own_rule_only),

@@ -24,9 +24,6 @@ BUDGETS = {
     "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 20},
     "quick": {"episodes": 3, "pretrain_steps": 8, "finetune_steps": 30, "eval_episodes": 1, "time_limit": 4.0},
 }
-#: evaluation scenarios: episode i of run seed s is SUMO scenario 1000 * (base + s) + i
-VALIDATION_SEED_BASE = 3_000  # choices (development seeds)
-TEST_SEED_BASE = 4_000  # reports (confirmation seeds)
 
 
 def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:

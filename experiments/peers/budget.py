@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from experiments.common.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, extra_kweights
+from experiments.common.names import SCENARIO_BASES
 from sb3_ua2c.checks import check_int
 
 #: UA2C arms (Figure 2's), by name: chunk length ("k" = the budget's ``chunk_size``) and δ ("delta" = the
@@ -81,6 +82,9 @@ class PeersBudget:
         like every other offline phase)
     :param rlpd_updates_per_step: gradient steps per online env step of the RLPD arm (its update-to-data
         ratio; RLPD's paper: 20, here as many as the budget allows)
+    :param scenarios: the evaluation scenarios of every arm (:data:`~experiments.common.names.SCENARIO_BASES`):
+        ``"validation"`` for choices (tuning), ``"test"`` for reported numbers, ``"figure2"`` for Figure 2's
+        held-out scenarios (those of the records made before the split; UA2C's earlier choices were made on them)
     :param iql_best_of_n: IQL's final policy is also evaluated acting as UA2C does, by the best of this
         many sampled actions under its critic (the report's row ``iql_best_of_n``; 0: not)
     """
@@ -90,6 +94,7 @@ class PeersBudget:
     d3rlpy_batch_size: int = 256
     calql_offline_steps: int | None = None
     rlpd_updates_per_step: int = 4
+    scenarios: str = "test"
     iql_best_of_n: int = 32
 
     def __post_init__(self) -> None:
@@ -102,6 +107,8 @@ class PeersBudget:
             check_int("PeersBudget.calql_offline_steps", self.calql_offline_steps)
         check_int("PeersBudget.rlpd_updates_per_step", self.rlpd_updates_per_step)
         check_int("PeersBudget.iql_best_of_n", self.iql_best_of_n, low=0)
+        if self.scenarios not in SCENARIO_BASES:
+            raise ValueError(f"PeersBudget.scenarios must be one of {list(SCENARIO_BASES)}, got {self.scenarios!r}")
         object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
 
     @property
@@ -134,7 +141,8 @@ class PeersBudget:
     def to_dict(self) -> dict[str, Any]:
         return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
                 "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps,
-                "rlpd_updates_per_step": self.rlpd_updates_per_step, "iql_best_of_n": self.iql_best_of_n}
+                "rlpd_updates_per_step": self.rlpd_updates_per_step, "iql_best_of_n": self.iql_best_of_n,
+                "scenarios": self.scenarios}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
@@ -142,7 +150,7 @@ class PeersBudget:
         unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown PeersBudget key(s) {sorted(unknown)}")
-        values = dict(values)
+        values = {"scenarios": "figure2", **values}  # budgets recorded before the split: Figure 2's scenarios
         if "ua2c" in values:
             values["ua2c"] = Fig2Budget.from_dict(values["ua2c"])
         return cls(**values)

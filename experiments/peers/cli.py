@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -10,7 +11,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from experiments.common.names import MAX_SEED
+from experiments.common.names import MAX_SEED, SCENARIO_BASES
 from experiments.common.records import command_line, run_header
 from experiments.common.runner import UnitsFailedError, make_executor
 from experiments.peers.budget import (
@@ -46,6 +47,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
+    parser.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
+                        help="evaluation scenarios: validation (choices, tuning), test (reported numbers; default), "
+                        "figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
     parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-unit records (default: <out>/peers_raw)")
     parser.add_argument("--work", default=None, help="datasets, checkpoints, models (default: <out>/peers_work)")
@@ -75,7 +79,16 @@ def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
     budget = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
+    budget = dataclasses.replace(budget, scenarios=args.scenarios)
     return budget if args.online_steps is None else budget.with_online_steps(args.online_steps)
+
+
+def scenario_text(records: dict[str, list[dict[str, Any]]]) -> str:
+    """Which evaluation scenarios the records used (:data:`~experiments.common.names.SCENARIO_BASES`), from
+    their seeds: scenario base = evaluation seed - run seed."""
+    names = {base: name for name, base in SCENARIO_BASES.items()}
+    bases = sorted({r["eval_seeds"][0] - r["seed"] for rs in records.values() for r in rs})
+    return ", ".join(f"{names.get(b, 'unknown')} scenarios (SUMO seeds 1000 · ({b} + seed) + i)" for b in bases)
 
 
 def _check_d3rlpy(arms: Sequence[str]) -> None:
@@ -105,7 +118,7 @@ def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command:
     estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS], len(seeds))  # run units only
     return {"command": command, "date": date, "seeds": seeds, "budget": budget.to_dict(),
             "estimate": {**estimate_wall(estimate, workers), "workers": workers, "per_unit": estimate},
-            "observation": observation_text(records), **summary}
+            "observation": observation_text(records), "scenarios": scenario_text(records), **summary}
 
 
 @contextmanager

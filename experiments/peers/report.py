@@ -310,10 +310,12 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         "## Protocol",
         "",
         f"- Online budget: **{b['finetune_steps']} env steps for every arm**; offline: {b['pretrain_steps']} gradient "
-        f"steps for UA2C, IQL and Cal-QL" + (f" (Cal-QL: {calql})" if calql else "") + f", on the seed's Figure-2 "
+        f"steps for UA2C and the d3rlpy arms except RLPD" + (f" (Cal-QL: {calql})" if calql else "")
+        + f", on the seed's Figure-2 "
         f"dataset ({b['dataset_episodes']} episodes of the behaviour policy, the same data for every arm).",
-        f"- Evaluation: {b['eval_episodes']} held-out episodes per seed (Figure 2's scenarios, the same for every "
-        "arm), deterministic actions. Statistics are run-level: each seed's score is the mean over its evaluation "
+        f"- Evaluation: {b['eval_episodes']} episodes per seed on the {summary.get('scenarios', 'figure2 scenarios')} "
+        "(the same for every arm), deterministic actions. Statistics are run-level: each seed's score "
+        "is the mean over its evaluation "
         "episodes; IQMs and means over runs carry 95 % stratified bootstrap CIs (rliable), P(UA2C > peer) is "
         "rliable's probability of improvement over runs (0.5 = no difference), and the paired difference is the "
         "mean per-seed difference with its Student-t interval.",

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.common.budget import finetune_overrides
-from experiments.common.names import DATASET_SEED_BASE, EVAL_SEED_BASE
+from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
 from experiments.peers.budget import (
     D3RLPY_ARMS,
@@ -89,8 +89,9 @@ def read_manifest(paths: PeersPaths) -> PeersBudget | None:
 
 
 def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
-    """Figure 2's held-out scenarios of ``seed``: ``eval_seeds`` and ``eval_episodes`` of every unit."""
-    return {"eval_seeds": (EVAL_SEED_BASE + seed,), "eval_episodes": budget.ua2c.eval_episodes}
+    """The budget's evaluation scenarios of ``seed`` (``PeersBudget.scenarios``): ``eval_seeds`` and
+    ``eval_episodes`` of every unit."""
+    return {"eval_seeds": (SCENARIO_BASES[budget.scenarios] + seed,), "eval_episodes": budget.ua2c.eval_episodes}
 
 
 def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:

@@ -18,6 +18,7 @@ from experiments.peers.budget import (
     PEER_ARMS,
     REFERENCE_ARMS,
     UA2C_ARMS,
+    PeersBudget,
     estimate_units,
     estimate_wall,
     peer_unit_seconds,
@@ -89,7 +90,8 @@ def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
         assert {r["dataset"]["path"] for r in records} == {str(quick_run / "peers_work" / f"seed{s}" / "dataset")}
         assert {r["dataset"]["seed"] for r in records} == {DATASET_SEED_BASE + 10_000 * s}
         assert {r["online_steps"] for r in records if r["arm"] not in REFERENCE_ARMS} == {30}
-        assert {tuple(e["seed"] for e in r["evaluation"]["episodes"]) for r in records} == {(2_000_000 + 1000 * s,)}
+        # the test scenarios (the default): 1000 * (4000 + s) + i
+        assert {tuple(e["seed"] for e in r["evaluation"]["episodes"]) for r in records} == {(4_000_000 + 1000 * s,)}
     adaptive, fixed = _records(quick_run, "ua2c_adaptive")[0], _records(quick_run, "ua2c_fixed")[0]
     assert adaptive["hyperparams"]["delta"] == 0.0 and fixed["hyperparams"]["delta"] == "inf"
     assert adaptive["hyperparams"]["finetune_overrides"] == {"train_freq": 3, "gradient_steps": 1}
@@ -117,6 +119,21 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     out = capsys.readouterr().out
     assert "[1/1] unit seed1/sac:" in out and "0 arm unit(s) run, 1 stored" not in out
     assert json.loads((quick_run / "peers.json").read_text())["seeds"] == [0, 1]  # the report keeps every record
+
+
+def test_scenarios_are_recorded_and_a_validation_run_needs_its_own_directory(quick_run, capsys):
+    summary = json.loads((quick_run / "peers.json").read_text())
+    assert summary["budget"]["scenarios"] == "test" and summary["scenarios"].startswith("test ")
+    assert "on the test scenarios" in (quick_run / "peers.md").read_text()
+    args = ["--quick", "--scenarios", "validation", "--seeds", "0", "--arms", "sac", "--workers", "1", "--out", str(quick_run)]
+    assert cli.main(args) == 2
+    assert "another budget" in capsys.readouterr().err
+    # a budget recorded before the split evaluated on Figure 2's scenarios
+    old = FULL_PEERS_BUDGET.to_dict()
+    del old["scenarios"]
+    assert PeersBudget.from_dict(old).scenarios == "figure2"
+    with pytest.raises(ValueError, match="PeersBudget.scenarios"):
+        PeersBudget(scenarios="train")
 
 
 def test_a_run_under_another_budget_is_refused(quick_run, capsys):
