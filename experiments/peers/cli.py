@@ -27,6 +27,7 @@ from experiments.peers.budget import (
 from experiments.peers.report import aggregate, verdicts, write_report
 from experiments.peers.runner import PeersPaths, load_records, read_manifest, run_peers
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.cli_args import json_object_arg
 
 PROG = "python -m experiments.peers"
 
@@ -47,6 +48,10 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
+    parser.add_argument("--budget", type=json_object_arg, default={},
+                        help="PeersBudget overrides as JSON, on top of the default (or --quick) budget; \"ua2c\" "
+                        "overrides Fig2Budget keys one by one, e.g. '{\"rlpd_updates_per_step\": 8, \"ua2c\": "
+                        "{\"algo_kwargs\": {\"q_weight\": 0.5}}}' (a tuning configuration)")
     parser.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
                         help="evaluation scenarios: validation (choices, tuning), test (reported numbers; default), "
                         "figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
@@ -79,6 +84,13 @@ def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
     budget = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
+    if args.budget:
+        values = budget.to_dict()
+        overrides = dict(args.budget)
+        if not isinstance(overrides.get("ua2c", {}), dict):
+            raise ValueError(f"--budget: \"ua2c\" must be an object of Fig2Budget keys, got {overrides['ua2c']!r}")
+        values["ua2c"] = {**values["ua2c"], **overrides.pop("ua2c", {})}
+        budget = PeersBudget.from_dict({**values, **overrides})
     budget = dataclasses.replace(budget, scenarios=args.scenarios)
     return budget if args.online_steps is None else budget.with_online_steps(args.online_steps)
 

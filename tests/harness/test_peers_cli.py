@@ -254,3 +254,18 @@ def test_length_shares_pool_the_plans_of_every_run_and_say_when_none_were_kept()
                         "b": {"label": "SAC", "length_shares": {"offline": None, "online": [1.0]}}}}
     assert lengths_table(summary)[2:] == ["| UA2C | – | 20 20 0 0 60 |", "| SAC | – | 100 |"]
     assert "Not recorded" in lengths_table({"arms": {"b": {"label": "SAC", "length_shares": None}}})[0]
+
+
+def test_budget_overrides_reach_the_budget_and_bad_keys_are_named(tmp_path, capsys):
+    args = cli.build_parser().parse_args(
+        ["--budget", '{"rlpd_updates_per_step": 8, "ua2c": {"pretrain_steps": 100}}', "--scenarios", "validation"]
+    )
+    budget = cli._budget(args)
+    assert budget.rlpd_updates_per_step == 8 and budget.ua2c.pretrain_steps == 100
+    assert budget.ua2c.finetune_steps == FULL_PEERS_BUDGET.online_steps and budget.scenarios == "validation"
+    out = ["--out", str(tmp_path), "--seeds", "0", "--arms", "sac"]
+    for bad, name in (('{"rlpd_utd": 8}', "rlpd_utd"), ('{"ua2c": {"pretrain_step": 5}}', "pretrain_step"),
+                      ('{"ua2c": 3}', "ua2c")):
+        with pytest.raises(SystemExit) as exit_info:
+            cli.main(["--budget", bad, *out])
+        assert exit_info.value.code == 2 and name in capsys.readouterr().err
