@@ -99,9 +99,13 @@ class D3rlpyPolicy:
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.shape == self.observation_space.shape
         batch = obs[None] if single else obs  # (n, *obs_shape)
-        act = self.algo.predict(batch) if deterministic else self.algo.sample_action(batch)
-        act = np.clip(np.asarray(act, dtype=self.action_space.dtype), self.action_space.low, self.action_space.high)
+        act = np.asarray(self._act(batch, deterministic), dtype=self.action_space.dtype)  # (n, action_dim)
+        act = np.clip(act, self.action_space.low, self.action_space.high)
         return (act[0] if single else act), None
+
+    def _act(self, batch: np.ndarray, deterministic: bool) -> np.ndarray:
+        """Actions of a batch of observations ``(n, *obs_shape) -> (n, action_dim)``, before clipping."""
+        return self.algo.predict(batch) if deterministic else self.algo.sample_action(batch)
 
 
 class BestOfNPolicy(D3rlpyPolicy):
@@ -117,22 +121,11 @@ class BestOfNPolicy(D3rlpyPolicy):
         check_int("best_of_n", n)
         self.n = n
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
-        obs = np.asarray(observation, dtype=np.float32)
-        single = obs.shape == self.observation_space.shape
-        batch = obs[None] if single else obs  # (m, *obs_shape)
+    def _act(self, batch: np.ndarray, deterministic: bool) -> np.ndarray:
         repeated = np.repeat(batch, self.n, axis=0)  # (m * n, *obs_shape)
         actions = np.asarray(self.algo.sample_action(repeated))  # (m * n, action_dim)
         values = np.asarray(self.algo.predict_value(repeated, actions)).reshape(len(batch), self.n)
-        best = actions.reshape(len(batch), self.n, -1)[np.arange(len(batch)), values.argmax(axis=1)]  # (m, a)
-        act = np.clip(best.astype(self.action_space.dtype), self.action_space.low, self.action_space.high)
-        return (act[0] if single else act), None
+        return actions.reshape(len(batch), self.n, -1)[np.arange(len(batch)), values.argmax(axis=1)]  # (m, a)
 
 
 def d3rlpy_episodes(episodes: Sequence[Episode]) -> list[Any]:
