@@ -1,0 +1,104 @@
+"""An ablation against its control: two Figure-2 reports made on the same seeds and datasets, paired run by run.
+
+Usage::
+
+    python -m experiments.fig2.compare_runs results/critic_work/transformer results/critic_work/mlp \
+        --labels transformer mlp [--out results/critic_development.md]
+
+For every method both reports hold (the offline chunk policy, the fine-tuned arms of every online phase,
+with fixed and with fresh candidate noise), the mean reward of each report and the mean paired difference
+``B − A`` over the runs both hold (one run = one seed, or one seed of one online phase for the fine-tuned
+arms pooled over phases) with its Student-t interval (:func:`experiments.common.stats.paired_difference`).
+Also Figure 2 (c) of each report on the same runs: adaptive − fixed, paired per run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from experiments.common.names import replicate_name
+from experiments.common.stats import paired_difference
+
+#: rows of the comparison: (label, methods pooled into it; their runs are (seed, method) pairs)
+ROWS = (
+    ("offline chunk policy", ("chunk",)),
+    ("offline chunk policy, sampled", ("chunk_sampled",)),
+    ("fine-tuned, adaptive", ("adaptive",)),
+    ("fine-tuned, fixed", ("fixed",)),
+    ("fine-tuned, adaptive, sampled", ("adaptive_sampled",)),
+    ("fine-tuned, fixed, sampled", ("fixed_sampled",)),
+)
+MAX_PHASES = 10
+
+
+def run_rewards(report: Path, method: str) -> dict[tuple[int, str], float]:
+    """``{(seed, unit): mean reward}`` of ``method`` in every seed and online phase of a report directory."""
+    out = {}
+    base, sampled, _ = method.partition("_sampled")
+    for seed_dir in sorted((report / "fig2_raw").glob("seed*")):
+        seed = int(seed_dir.name.removeprefix("seed"))
+        for name in (replicate_name(base, r) + sampled for r in range(MAX_PHASES)):
+            if (seed_dir / f"{name}.json").is_file():
+                out[(seed, name)] = float(json.loads((seed_dir / f"{name}.json").read_text())["summary"]["reward"])
+    return out
+
+
+def compare(a: Path, b: Path) -> list[dict]:
+    """One row per :data:`ROWS` entry both reports hold, plus (c) of each report."""
+    rows = []
+    for label, methods in ROWS:
+        ra = {k: v for m in methods for k, v in run_rewards(a, m).items()}
+        rb = {k: v for m in methods for k, v in run_rewards(b, m).items()}
+        shared = sorted(set(ra) & set(rb))
+        if len(shared) >= 2:
+            x, y = [rb[k] for k in shared], [ra[k] for k in shared]
+            rows.append({"label": label, "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
+    for name, report in (("A", a), ("B", b)):
+        for suffix in ("", "_sampled"):
+            ad, fx = run_rewards(report, "adaptive" + suffix), run_rewards(report, "fixed" + suffix)
+            pairs = sorted((s, u) for s, u in ad if (s, u.replace("adaptive", "fixed")) in fx)
+            if len(pairs) >= 2:
+                x = [ad[p] for p in pairs]
+                y = [fx[(s, u.replace("adaptive", "fixed"))] for s, u in pairs]
+                rows.append({"label": f"{name}: (c) adaptive − fixed{', sampled' if suffix else ''}",
+                             "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
+    return rows
+
+
+def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:
+    lines = [f"| reward | {labels[0]} (A) | {labels[1]} (B) | B − A, paired [95 % CI] | runs (B ahead) |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        if r["label"].endswith(("fixed", "fixed, sampled")) and ": (c)" in r["label"]:
+            head = f"| {r['label']} | fixed {r['a']:.1f} | adaptive {r['b']:.1f} |"
+        else:
+            head = f"| {r['label']} | {r['a']:.1f} | {r['b']:.1f} |"
+        lines.append(f"{head} {r['difference']:+.1f} [{r['ci_low']:+.1f}, {r['ci_high']:+.1f}] | "
+                     f"{r['runs']} ({r['x_better_runs']}) |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.fig2.compare_runs", description=__doc__.split("\n")[0])
+    parser.add_argument("a", type=Path, help="the control's report directory (A)")
+    parser.add_argument("b", type=Path, help="the ablation's report directory (B)")
+    parser.add_argument("--labels", nargs=2, default=["A", "B"], help="names of A and B in the table")
+    parser.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
+    args = parser.parse_args(argv)
+    for report in (args.a, args.b):
+        if not (report / "fig2_raw").is_dir():
+            print(f"error: no fig2_raw/ under {report}", file=sys.stderr)
+            return 2
+    table = format_table(compare(args.a, args.b), args.labels)
+    print(table)
+    if args.out is not None:
+        args.out.write_text(table + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
