@@ -116,7 +116,7 @@ class UA2CSearchSpace:
     """
     Ranges of the UA2C Optuna sampler (``--optimize``). Every field is named after the UA2C constructor
     argument it samples, or the :class:`~sb3_ua2c.policies.UA2CPolicy` argument (``net_arch``,
-    ``critic_embed_dim``, ``n_elite``, which go into ``policy_kwargs``), and every value is checked by
+    ``critic_arch``, ``critic_embed_dim``, ``n_elite``, which go into ``policy_kwargs``), and every value is checked by
     UA2C's own validator (:func:`~sb3_ua2c.config.check_arguments`). ``gamma`` is sampled as
     ``one_minus_gamma`` on a log scale (as rl-zoo3 does for SAC/TD3/TQC); the other intervals are
     :data:`LOG_INTERVALS` (log scale), :data:`INT_INTERVALS` (integers) and :data:`INTERVALS`, given as
@@ -138,6 +138,7 @@ class UA2CSearchSpace:
     q_weight: tuple[float, float] = (0.01, 3.0)
     smooth_weight: tuple[float, ...] = (0.0, 10.0, 100.0, 300.0)
     net_arch: tuple[str, ...] = ("small", "medium", "large")
+    critic_arch: tuple[str, ...] = ("transformer", "mlp")
     critic_embed_dim: tuple[int, ...] = (32, 64)
     discrete_entropy: tuple[bool, ...] = (True, False)
     commit_discrete: tuple[bool, ...] = (False, True)
@@ -247,7 +248,7 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
     :param sampled: ``trial.params`` of a UA2C trial
     :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the arguments of
         :class:`~sb3_ua2c.policies.UA2CPolicy` that UA2C does not take itself (``net_arch``, a
-        :data:`NET_ARCHS` name, ``critic_embed_dim``, ``n_elite``) moved into ``policy_kwargs``.
+        :data:`NET_ARCHS` name, ``critic_arch``, ``critic_embed_dim``, ``n_elite``) moved into ``policy_kwargs``.
         As for every rl-zoo3 algorithm, a sampled ``policy_kwargs`` replaces the YAML one.
     """
     params = dict(sampled)

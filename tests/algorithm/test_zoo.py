@@ -466,7 +466,7 @@ def _sample(n_trials: int, seed: int = 0) -> tuple[optuna.Study, list[dict]]:
 def test_sampler_draws_inside_the_search_space():
     space = zoo.UA2CSearchSpace()
     study, samples = _sample(30)
-    policy_fields = {"net_arch", "critic_embed_dim", "n_elite"}
+    policy_fields = {"net_arch", "critic_arch", "critic_embed_dim", "n_elite"}
     for trial, params in zip(study.trials, samples, strict=True):
         assert set(params) == {f.name for f in dataclasses.fields(zoo.UA2CSearchSpace)} - policy_fields | {
             "policy_kwargs"
@@ -490,11 +490,12 @@ def test_sampler_draws_inside_the_search_space():
             assert params[name] in getattr(space, name), name
         assert tuple(params["policy_kwargs"]["net_arch"]) in zoo.NET_ARCHS.values()
         assert params["policy_kwargs"]["critic_embed_dim"] in space.critic_embed_dim
+        assert params["policy_kwargs"]["critic_arch"] in space.critic_arch
         assert params["policy_kwargs"]["n_elite"] in space.n_elite
         # --trial-id reloads the same constructor arguments from the stored raw parameters.
         assert zoo.convert_ua2c_params(trial.params) == params
     # 30 random draws cover more than one chunk size: the sampler really samples.
-    for name in ("chunk_size", "discrete_entropy", "commit_discrete", "online_targets", "n_elite"):
+    for name in ("chunk_size", "discrete_entropy", "commit_discrete", "online_targets", "n_elite", "critic_arch"):
         assert len({t.params[name] for t in study.trials}) > 1, name
 
 
