@@ -11,7 +11,7 @@ import io
 import math
 import pathlib
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -264,23 +264,26 @@ class UA2C(OffPolicyAlgorithm):
         )
         self.policy = self.policy.to(self.device)
         if self.replay_buffer is None:
-            self.replay_buffer = ChunkReplayBuffer(
-                self.buffer_size,
-                self.observation_space,
-                self.action_space,
-                device=self.device,
-                n_envs=self.n_envs,
-                chunk_size=self.chunk_size,
-                history_len=self.history_len,
-                offline_ratio=self.offline_ratio,
-                online_targets=self.online_targets,
-                **self.replay_buffer_kwargs,
-            )
+            self.replay_buffer = self._make_replay_buffer(self.buffer_size)
         self._create_aliases()
         self._convert_train_freq()
         self._executor: AdaptiveChunkExecutor | None = None
         self._plan_lengths: deque[float] = deque(maxlen=1000)
         self._plan_entropy: deque[np.ndarray] = deque(maxlen=1000)
+
+    def _make_replay_buffer(self, buffer_size: int) -> ChunkReplayBuffer:
+        return ChunkReplayBuffer(
+            buffer_size,
+            self.observation_space,
+            self.action_space,
+            device=self.device,
+            n_envs=self.n_envs,
+            chunk_size=self.chunk_size,
+            history_len=self.history_len,
+            offline_ratio=self.offline_ratio,
+            online_targets=self.online_targets,
+            **self.replay_buffer_kwargs,
+        )
 
     def _create_aliases(self) -> None:
         self.actor = self.policy.actor
@@ -388,13 +391,18 @@ class UA2C(OffPolicyAlgorithm):
         :return: number of steps added
         """
 
-        def convert(ep: Any) -> OfflineEpisode:
+        return self.replay_buffer.add_offline_episodes(self._normalized_episodes(episodes, actions_normalized))
+
+    def _normalized_episodes(self, episodes: Iterable[Any], actions_normalized: bool) -> Iterator[OfflineEpisode]:
+        """Episodes as :class:`OfflineEpisode` with actions in [-1, 1] (rescaled unless ``actions_normalized``)."""
+        for ep in episodes:
             episode = OfflineEpisode.coerce(ep)
             if actions_normalized:
-                return episode
+                yield episode
+                continue
             actions = np.asarray(episode.actions, dtype=np.float32)
             scaled = self.policy.scale_action(actions.reshape(actions.shape[0], -1))
-            return OfflineEpisode(
+            yield OfflineEpisode(
                 episode.observations,
                 np.clip(scaled, -1.0, 1.0),
                 episode.rewards,
@@ -402,8 +410,6 @@ class UA2C(OffPolicyAlgorithm):
                 episode.truncations,
                 episode.next_observations,
             )
-
-        return self.replay_buffer.add_offline_episodes(convert(ep) for ep in episodes)
 
     def pretrain(
         self: SelfUA2C, n_gradient_steps: int, batch_size: int | None = None, log_interval: int = 1000
@@ -620,26 +626,41 @@ class UA2C(OffPolicyAlgorithm):
         """
         self.set_execution_rule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length)
 
-    def calibrate_execution(self, n_histories: int = 1024, n_samples: int = CALIBRATION_SAMPLES) -> np.ndarray:
+    def calibrate_execution(
+        self,
+        n_histories: int = 1024,
+        n_samples: int = CALIBRATION_SAMPLES,
+        episodes: Iterable[Any] | None = None,
+        actions_normalized: bool = False,
+    ) -> np.ndarray:
         """
         Calibrate ``execution_rule="quantile"``: draw ``n_histories`` histories from the replay buffer
-        (after Phase 1: the dataset), measure ``H_u`` at each with ``n_samples`` fresh-noise candidates,
-        and set the per-position thresholds ``delta_u`` to the ``entropy_quantile`` of ``H_u``
-        (:meth:`UA2CPolicy.calibrate_entropy_thresholds`). Saved with the model. The draw and the noise
-        come from the model's random generators (seeded by ``seed``), as a training batch's do.
+        (after Phase 1: the dataset) or from held-out ``episodes``, measure ``H_u`` at each with
+        ``n_samples`` fresh-noise candidates, and set the per-position thresholds ``delta_u`` to the
+        ``entropy_quantile`` of ``H_u`` (:meth:`UA2CPolicy.calibrate_entropy_thresholds`). Saved with the
+        model. The draw and the noise come from the model's random generators (seeded by ``seed``), as a
+        training batch's do.
 
         :param n_histories: histories drawn (with replacement, as a training batch)
         :param n_samples: candidates per history
+        :param episodes: held-out episodes to draw the histories from instead of the replay buffer (as
+            :meth:`add_offline_episodes` takes them): histories the model was not trained on
+        :param actions_normalized: with ``episodes``: their actions are already in [-1, 1]
         :return: the measured ``H_u``, shape ``(n_histories, k)``
         """
         check_int("n_histories", n_histories, low=2)
-        n_online, n_offline = self.replay_buffer.n_samples()
+        buffer = self.replay_buffer
+        if episodes is not None:
+            buffer = self._make_replay_buffer(self.chunk_size + self.history_len)  # an empty online ring
+            if buffer.add_offline_episodes(self._normalized_episodes(episodes, actions_normalized)) == 0:
+                raise ValueError("calibrate_execution: episodes holds no steps")
+        n_online, n_offline = buffer.n_samples()
         if n_online + n_offline == 0:
             raise ValueError(
                 "calibrate_execution needs histories in the replay buffer: add offline episodes "
-                "(add_offline_episodes) or collect steps first (learning_starts > 0)"
+                "(add_offline_episodes) or collect steps first (learning_starts > 0), or pass episodes="
             )
-        data = self.replay_buffer.sample(n_histories, env=self._vec_normalize_env)
+        data = buffer.sample(n_histories, env=self._vec_normalize_env)
         entropy = self.policy.calibrate_entropy_thresholds(data.observation_history, data.action_history, n_samples)
         return entropy.cpu().numpy()
 

@@ -102,8 +102,8 @@ def test_deterministic_noise_is_a_function_of_the_history_alone():
 
 
 def quantile_model(**kwargs) -> UA2C:
-    return UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, execution_rule="quantile",
-                **{**FAST, **kwargs})
+    return UA2C("MlpPolicy", "Pendulum-v1", chunk_size=4, history_len=3, execution_rule="quantile",
+                **{"seed": 0, **FAST, **kwargs})
 
 
 def test_learn_calibrates_the_quantile_rule_from_the_buffer_and_a_load_acts_with_it(tmp_path):
@@ -125,18 +125,39 @@ def test_learn_calibrates_the_quantile_rule_from_the_buffer_and_a_load_acts_with
     np.testing.assert_array_equal(model.policy.last_plan_lengths, loaded.policy.last_plan_lengths)
 
 
-def test_calibration_sets_the_quantile_of_the_measured_entropies():
-    model = quantile_model(entropy_quantile=0.25, learning_starts=0)
+def _random_episode(seed: int, steps: int = 40) -> dict[str, np.ndarray]:
     env = gym.make("Pendulum-v1")
-    obs, _ = env.reset(seed=0)
+    env.action_space.seed(seed)
+    obs, _ = env.reset(seed=seed)
     episode = {"observations": [obs], "actions": [], "rewards": [], "terminations": [], "truncations": []}
-    for _ in range(40):
+    for _ in range(steps):
         action = env.action_space.sample()
         obs, reward, terminated, truncated, _ = env.step(action)
         for key, value in zip(("observations", "actions", "rewards", "terminations", "truncations"),
                               (obs, action, reward, terminated, truncated), strict=True):
             episode[key].append(value)
-    model.add_offline_episodes([{k: np.asarray(v) for k, v in episode.items()}])
+    return {k: np.asarray(v) for k, v in episode.items()}
+
+
+def test_calibration_on_held_out_episodes_leaves_the_replay_buffer_alone():
+    # the same episode in the buffer or held out, the same seed: the same draws and thresholds
+    episode = _random_episode(seed=1)
+    in_buffer = quantile_model(entropy_quantile=0.5, learning_starts=0, seed=4)
+    in_buffer.add_offline_episodes([episode])
+    expected = in_buffer.calibrate_execution(n_histories=30, n_samples=32)
+    held_out = quantile_model(entropy_quantile=0.5, learning_starts=0, seed=4)
+    entropy = held_out.calibrate_execution(n_histories=30, n_samples=32, episodes=[episode])
+    np.testing.assert_array_equal(entropy, expected)
+    np.testing.assert_array_equal(held_out.policy.calibrated_thresholds.numpy(),
+                                  in_buffer.policy.calibrated_thresholds.numpy())
+    assert held_out.replay_buffer.n_samples() == (0, 0)
+    with pytest.raises(ValueError, match="episodes holds no steps"):
+        held_out.calibrate_execution(episodes=[])
+
+
+def test_calibration_sets_the_quantile_of_the_measured_entropies():
+    model = quantile_model(entropy_quantile=0.25, learning_starts=0)
+    model.add_offline_episodes([_random_episode(seed=0)])
     entropy = model.calibrate_execution(n_histories=50, n_samples=64)
     assert entropy.shape == (50, 4)
     np.testing.assert_allclose(model.policy.calibrated_thresholds.numpy(), np.quantile(entropy, 0.25, axis=0),
