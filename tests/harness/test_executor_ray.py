@@ -109,7 +109,7 @@ def test_peers_quick_on_a_ray_head_gives_the_local_numbers(tmp_path):
                                        f"127.0.0.1:{PORT}", "--out", str(tmp_path / "ray")])
     assert "[3/3] unit seed0/" in proc.stdout  # every arm ran as a Ray task
     local, on_ray = _arm_numbers(tmp_path / "local"), _arm_numbers(tmp_path / "ray")
-    assert sorted(on_ray) == sorted(local) == ["iql", "sac", "ua2c_adaptive"]
+    assert sorted(on_ray) == sorted(local) == ["iql", "iql_best_of_n", "sac", "ua2c_adaptive"]
     assert on_ray == local
 
 
