@@ -87,6 +87,9 @@ class PeersBudget:
         held-out scenarios (those of the records made before the split; UA2C's earlier choices were made on them)
     :param iql_best_of_n: IQL's final policy is also evaluated acting as UA2C does, by the best of this
         many sampled actions under its critic (the report's row ``iql_best_of_n``; 0: not)
+    :param peer_kwargs: per peer arm, hyperparameters on top of its defaults (a tuning configuration): SB3
+        constructor arguments for the SB3 arms (after ``sb3_hyperparams``), d3rlpy config arguments for the
+        d3rlpy arms (after their published settings), e.g. ``{"iql": {"expectile": 0.9, "weight_temp": 10.0}}``
     """
 
     ua2c: Fig2Budget = field(default_factory=lambda: FULL_BUDGET.replace(finetune_steps=5000))
@@ -96,6 +99,7 @@ class PeersBudget:
     rlpd_updates_per_step: int = 4
     scenarios: str = "test"
     iql_best_of_n: int = 32
+    peer_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.ua2c, Fig2Budget):
@@ -110,6 +114,14 @@ class PeersBudget:
         if self.scenarios not in SCENARIO_BASES:
             raise ValueError(f"PeersBudget.scenarios must be one of {list(SCENARIO_BASES)}, got {self.scenarios!r}")
         object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
+        if not isinstance(self.peer_kwargs, Mapping):
+            raise ValueError(f"PeersBudget.peer_kwargs must be a mapping of arm to mapping, got {self.peer_kwargs!r}")
+        for arm, kwargs in self.peer_kwargs.items():
+            if arm not in (*PEER_ARMS, "bc"):
+                raise ValueError(f"PeersBudget.peer_kwargs: {arm!r} is not a peer arm; choose from {[*PEER_ARMS, 'bc']}")
+            if not isinstance(kwargs, Mapping):
+                raise ValueError(f"PeersBudget.peer_kwargs[{arm!r}] must be a mapping, got {kwargs!r}")
+        object.__setattr__(self, "peer_kwargs", {a: dict(k) for a, k in self.peer_kwargs.items()})
 
     @property
     def online_steps(self) -> int:
@@ -123,6 +135,10 @@ class PeersBudget:
         if arm == "rlpd":  # RLPD learns online from the start, with the offline data in half of each batch
             return 0
         return self.ua2c.pretrain_steps if arm in UA2C_ARMS or arm in D3RLPY_ARMS else 0
+
+    def sb3_kwargs(self, arm: str) -> dict[str, Any]:
+        """Constructor arguments of an SB3 arm replacing its zoo file's: ``sb3_hyperparams``, then its ``peer_kwargs``."""
+        return {**self.sb3_hyperparams, **self.peer_kwargs.get(arm, {})}
 
     def updates_per_step(self, arm: str) -> int:
         """Gradient steps per online env step of a peer arm (the UA2C arms: see ``Fig2Budget``)."""
@@ -142,7 +158,7 @@ class PeersBudget:
         return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
                 "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps,
                 "rlpd_updates_per_step": self.rlpd_updates_per_step, "iql_best_of_n": self.iql_best_of_n,
-                "scenarios": self.scenarios}
+                "scenarios": self.scenarios, "peer_kwargs": {a: dict(k) for a, k in self.peer_kwargs.items()}}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
@@ -154,6 +170,16 @@ class PeersBudget:
         if "ua2c" in values:
             values["ua2c"] = Fig2Budget.from_dict(values["ua2c"])
         return cls(**values)
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> PeersBudget:
+        """A copy with ``overrides`` (``--budget``): PeersBudget keys replaced, ``"ua2c"``'s Fig2Budget keys one by
+        one, ``"peer_kwargs"`` arm by arm; a bad key or value raises ``ValueError`` naming it."""
+        values, overrides = self.to_dict(), dict(overrides)
+        for key in ("ua2c", "peer_kwargs"):
+            if not isinstance(overrides.get(key, {}), Mapping):
+                raise ValueError(f"--budget: {key!r} must be an object, got {overrides[key]!r}")
+            values[key] = {**values[key], **overrides.pop(key, {})}
+        return PeersBudget.from_dict({**values, **overrides})
 
     def with_online_steps(self, online_steps: int) -> PeersBudget:
         """A copy with ``online_steps`` online env steps for every arm."""
@@ -215,7 +241,7 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
         total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
         online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps * budget.updates_per_step(arm)
         return total + online * c.d3rlpy_online_ms[arm] * ms
-    starts = int(budget.sb3_hyperparams.get("learning_starts", 1000))
+    starts = int(budget.sb3_kwargs(arm).get("learning_starts", 1000))
     updates = max(budget.online_steps - starts, 0)
     return total + (updates * c.sb3_update_ms[arm] + (budget.online_steps - updates) * c.sb3_env_ms) * ms
 

@@ -9,6 +9,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from experiments.common.names import MAX_SEED, SCENARIO_BASES
@@ -48,10 +49,11 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
-    parser.add_argument("--budget", type=json_object_arg, default={},
+    parser.add_argument("--budget", type=budget_arg, default={},
                         help="PeersBudget overrides as JSON, on top of the default (or --quick) budget; \"ua2c\" "
                         "overrides Fig2Budget keys one by one, e.g. '{\"rlpd_updates_per_step\": 8, \"ua2c\": "
-                        "{\"algo_kwargs\": {\"q_weight\": 0.5}}}' (a tuning configuration)")
+                        "{\"algo_kwargs\": {\"q_weight\": 0.5}}}' (a tuning configuration), or @FILE for a JSON "
+                        "file (the tuning's selected.json)")
     parser.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
                         help="evaluation scenarios: validation (choices, tuning), test (reported numbers; default), "
                         "figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
@@ -70,6 +72,16 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
+def budget_arg(text: str) -> dict[str, Any]:
+    """argparse type of ``--budget``: a JSON object, or ``@FILE`` naming a file that holds one."""
+    if text.startswith("@"):
+        try:
+            text = Path(text[1:]).read_text()
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"cannot read {text[1:]!r}: {exc.strerror}") from exc
+    return json_object_arg(text)
+
+
 def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> tuple[list[int], list[str]]:
     """Validated, de-duplicated seeds and arms (a ``ValueError`` names the bad parameter)."""
     for s in seeds:
@@ -85,12 +97,7 @@ def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> 
 def _budget(args: argparse.Namespace) -> PeersBudget:
     budget = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
     if args.budget:
-        values = budget.to_dict()
-        overrides = dict(args.budget)
-        if not isinstance(overrides.get("ua2c", {}), dict):
-            raise ValueError(f"--budget: \"ua2c\" must be an object of Fig2Budget keys, got {overrides['ua2c']!r}")
-        values["ua2c"] = {**values["ua2c"], **overrides.pop("ua2c", {})}
-        budget = PeersBudget.from_dict({**values, **overrides})
+        budget = budget.with_overrides(args.budget)
     budget = dataclasses.replace(budget, scenarios=args.scenarios)
     return budget if args.online_steps is None else budget.with_online_steps(args.online_steps)
 

@@ -337,6 +337,8 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         f"reproductions; batch {summary['budget']['d3rlpy_batch_size']}, offline on the dataset, then `fit_online` "
         "with half of each batch from the offline data. Reference rows, nothing learned online: the dataset's "
         "behaviour policy on the same scenarios, and d3rlpy BC (offline only).",
+        *([f"- Settings on top of these (`peer_kwargs`, chosen on validation scenarios): {tuned}"]
+          if (tuned := summary["budget"].get("peer_kwargs")) else []),
     ]
 
 

@@ -68,8 +68,8 @@ def check_manifest(paths: PeersPaths, budget: PeersBudget) -> None:
     from sb3_ua2c.pipeline import write_json
 
     path, now = paths.work / MANIFEST, strict_json(budget.to_dict())
-    if path.is_file():
-        recorded = json.loads(path.read_text())
+    if path.is_file():  # read back through PeersBudget: a key added since the record holds its default
+        recorded = strict_json(_manifest_budget(json.loads(path.read_text())).to_dict())
         if recorded != now:
             differ = sorted(k for k in set(recorded) | set(now) if recorded.get(k) != now.get(k))
             raise ValueError(f"the run in {paths.work} was made with another budget (differs in {differ}); pass the "
@@ -78,14 +78,16 @@ def check_manifest(paths: PeersPaths, budget: PeersBudget) -> None:
     write_json(path, now)
 
 
-def read_manifest(paths: PeersPaths) -> PeersBudget | None:
-    path = paths.work / MANIFEST
-    if not path.is_file():
-        return None
-    values = json.loads(path.read_text())
+def _manifest_budget(values: dict[str, Any]) -> PeersBudget:
+    """The budget of a manifest (JSON: ``"inf"`` for an infinite δ)."""
     delta = values["ua2c"].get("delta_sweep")
     values["ua2c"]["delta_sweep"] = [math.inf if d == "inf" else d for d in delta or []]
     return PeersBudget.from_dict(values)
+
+
+def read_manifest(paths: PeersPaths) -> PeersBudget | None:
+    path = paths.work / MANIFEST
+    return _manifest_budget(json.loads(path.read_text())) if path.is_file() else None
 
 
 def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
@@ -132,16 +134,17 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
         fn, kwargs = run_ua2c_arm, {"arm": arm, "checkpoint": record["checkpoint"], "delta": budget.delta(arm),
                                     "finetune_overrides": overrides, "pretrain_record": record}
     elif arm in ONLINE_SB3_ARMS:
-        fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_hyperparams}
+        fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_kwargs(arm)}
     elif arm == "sac_offline_mix":
-        fn, kwargs = run_sb3_offline_mix, {"hyperparams": budget.sb3_hyperparams}
+        fn, kwargs = run_sb3_offline_mix, {"hyperparams": budget.sb3_kwargs(arm)}
     elif arm == "behaviour":
         fn, kwargs = run_behaviour, {}
     elif arm in D3RLPY_ARMS:
         fn, kwargs = run_d3rlpy, {"algo": arm, "offline_steps": budget.offline_steps(arm),
                                   "batch_size": budget.d3rlpy_batch_size,
                                   "updates_per_step": budget.updates_per_step(arm),
-                                  "best_of_n": budget.iql_best_of_n if arm == "iql" else 0}
+                                  "best_of_n": budget.iql_best_of_n if arm == "iql" else 0,
+                                  "config_kwargs": budget.peer_kwargs.get(arm, {})}
     else:
         raise ValueError(f"arms: unknown arm {arm!r}")
     return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))
