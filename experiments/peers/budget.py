@@ -230,10 +230,12 @@ def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None
     """Estimated CPU seconds of one peer unit (one arm, one seed)."""
     c = costs or PeerCostModel()
     ms = 1e-3
-    two_evals = arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS and budget.offline_steps(arm) > 0
-    best_of_n = arm == "iql" and budget.iql_best_of_n > 0  # one more evaluation, acting by best-of-N
-    evals = (2 if two_evals else 1) * budget.ua2c.eval_episodes * (1 + best_of_n) \
-        * steps_per_episode(budget.ua2c)
+    n_evals = 1  # the final evaluation
+    if arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS and budget.offline_steps(arm) > 0:
+        n_evals += 1  # the offline policy's
+    if arm == "iql" and budget.iql_best_of_n > 0:
+        n_evals += 1  # the final policy acting by best-of-N
+    evals = n_evals * budget.ua2c.eval_episodes * steps_per_episode(budget.ua2c)
     total = evals * c.eval_ms_per_step * ms
     if arm == "behaviour":
         return total
