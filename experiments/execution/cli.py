@@ -6,9 +6,11 @@ Examples::
     python -m experiments.execution --role confirmation --seeds 10 11 12 13 14 --online fixed growth0.5
     python -m experiments.execution --quick --out /tmp/exe                             # end to end in seconds
     python -m experiments.execution --role development --report-only                  # rebuild the report
+    python -m experiments.execution --env ogbench --role development --seeds 0 1 2    # OGBench pointmaze
 
-A development run evaluates on validation scenarios (seed base 3,000) and is where rules are chosen; a
-confirmation run evaluates on test scenarios (seed base 4,000) with seeds never used for a choice.
+A development run evaluates on validation scenarios (seed base 3,000; OGBench: reset seeds 20,000,000 +
+1000 s + i) and is where rules are chosen; a confirmation run evaluates on test scenarios (seed base 4,000;
+OGBench: the OGBench report's 10,000,000 + 1000 s + i) with seeds never used for a choice.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from experiments.common.names import SCENARIO_BASES
 from experiments.execution.controls import RULES
@@ -25,15 +28,24 @@ from experiments.execution.controls import RULES
 PROG = "python -m experiments.execution"
 #: the scenarios of each role (:data:`~experiments.common.names.SCENARIO_BASES`)
 ROLES = {"development": "validation", "confirmation": "test"}
-#: one evaluation episode (20 s of traffic, one replanning per step at worst) and one run's training, in
-#: CPU seconds on one thread of these 2-core machines (make main: 10 s data, 55 s Phase 1, 47 s Phase 2)
-EPISODE_SECONDS = 0.6
-TRAINING_SECONDS = {"data_and_phase1": 70.0, "phase2": 55.0}
+#: per task: one evaluation episode (MixedTraffic-v0: 20 s of traffic, one replanning per step at worst; OGBench
+#: pointmaze: a failed 1,000-step episode) and one run's training, in CPU seconds on one thread of these 2-core
+#: machines (make main: 10 s data, 55 s Phase 1, 47 s Phase 2; the OGBench report's units: 560 s and 200 s)
+EPISODE_SECONDS = {"traffic": 0.6, "ogbench": 2.5}
+TRAINING_SECONDS = {"traffic": {"data_and_phase1": 70.0, "phase2": 55.0},
+                    "ogbench": {"data_and_phase1": 560.0, "phase2": 200.0}}
+ENVS = ("traffic", "ogbench")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description="Execution rules against fixed chunks and matched-length "
-                                     "controls on MixedTraffic-v0 (make main's pipeline, one run per seed).")
+                                     "controls on MixedTraffic-v0 (make main's pipeline) or an OGBench task (the "
+                                     "OGBench harness's budget), one run per seed.")
+    parser.add_argument("--env", choices=ENVS, default="traffic",
+                        help="traffic: MixedTraffic-v0 (default); ogbench: the OGBench task of --task")
+    parser.add_argument("--task", default=None,
+                        help="OGBench task with --env ogbench (default: the OGBench harness's, "
+                             "pointmaze-medium-navigate-singletask-task1-v0)")
     parser.add_argument("--role", choices=sorted(ROLES), default="development",
                         help="development: validation scenarios; confirmation: test scenarios (default: development)")
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="run seeds (default: 0 1 2; --quick: 0 1)")
@@ -64,20 +76,43 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
-                     own_rule_only: bool = False) -> float:
+                     own_rule_only: bool = False, env: str = "traffic") -> float:
     """Wall minutes on ``workers`` cores: training plus the evaluations (a rule other than ``fixed`` comes with
     its two controls) of ``(1 + n_online)`` checkpoints × rules × 2 modes × episodes (with ``own_rule_only``,
     a fine-tuned checkpoint has at most 4 arms: fixed, its rule and the rule's controls)."""
-    per_seed = TRAINING_SECONDS["data_and_phase1"] + n_online * TRAINING_SECONDS["phase2"]
+    training = TRAINING_SECONDS[env]
+    per_seed = training["data_and_phase1"] + n_online * training["phase2"]
     arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)
-    per_seed += arms * 2 * episodes * EPISODE_SECONDS
+    per_seed += arms * 2 * episodes * EPISODE_SECONDS[env]
     return per_seed * n_seeds / 60.0 / max(1, min(workers, n_seeds))
+
+
+def _setup(args: argparse.Namespace) -> dict[str, Any]:
+    """What differs between the tasks: the run function, its budget, scenarios, score, report and work names."""
+    role = args.role
+    if args.env == "traffic":
+        from experiments.execution import unit
+
+        if args.task is not None:
+            raise ValueError("--task is for --env ogbench")
+        return {"run_seed": unit.run_seed, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
+                "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
+                "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role}
+    from experiments.execution import ogbench_unit
+    from experiments.ogbench.runner import DEFAULT_TASK
+    from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
+
+    task = args.task or DEFAULT_TASK
+    return {"run_seed": ogbench_unit.run_seed, "budget": ogbench_unit.study_budget(task, args.quick).to_dict(),
+            "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,
+            "extra": {"task": task}, "task": task, "metric": "success", "digits": 2,
+            "name": f"execution_ogbench_{role}", "work": f"ogbench_{role}"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from experiments.common.records import command_line, run_header
     from experiments.common.runner import Unit, make_executor, run_units
-    from experiments.execution import report, unit
+    from experiments.execution import report
     from sb3_ua2c.checks import check_int
 
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -88,40 +123,45 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     seeds = args.seeds or ([0, 1] if args.quick else [0, 1, 2])
-    budget = dict(unit.BUDGETS["quick" if args.quick else "full"])
+    try:
+        setup = _setup(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.episodes is not None:
         check_int("--episodes", args.episodes)
-        budget["eval_episodes"] = args.episodes
+        setup["budget"]["eval_episodes"] = args.episodes
     out = Path(args.out)
-    work = Path(args.work) if args.work else out / "execution_work"
-    name = f"execution_{args.role}"
-    base = SCENARIO_BASES[ROLES[args.role]]
-    units = [Unit(f"seed{s}", unit.run_seed,
-                  dict(seed=s, work=str(work / args.role), budget=budget, online_rules=args.online,
-                       screened_rules=args.rules, scenario_base=base, own_rule_only=args.own_rule_only),
-                  result_file=work / args.role / f"seed{s}.json") for s in seeds]
+    work = (Path(args.work) if args.work else out / "execution_work") / setup["work"]
+    units = [Unit(f"seed{s}", setup["run_seed"],
+                  dict(seed=s, work=str(work), budget=setup["budget"], online_rules=args.online,
+                       screened_rules=args.rules, scenario_base=setup["scenario_base"],
+                       own_rule_only=args.own_rule_only, **setup["extra"]),
+                  result_file=work / f"seed{s}.json") for s in seeds]
     if args.report_only:
         missing = [u.name for u in units if not u.result_file.is_file()]
         if missing:
-            print(f"error: no stored runs for {missing} under {work / args.role}", file=sys.stderr)
+            print(f"error: no stored runs for {missing} under {work}", file=sys.stderr)
             return 2
     else:
         todo = sum(not u.result_file.is_file() for u in units)  # stored runs are not run again
-        minutes = estimate_minutes(todo, len(args.online), len(args.rules), budget["eval_episodes"],
-                                   args.workers, args.own_rule_only) if todo else 0.0
+        minutes = estimate_minutes(todo, len(args.online), len(args.rules), setup["budget"]["eval_episodes"],
+                                   args.workers, args.own_rule_only, args.env) if todo else 0.0
         print(f"{PROG}: {args.role}, seeds {seeds}, online {args.online}, {len(args.rules)} rules; "
               f"estimate {minutes:.0f} min wall on {args.workers} worker(s)", flush=True)
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
+    name, metric = setup["name"], setup["metric"]
     command, date = run_header(command_line(PROG, argv), out / f"{name}.json" if args.report_only else None)
-    summary = report.summarize(records)
-    online = report.online_protocol(records)
-    header = [f"Command: `{command}`", f"Date: {date}", f"Role: {args.role} (scenario seed base {base}); seeds {seeds}",
+    summary = report.summarize(records, metric)
+    online = report.online_protocol(records, metric)
+    header = [f"Command: `{command}`", f"Date: {date}",
+              f"Role: {args.role} (scenario seed base {setup['scenario_base']}); seeds {seeds}",
               f"Budget per run: {records[0]['budget']}"]
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"command": command, "date": date, "role": args.role,
                                                   "seeds": seeds, "budget": records[0]["budget"], "summary": summary,
                                                   "online_protocol": online}, indent=1))
-    (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records), online))
+    (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records), online,
+                                                    task=setup["task"], metric=metric, digits=setup["digits"]))
     print(f"wrote {out / name}.md")
     return 0

@@ -38,8 +38,10 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
             for arm in arms:
                 entries = [r["checkpoints"][checkpoint][arm][mode] for r in records]
                 scores = [run_score(e, metric) for e in entries]
+                collision = "collision" in entries[0]["episodes"][0]  # MixedTraffic-v0's; OGBench has none
                 table[arm] = {"per_seed": scores, "mean": float(np.mean(scores)),
-                              "collision": float(np.mean([run_score(e, "collision") for e in entries])),
+                              "collision": float(np.mean([run_score(e, "collision") for e in entries])) if collision
+                              else None,
                               "length_shares": np.mean([e["length_shares"] for e in entries], axis=0).tolist()}
             for arm in arms:
                 if ":" in arm or arm == "fixed":
@@ -76,10 +78,10 @@ def online_protocol(records: Sequence[Mapping[str, Any]], metric: str = "reward"
     return out
 
 
-def _interval(p: Mapping[str, float] | None) -> str:
+def _interval(p: Mapping[str, float] | None, digits: int = 1) -> str:
     if p is None:
         return "n/a"
-    return f"{p['difference']:+.1f} [{p['ci_low']:+.1f}, {p['ci_high']:+.1f}]"
+    return f"{p['difference']:+.{digits}f} [{p['ci_low']:+.{digits}f}, {p['ci_high']:+.{digits}f}]"
 
 
 def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
@@ -113,20 +115,22 @@ def threshold_quantiles(records: Sequence[Mapping[str, Any]]) -> dict[str, list[
 
 
 def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapping[str, Sequence[float]] = {},
-             online: Mapping[str, Any] = {}) -> str:
+             online: Mapping[str, Any] = {}, task: str = "MixedTraffic-v0", metric: str = "reward",
+             digits: int = 1) -> str:
     """The overview, the online protocol (:func:`online_protocol`), the ``H_u`` quantiles and the tables of
-    :func:`summarize`, one per checkpoint and mode."""
-    lines = ["# Execution rules on MixedTraffic-v0", "", *header, "",
+    :func:`summarize`, one per checkpoint and mode; scores are ``metric`` with ``digits`` decimals."""
+    lines = [f"# Execution rules on {task}", "", *header, "",
              "## Overview", "",
              "Means over every checkpoint and mode below (descriptive; the intervals are in the tables).", "",
              "| rule | − fixed | − random cut | − fixed k' | mean L_t | cells |", "|---|---|---|---|---|---|"]
     for arm, row in overview(summary).items():
-        lines.append(f"| {arm} | {row['fixed']:+.1f} | {row['random']:+.1f} | {row['fixed_k']:+.1f} "
+        lines.append(f"| {arm} | {row['fixed']:+.{digits}f} | {row['random']:+.{digits}f} | {row['fixed_k']:+.{digits}f} "
                      f"| {row['mean_length']:.2f} | {row['cells']} |")
     if online:
         lines += ["", "## Online protocol (Figure 2 (c)): fine-tuned and acting with the rule, against fixed chunks",
-                  "", "| rule | mode | reward | fixed chunks | paired per seed |", "|---|---|---|---|---|"]
-        lines += [f"| {rule} | {mode} | {row['mean']:.1f} | {row['fixed_mean']:.1f} | {_interval(row['paired'])} |"
+                  "", f"| rule | mode | {metric} | fixed chunks | paired per seed |", "|---|---|---|---|---|"]
+        lines += [f"| {rule} | {mode} | {row['mean']:.{digits}f} | {row['fixed_mean']:.{digits}f} "
+                  f"| {_interval(row['paired'], digits)} |"
                   for rule, modes in online.items() for mode, row in modes.items()]
     if thresholds:
         lines += ["", "## H_u over dataset histories (pre-trained checkpoints, mean over runs)", "",
@@ -136,16 +140,17 @@ def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapp
     for checkpoint, modes in summary.items():
         for mode, table in modes.items():
             lines += [f"## {checkpoint}, {mode}", "",
-                      "| arm | reward (mean of runs) | collision | L_t = 1..k (% of plans) | − fixed | − random cut "
+                      f"| arm | {metric} (mean of runs) | collision | L_t = 1..k (% of plans) | − fixed | − random cut "
                       "| − fixed k' |", "|---|---|---|---|---|---|---|"]
             for arm, row in table.items():
                 paired = row.get("paired") or {}
                 random_cut = next((v for k, v in paired.items() if k.endswith(":random")), None)
                 k_cut = next((v for k, v in paired.items() if k.endswith(":fixed_k")), None)
-                cells = [_interval(paired["fixed"]) if "fixed" in paired else "",
-                         _interval(random_cut) if paired else "", _interval(k_cut) if paired else ""]
+                cells = [_interval(paired["fixed"], digits) if "fixed" in paired else "",
+                         _interval(random_cut, digits) if paired else "", _interval(k_cut, digits) if paired else ""]
                 shares = format_length_shares(row["length_shares"])
-                lines.append(f"| {arm} | {row['mean']:.1f} | {row['collision']:.2f} | {shares} "
+                collision = "—" if row["collision"] is None else f"{row['collision']:.2f}"
+                lines.append(f"| {arm} | {row['mean']:.{digits}f} | {collision} | {shares} "
                              f"| {' | '.join(cells)} |")
             lines.append("")
     return "\n".join(lines)

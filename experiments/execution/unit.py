@@ -5,7 +5,7 @@ noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -14,9 +14,10 @@ import numpy as np
 import torch as th
 
 from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
-from envs.evaluation import evaluate, plan_length_shares
+from envs.evaluation import evaluate
 from experiments.common.names import DATASET_SEED_BASE
 from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
+from sb3_ua2c.execution import length_shares
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
 
 #: ``make main``'s budget (``MAIN_BUDGET["full"]`` of ``sb3_ua2c/__main__.py``) and a smoke-test one
@@ -30,8 +31,23 @@ def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:
     return [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in results]
 
 
-def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], scenario_seed: int,
-                   n_episodes: int, settings: Mapping[str, Any], control_seed: int) -> dict[str, Any]:
+#: ``run_episodes(model, deterministic) -> (episode rows, executed lengths L_t of every plan)``: one evaluation
+EpisodeRunner = Callable[[Any, bool], tuple[list[dict[str, Any]], list[int]]]
+
+
+def traffic_episodes(scenario_seed: int, n_episodes: int, settings: Mapping[str, Any]) -> EpisodeRunner:
+    """MixedTraffic-v0's evaluation on the run's scenarios (:func:`envs.evaluation.evaluate`)."""
+
+    def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
+        results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
+                           deterministic=deterministic)
+        return _episode_rows(results), [n for e in results for n in e.plan_lengths]
+
+    return run
+
+
+def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], run_episodes: EpisodeRunner,
+                   control_seed: int) -> dict[str, Any]:
     """Each rule, deterministic and with fresh noise, then its controls (a random cut from the rule's own
     ``L_t`` histogram in that mode, and fixed ``k' = round(mean L_t)``): ``{arm: {mode: {...}}}``."""
     out: dict[str, Any] = {}
@@ -39,23 +55,19 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
         for mode, deterministic in (("deterministic", True), ("sampled", False)):
             apply_rule(model, RULES[name], calibration)
             thresholds = model.policy.calibrated_thresholds
-            results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
-                               deterministic=deterministic)
-            lengths = [n for e in results for n in e.plan_lengths]
-            shares = plan_length_shares(results, model.chunk_size)
-            entry = {"episodes": _episode_rows(results), "length_shares": shares,
-                     "thresholds": None if thresholds is None else thresholds.tolist()}
-            out.setdefault(name, {})[mode] = entry
+            rows, lengths = run_episodes(model, deterministic)
+            shares = length_shares(lengths, model.chunk_size)
+            out.setdefault(name, {})[mode] = {"episodes": rows, "length_shares": shares,
+                                              "thresholds": None if thresholds is None else thresholds.tolist()}
             if name == "fixed":
                 continue
             k_prime = int(np.clip(round(float(np.mean(lengths))), 1, model.chunk_size))
             for control, rule in ((f"{name}:random", RandomCut(shares, control_seed)),
                                   (f"{name}:fixed_k", FixedCut(k_prime, model.chunk_size))):
                 apply_control(model, rule)
-                results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,),
-                                   env_settings_=dict(settings), deterministic=deterministic)
-                out.setdefault(control, {})[mode] = {"episodes": _episode_rows(results), "k": k_prime,
-                                                     "length_shares": plan_length_shares(results, model.chunk_size)}
+                rows, control_lengths = run_episodes(model, deterministic)
+                out.setdefault(control, {})[mode] = {"episodes": rows, "k": k_prime,
+                                                     "length_shares": length_shares(control_lengths, model.chunk_size)}
             apply_rule(model, RULES["fixed"])
     return out
 
@@ -87,7 +99,7 @@ def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequ
             if own_rule_only and name != "offline":
                 rules = list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
             record["checkpoints"][name] = evaluate_rules(
-                model, rules, ds.episodes, scenario_base + seed, budget["eval_episodes"], settings,
+                model, rules, ds.episodes, traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings),
                 control_seed=seed)
     finally:
         env.close()

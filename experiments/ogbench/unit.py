@@ -37,8 +37,10 @@ ARMS: dict[str, dict[str, Any]] = {
     "onestep": {"chunk_size": 1},
 }
 
-#: Evaluation episode ``i`` of seed ``s`` resets with seed ``EVAL_SEED_BASE + 1000 * s + i``.
+#: Evaluation episode ``i`` of seed ``s`` resets with seed ``EVAL_SEED_BASE + 1000 * s + i``: the scenarios of
+#: the reported numbers (test). Choices (the execution-rule screen) use ``VALIDATION_SEED_BASE`` instead.
 EVAL_SEED_BASE = 10_000_000
+VALIDATION_SEED_BASE = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -132,19 +134,22 @@ def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> Off
     return OfflineDataset(path, to_episodes(train), *spaces, metadata)
 
 
-def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int) -> dict[str, Any]:
-    """Success rate of ``model`` (stateful ``predict``, deterministic candidates) over ``n_episodes``.
+def run_episodes(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int, deterministic: bool = True,
+                 seed_base: int = EVAL_SEED_BASE) -> tuple[list[dict[str, float]], list[int]]:
+    """``n_episodes`` of ``model`` (stateful ``predict``), episode ``i`` reset with seed ``seed_base + 1000 * seed + i``.
 
     An episode succeeds when the environment reports ``info["success"]`` (it then terminates).
-    ``length_shares``: the share of the plans with ``L_t = 1 .. k`` over all episodes.
+
+    :return: one row per episode (``success`` 0/1, ``return``, ``length`` in steps) and the executed length
+        ``L_t`` of every plan
     """
-    successes, lengths, returns, plans = [], [], [], []
+    rows, plans = [], []
     for i in range(n_episodes):
-        obs, _ = env.reset(seed=EVAL_SEED_BASE + 1000 * seed + i)
+        obs, _ = env.reset(seed=seed_base + 1000 * seed + i)
         state, start = None, np.ones(1, dtype=bool)
         done, success, total, steps = False, False, 0.0, 0
         while not done:
-            action, state = model.predict(obs, state=state, episode_start=start, deterministic=True)
+            action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
             if int(state.plan_position[0]) == 1:  # a plan was made at this step
                 plans.append(int(state.plan_length[0]))
             start = np.zeros(1, dtype=bool)
@@ -153,10 +158,16 @@ def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: 
             total += reward
             steps += 1
             done = terminated or truncated
-        successes.append(float(success))
-        lengths.append(steps)
-        returns.append(total)
-    return {"success": float(np.mean(successes)), "successes": successes, "lengths": lengths, "returns": returns,
+        rows.append({"success": float(success), "return": float(total), "length": steps})
+    return rows, plans
+
+
+def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int) -> dict[str, Any]:
+    """Success rate of ``model`` with deterministic candidates over ``n_episodes`` (:func:`run_episodes`).
+    ``length_shares``: the share of the plans with ``L_t = 1 .. k`` over all episodes."""
+    rows, plans = run_episodes(model, env, n_episodes, seed)
+    return {"success": float(np.mean([r["success"] for r in rows])), "successes": [r["success"] for r in rows],
+            "lengths": [r["length"] for r in rows], "returns": [r["return"] for r in rows],
             "length_shares": length_shares(plans, model.chunk_size)}
 
 

@@ -3,9 +3,13 @@ hand-made records, and bad input."""
 
 from __future__ import annotations
 
+import json
+import re
+
 import numpy as np
 import pytest
 import torch as th
+from extras import require
 
 from envs.evaluation import EpisodeMetrics, plan_length_shares
 from experiments.execution import cli
@@ -108,3 +112,37 @@ def test_quick_run_end_to_end_writes_the_report_and_resumes(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(args) == 0  # the stored run is reused
     assert "unit seed0" not in capsys.readouterr().out
+
+
+def test_ogbench_quick_run_scores_success_on_its_own_scenarios(tmp_path, capsys):
+    require("ogbench")
+    from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
+
+    argv = ["--env", "ogbench", "--quick", "--seeds", "0", "1", "--rules", "fixed", "growth0.5", "--online", "fixed",
+            "--out", str(tmp_path), "--workers", "1"]
+    assert cli.main(argv) == 0
+    records = [json.loads((tmp_path / "execution_work" / "ogbench_development" / f"seed{s}.json").read_text())
+               for s in (0, 1)]
+    assert [r["scenario_seed"] for r in records] == [VALIDATION_SEED_BASE, VALIDATION_SEED_BASE + 1000]
+    assert VALIDATION_SEED_BASE != EVAL_SEED_BASE  # the screen never sees the reported scenarios
+    offline = records[1]["checkpoints"]["offline"]
+    assert sorted(offline) == ["fixed", "growth0.5", "growth0.5:fixed_k", "growth0.5:random"]
+    episode = offline["growth0.5"]["sampled"]["episodes"][0]
+    assert set(episode) == {"success", "return", "length"} and episode["success"] in (0.0, 1.0)
+    assert offline["fixed"]["deterministic"]["length_shares"] == [0.0, 0.0, 0.0, 0.0, 1.0]  # k = 5, whole chunks
+    assert sorted(records[0]["checkpoints"]) == ["offline", "online_fixed"]
+    report = (tmp_path / "execution_ogbench_development.md").read_text()
+    assert report.startswith("# Execution rules on pointmaze-medium-navigate-singletask-task1-v0")
+    assert "| arm | success (mean of runs) | collision |" in report
+    assert re.search(r"^\| fixed \| [01]\.\d\d \| — \| 0 0 0 0 100 \|", report, re.M)  # a rate, no collisions
+    summary = json.loads((tmp_path / "execution_ogbench_development.json").read_text())["summary"]
+    fixed = summary["offline"]["deterministic"]["fixed"]
+    assert fixed["collision"] is None
+    assert fixed["per_seed"] == [run_score(r["checkpoints"]["offline"]["fixed"]["deterministic"], "success")
+                                 for r in records]
+
+
+def test_task_is_only_for_ogbench(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["--task", "pointmaze-medium-navigate-singletask-task1-v0"])
+    assert "--task is for --env ogbench" in capsys.readouterr().err
