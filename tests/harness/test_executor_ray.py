@@ -63,9 +63,9 @@ def _run_on_ray_head(tmp_path: Path, driver: list[str]) -> subprocess.CompletedP
     ])
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0",
            "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "tests"), os.environ.get("PYTHONPATH", "")])}
-    try:
+    try:  # about 40 s on idle cores, over 240 s next to two busy training processes
         proc = subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "sh", "-c", script],
-                              env=env, capture_output=True, text=True, timeout=600, cwd=REPO)  # ~40 s on idle cores; several times that next to busy ones
+                              env=env, capture_output=True, text=True, timeout=600, cwd=REPO)
     finally:
         shutil.rmtree(short, ignore_errors=True)
     log = (tmp_path / "ray.log").read_text() if (tmp_path / "ray.log").exists() else ""
