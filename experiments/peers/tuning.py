@@ -10,7 +10,8 @@ local processes or Ray).
 The choice: per method, the configuration with the highest mean final reward over its runs (one score
 per run, the mean over its evaluation episodes), once every configuration has a record for every seed;
 a tie keeps the earlier one. ``<out>/selected.json`` holds the ``--budget`` overrides of the chosen
-configurations, for the test run on other seeds and the test scenarios::
+configurations, written once every method is chosen, for the test run on other seeds and the test
+scenarios::
 
     python -m experiments.peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
 
@@ -169,8 +170,11 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
                          f"{', '.join(f'{r:.1f}' for r in row['reward']) or '—'} | "
                          f"{'—' if mean is None else f'{mean:.1f}'} | "
                          f"{', '.join(f'{c:.2f}' for c in row['collision']) or '—'} | {chosen} |")
-    lines += ["", "`selected.json`, the test run's `--budget` (a pending method keeps its published settings):", "",
-              "```json", json.dumps(summary["selected"], indent=1), "```", ""]
+    if any(m["chosen"] is None for m in summary["methods"].values()):
+        lines += ["", "Pending: `selected.json`, the test run's `--budget`, is written once every method is chosen.", ""]
+    else:
+        lines += ["", "`selected.json`, the test run's `--budget`:", "", "```json",
+                  json.dumps(summary["selected"], indent=1), "```", ""]
     return "\n".join(lines)
 
 
@@ -241,12 +245,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                "selected": selected_overrides(methods, base)}
     out.mkdir(parents=True, exist_ok=True)
     (out / "tuning.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (out / "selected.json").write_text(json.dumps(summary["selected"], indent=1) + "\n")
     (out / "tuning.md").write_text(format_markdown(summary))
     for arm, m in methods.items():
         print(f"{arm}: " + ("pending" if m["chosen"] is None else f"configuration {m['chosen']}, "
                             f"{GRID[arm][m['chosen']].label}"))
-    print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}, {out / 'selected.json'}")
+    selected = out / "selected.json"
+    if any(m["chosen"] is None for m in methods.values()):  # no test run from a partial choice
+        selected.unlink(missing_ok=True)
+        print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}; {selected.name} waits for every configuration")
+        return 0
+    selected.write_text(json.dumps(summary["selected"], indent=1) + "\n")
+    print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}, {selected}")
     return 0
 
 

@@ -124,6 +124,9 @@ def test_tuning_command_end_to_end_at_the_quick_budget(tmp_path, capsys):
     assert "unit" not in capsys.readouterr().out
     assert tuning.main(argv) == 0  # resumes: every unit is stored
     assert " unit " not in capsys.readouterr().out
+    assert tuning.main([*argv, "--report-only", "--seeds", "0", "1"]) == 0  # seed 1 never ran: no choice
+    assert not (tmp_path / "selected.json").exists()
+    assert "Pending: `selected.json`" in (tmp_path / "tuning.md").read_text()
     for bad in (["--arms", "behaviour"], ["--configs", "3"], ["--seeds", "-1"], ["--workers", "0"]):
         with pytest.raises(SystemExit):
             tuning.main([*bad, "--out", str(tmp_path / "bad")])
