@@ -15,7 +15,7 @@ from typing import Any
 import torch as th
 
 from experiments.execution.controls import RULES
-from experiments.execution.unit import EpisodeRunner, evaluate_rules
+from experiments.execution.unit import EpisodeRunner, checkpoint_rules, evaluate_rules
 from experiments.ogbench.env import OGBenchSingleTask
 from experiments.ogbench.runner import default_budget
 from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset, run_episodes
@@ -67,9 +67,7 @@ def run_seed(seed: int, work: str, budget: Mapping[str, Any], task: str, online_
     try:
         runner = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
         for name, ckpt in checkpoints.items():
-            rules = screened_rules
-            if own_rule_only and name != "offline":
-                rules = list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
+            rules = checkpoint_rules(name, screened_rules, own_rule_only)
             record["checkpoints"][name] = evaluate_rules(load_checkpoint(ckpt, env), rules, ds.episodes, runner,
                                                          control_seed=seed)
     finally:

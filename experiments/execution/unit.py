@@ -72,6 +72,14 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
     return out
 
 
+def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bool) -> list[str]:
+    """The rules checkpoint ``name`` is evaluated under: every screened rule, or, for a fine-tuned checkpoint
+    (``online_<rule>``) with ``own_rule_only``, fixed chunks and the rule it was trained with."""
+    if own_rule_only and name != "offline":
+        return list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
+    return list(screened_rules)
+
+
 def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
              screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
@@ -95,11 +103,8 @@ def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequ
     try:
         for name, path in checkpoints.items():
             model = load_checkpoint(path, env)
-            rules = screened_rules
-            if own_rule_only and name != "offline":
-                rules = list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
             record["checkpoints"][name] = evaluate_rules(
-                model, rules, ds.episodes, traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings),
+                model, checkpoint_rules(name, screened_rules, own_rule_only), ds.episodes, traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings),
                 control_seed=seed)
     finally:
         env.close()
