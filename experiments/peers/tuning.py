@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.names import MAX_SEED, SCENARIO_BASES
+from experiments.common.names import SCENARIO_BASES
 from experiments.common.records import command_line, run_header
 from experiments.common.runner import UnitsFailedError, make_executor
 from experiments.common.stats import run_scores
@@ -45,8 +45,8 @@ from experiments.peers.budget import (
     estimate_units,
     estimate_wall,
 )
+from experiments.peers.cli import check_selection
 from experiments.peers.runner import PeersPaths, load_records, run_peers
-from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments.peers.tuning"
 
@@ -195,16 +195,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _check(args: argparse.Namespace) -> None:
-    for s in args.seeds:
-        if not 0 <= s < MAX_SEED:
-            raise ValueError(f"--seeds must be integers in [0, {MAX_SEED}), got {s!r}")
+    check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
     unknown = [a for a in args.arms if a not in GRID]
     if unknown:
         raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")
     bad = [c for c in args.configs if not 0 <= c < N_CONFIGS]
     if bad:
         raise ValueError(f"--configs must be in [0, {N_CONFIGS}), got {bad}")
-    check_int("--workers", args.workers)
 
 
 def _run(args: argparse.Namespace, base: PeersBudget) -> None:
