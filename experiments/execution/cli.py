@@ -97,7 +97,7 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
             raise ValueError("--task is for --env ogbench")
         return {"run_seed": unit.run_seed, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
                 "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
-                "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role}
+                "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role, "secondary": None}
     from experiments.execution import ogbench_unit
     from experiments.ogbench.runner import DEFAULT_TASK
     from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
@@ -106,7 +106,9 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
     return {"run_seed": ogbench_unit.run_seed, "budget": ogbench_unit.study_budget(task, args.quick).to_dict(),
             "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,
             "extra": {"task": task}, "task": task, "metric": "success", "digits": 2,
-            "name": f"execution_ogbench_{role}", "work": f"ogbench_{role}"}
+            "name": f"execution_ogbench_{role}", "work": f"ogbench_{role}",
+            "secondary": ("return", "−1 per step until the goal, so a failed episode scores −1000; it separates rules "
+                          "that all reach the goal")}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -157,11 +159,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     header = [f"Command: `{command}`", f"Date: {date}",
               f"Role: {args.role} (scenario seed base {setup['scenario_base']}); seeds {seeds}",
               f"Budget per run: {records[0]['budget']}"]
+    second: dict[str, Any] = {}
+    if setup["secondary"]:
+        second_metric, meaning = setup["secondary"]
+        second = {"metric": second_metric, "summary": report.summarize(records, second_metric),
+                  "online_protocol": report.online_protocol(records, second_metric)}
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"command": command, "date": date, "role": args.role,
                                                   "seeds": seeds, "budget": records[0]["budget"], "summary": summary,
-                                                  "online_protocol": online}, indent=1))
+                                                  "online_protocol": online, "second_score": second}, indent=1))
+    second_lines = report.secondary_lines(second_metric, meaning, second["summary"], second["online_protocol"]) \
+        if second else []
     (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records), online,
-                                                    task=setup["task"], metric=metric, digits=setup["digits"]))
+                                                    task=setup["task"], metric=metric, digits=setup["digits"],
+                                                    secondary=second_lines))
     print(f"wrote {out / name}.md")
     return 0

@@ -14,7 +14,7 @@ from extras import require
 from envs.evaluation import EpisodeMetrics, plan_length_shares
 from experiments.execution import cli
 from experiments.execution.controls import FixedCut, RandomCut
-from experiments.execution.report import markdown, run_score, summarize
+from experiments.execution.report import markdown, run_score, secondary_lines, summarize
 
 
 def test_plan_length_shares_by_hand():
@@ -71,6 +71,17 @@ def test_summary_pairs_each_rule_with_fixed_and_its_controls_per_seed():
     assert table["fixed"]["collision"] == 0.0 and table["growth0.5:fixed_k"]["collision"] == 0.25
     assert "| growth0.5 | 25.0 | 0.00 | 0 100 | +17.5 [" in markdown(summarize(records), ["header"])
     assert run_score(_entry([1, 2, 6]), "reward") == 3.0
+
+
+def test_second_score_section_gives_the_overview_of_its_own_metric():
+    records = [_record(1, [10, 20], [30, 30], [10, 10], [20, 40]),
+               _record(0, [0, 0], [10, 30], [20, 20], [-10, 10])]
+    lines = secondary_lines("reward", "the same runs", summarize(records), {})
+    assert lines[0] == "## Second score: reward (the same runs)"
+    # both modes alike: − fixed 17.5, − random cut 10, − fixed k' 10 (see above); L_t = 2 in every plan; 2 cells
+    assert "| growth0.5 | +17.5 | +10.0 | +10.0 | 2.00 | 2 |" in lines
+    report = markdown(summarize(records), ["header"], secondary=lines)
+    assert report.index("## Second score") < report.index("## offline, deterministic")
 
 
 def test_cli_refuses_unknown_rules_and_a_screen_without_fixed(capsys):
@@ -140,6 +151,10 @@ def test_ogbench_quick_run_scores_success_on_its_own_scenarios(tmp_path, capsys)
     assert fixed["collision"] is None
     assert fixed["per_seed"] == [run_score(r["checkpoints"]["offline"]["fixed"]["deterministic"], "success")
                                  for r in records]
+    second = json.loads((tmp_path / "execution_ogbench_development.json").read_text())["second_score"]
+    assert second["metric"] == "return" and "## Second score: return (" in report
+    assert second["summary"]["offline"]["deterministic"]["fixed"]["per_seed"] == [
+        run_score(r["checkpoints"]["offline"]["fixed"]["deterministic"], "return") for r in records]
 
 
 def test_task_is_only_for_ogbench(capsys):
