@@ -160,16 +160,16 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"Role: {args.role} (scenario seed base {setup['scenario_base']}); seeds {seeds}",
               f"Budget per run: {records[0]['budget']}"]
     second: dict[str, Any] = {}
+    second_lines: list[str] = []
     if setup["secondary"]:
         second_metric, meaning = setup["secondary"]
         second = {"metric": second_metric, "summary": report.summarize(records, second_metric),
                   "online_protocol": report.online_protocol(records, second_metric)}
+        second_lines = report.secondary_lines(second_metric, meaning, second["summary"], second["online_protocol"])
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"command": command, "date": date, "role": args.role,
                                                   "seeds": seeds, "budget": records[0]["budget"], "summary": summary,
                                                   "online_protocol": online, "second_score": second}, indent=1))
-    second_lines = report.secondary_lines(second_metric, meaning, second["summary"], second["online_protocol"]) \
-        if second else []
     (out / f"{name}.md").write_text(report.markdown(summary, header, report.threshold_quantiles(records), online,
                                                     task=setup["task"], metric=metric, digits=setup["digits"],
                                                     secondary=second_lines))

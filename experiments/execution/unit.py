@@ -103,9 +103,9 @@ def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequ
     try:
         for name, path in checkpoints.items():
             model = load_checkpoint(path, env)
+            episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
             record["checkpoints"][name] = evaluate_rules(
-                model, checkpoint_rules(name, screened_rules, own_rule_only), ds.episodes, traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings),
-                control_seed=seed)
+                model, checkpoint_rules(name, screened_rules, own_rule_only), ds.episodes, episodes, control_seed=seed)
     finally:
         env.close()
     return record

@@ -141,6 +141,11 @@ def collect(out: str | Path, arms: Sequence[str], seeds: Sequence[int]) -> dict[
     return methods
 
 
+def every_method_chosen(methods: Mapping[str, Any]) -> bool:
+    """Whether every method has its choice, i.e. ``selected.json`` may feed a test run."""
+    return all(m["chosen"] is not None for m in methods.values())
+
+
 def selected_overrides(methods: Mapping[str, Any], base: PeersBudget) -> dict[str, Any]:
     """The ``--budget`` overrides of the chosen configurations (a method still pending keeps its published one)."""
     return overrides({arm: m["chosen"] for arm, m in methods.items() if m["chosen"] is not None}, base)
@@ -170,7 +175,7 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
                          f"{', '.join(f'{r:.1f}' for r in row['reward']) or '—'} | "
                          f"{'—' if mean is None else f'{mean:.1f}'} | "
                          f"{', '.join(f'{c:.2f}' for c in row['collision']) or '—'} | {chosen} |")
-    if any(m["chosen"] is None for m in summary["methods"].values()):
+    if not every_method_chosen(summary["methods"]):
         lines += ["", "Pending: `selected.json`, the test run's `--budget`, is written once every method is chosen.", ""]
     else:
         lines += ["", "`selected.json`, the test run's `--budget`:", "", "```json",
@@ -247,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{arm}: " + ("pending" if m["chosen"] is None else f"configuration {m['chosen']}, "
                             f"{GRID[arm][m['chosen']].label}"))
     selected = out / "selected.json"
-    if any(m["chosen"] is None for m in methods.values()):  # no test run from a partial choice
+    if not every_method_chosen(methods):  # no test run from a partial choice
         selected.unlink(missing_ok=True)
         print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}; {selected.name} waits for every configuration")
         return 0
