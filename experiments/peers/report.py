@@ -36,6 +36,15 @@ METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_
 #: Metrics of the probability of improvement.
 POI_METRICS = ("reward", "collision", "merge_success", "jerk_per_step")
 CURVE_BINS = 20
+#: Figure 2's claims (a)-(c) read from the UA2C arms of a run: claim -> (arm X, arm Y, metric, evaluation,
+#: higher is better). (a), (b): the offline chunk policy (whole chunks) against the one-step baseline;
+#: (c): adaptive against fixed execution after the online phase.
+FIGURE2_CLAIMS = {
+    "(a) offline reward, chunks (k = 5) vs one-step": ("ua2c_fixed", "ua2c_onestep", "reward", "offline_evaluation", True),
+    "(b) offline cum. jerk, chunks vs one-step": ("ua2c_fixed", "ua2c_onestep", "cumulative_jerk", "offline_evaluation",
+                                                 False),
+    "(c) online reward, adaptive vs fixed chunks": ("ua2c_adaptive", "ua2c_fixed", "reward", "evaluation", True),
+}
 
 
 def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
@@ -158,8 +167,39 @@ def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, 
     return out
 
 
+def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
+    """Figure 2's claims (:data:`FIGURE2_CLAIMS`) within this run: for each claim whose two arms ran on
+    2 or more shared seeds, the paired per-seed difference (positive: X does better; for jerk, X is
+    smoother) with its interval, and the two arms' means over those seeds."""
+    out = {}
+    for claim, (x, y, metric, evaluation, higher) in FIGURE2_CLAIMS.items():
+        shared = sorted({r["seed"] for r in records.get(x, ())} & {r["seed"] for r in records.get(y, ())})
+        if len(shared) < 2:
+            continue
+        xs, ys = ([r for r in records[a] if r["seed"] in shared] for a in (x, y))
+        if not all(r.get(evaluation) for r in (*xs, *ys)):
+            continue
+        sx, sy = run_scores(xs, metric, evaluation), run_scores(ys, metric, evaluation)  # (n_shared,)
+        out[claim] = {"x": x, "y": y, "metric": metric, "evaluation": evaluation, "x_mean": float(sx.mean()),
+                      "y_mean": float(sy.mean()), **paired_difference(sx, sy, higher_is_better=higher)}
+    return out
+
+
+def figure2_lines(summary: Mapping[str, Any]) -> list[str]:
+    """The claims of :func:`figure2_claims` as Markdown table rows, or one line saying why there are none."""
+    claims = summary.get("figure2") or {}
+    if not claims:
+        return ["The run lacks the UA2C arms these claims compare (fixed, one-step, adaptive)."]
+    lines = ["| claim | X | Y | paired difference, X better when > 0 [95 % CI] | X ahead in |", "|---|---|---|---|---|"]
+    for claim, c in claims.items():
+        lines.append(f"| {claim} | {c['x_mean']:.2f} | {c['y_mean']:.2f} | {c['difference']:+.2f} "
+                     f"[{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] | {c['x_better_runs']} of {c['runs']} |")
+    return lines
+
+
 def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 2000) -> dict[str, Any]:
-    """``peers.json`` without its header: per arm (:func:`arm_summary`) and per (UA2C arm, peer) pair."""
+    """``peers.json`` without its header: per arm (:func:`arm_summary`), per (UA2C arm, peer) pair and
+    Figure 2's claims among the UA2C arms (:func:`figure2_claims`)."""
     arms = [a for a in ARMS if records.get(a)] + sorted(set(records) - set(ARMS))
     if not arms:
         raise ValueError("no arm records to aggregate: run the units first")
@@ -168,6 +208,7 @@ def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 20
     return {
         "arms": {a: arm_summary(records[a], reps) for a in arms},
         "pairs": {f"{o}_vs_{p}": {"ua2c": o, "peer": p, **pair_summary(records, o, p, reps)} for o in ours for p in peers},
+        "figure2": figure2_claims(records),
     }
 
 
@@ -378,6 +419,14 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "## Executed lengths L_t (evaluation plans, pooled over runs)",
         "",
         *lengths_table(summary),
+        "",
+        "## Figure 2's claims among the UA2C arms of this run (paired per seed)",
+        "",
+        *figure2_lines(summary),
+        "",
+        "X and Y are the means over the shared seeds. (a), (b): the offline checkpoints, the chunk policy "
+        "executing whole chunks against the one-step baseline; (b) is a cost, so a positive difference means the "
+        "chunk policy is smoother. (c): after the online phase, δ = 0 against δ = inf from the same checkpoint.",
         "",
         "## Probability of improvement of each UA2C arm over each peer (over runs)",
         "",

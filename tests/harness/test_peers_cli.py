@@ -238,6 +238,35 @@ def test_headline_names_the_best_of_each_side():
                     "collision rate 0.50 vs 0.50.")
 
 
+def test_figure2_claims_pair_the_ua2c_arms_per_seed():
+    from experiments.peers.report import figure2_claims, figure2_lines
+
+    records = {  # offline episodes carry the online episodes' jerk (10 x the online reward) in _record
+        "ua2c_fixed": [_record("ua2c_fixed", 0, [1.0, 1.0], [(50, 1.0)], offline=[2.0, 4.0]),
+                       _record("ua2c_fixed", 1, [2.0, 2.0], [(50, 1.0)], offline=[4.0, 6.0])],
+        "ua2c_onestep": [_record("ua2c_onestep", 0, [3.0, 3.0], [(50, 1.0)], offline=[1.0, 1.0]),
+                         _record("ua2c_onestep", 1, [5.0, 5.0], [(50, 1.0)], offline=[2.0, 2.0]),
+                         _record("ua2c_onestep", 2, [9.0, 9.0], [(50, 1.0)], offline=[9.0, 9.0])],
+        "ua2c_adaptive": [_record("ua2c_adaptive", s, [r, r], [(50, 1.0)], offline=[0.0, 0.0])
+                          for s, r in ((0, 4.0), (1, 6.0))],
+    }
+    claims = figure2_claims(records)
+    (a, b, c) = claims.values()
+    # (a) offline reward over the shared seeds 0, 1 (seed 2 has no fixed run): fixed 3, 5; one-step 1, 2
+    assert (a["x_mean"], a["y_mean"], a["difference"], a["x_better_runs"], a["runs"]) == (4.0, 1.5, 2.5, 2, 2)
+    # differences 2 and 3: standard error 0.5, t(0.975, 1) = 12.706
+    assert (a["ci_low"], a["ci_high"]) == pytest.approx((2.5 - 6.353, 2.5 + 6.353), abs=1e-3)
+    # (b) jerk is a cost: one-step minus chunks, 30 - 10 and 50 - 20
+    assert (b["x_mean"], b["y_mean"], b["difference"]) == (15.0, 40.0, 25.0)
+    # (c) online reward, adaptive minus fixed: 4 - 1, 6 - 2
+    assert c["difference"] == 3.5 and c["evaluation"] == "evaluation"
+    assert figure2_lines({"figure2": claims})[2] == (
+        "| (a) offline reward, chunks (k = 5) vs one-step | 4.00 | 1.50 | +2.50 [-3.85, +8.85] | 2 of 2 |")
+    del records["ua2c_onestep"]
+    assert list(figure2_claims(records)) == ["(c) online reward, adaptive vs fixed chunks"]
+    assert figure2_lines({"figure2": {}})[0].startswith("The run lacks")
+
+
 def test_length_shares_pool_the_plans_of_every_run_and_say_when_none_were_kept():
     from experiments.peers.report import arm_length_shares, lengths_table
 
