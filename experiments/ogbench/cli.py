@@ -6,12 +6,14 @@ Examples::
     python -m experiments.ogbench --quick --out /tmp/ogb           # end to end in seconds (CI)
     python -m experiments.ogbench --report-only                    # rebuild results/ogbench.* from stored units
     python -m experiments.ogbench --arms fixed --seeds 1           # one unit alone (the others are kept)
+    python -m experiments.ogbench --seeds 10 11 12 --episodes 20 --out results/ogbench_test   # other seeds
     python -m experiments.ogbench --ray-address auto --work /shared/ogbench   # on a Ray cluster
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shlex
 import sys
@@ -28,7 +30,11 @@ def build_parser(prog: str = "python -m experiments.ogbench") -> argparse.Argume
         prog=prog, description="OGBench single-task benchmark: offline pre-training on locally generated data, then "
         "online fine-tuning, per arm and seed; success rates with rliable statistics. Resumable.")
     parser.add_argument("--task", default=DEFAULT_TASK, help=f"OGBench single-task name (default: {DEFAULT_TASK})")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: 5; 2 with --quick)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="run seeds (default: 0 1 2 3 4; 0 1 with --quick)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="evaluation episodes per checkpoint (default: the task's budget, 50; episode i of "
+                             "seed s resets with seed 10,000,000 + 1000 s + i, the test scenarios)")
     parser.add_argument("--arms", nargs="+", default=list(ARMS), help=f"arms among {list(ARMS)} (default: all)")
     parser.add_argument("--out", default="results", help="report directory: ogbench.md, ogbench.json, PNGs")
     parser.add_argument("--work", default=None,
@@ -64,9 +70,15 @@ def _run(args: argparse.Namespace, command: str) -> int:
 
     runner.check_task(args.task)
     arms = runner.check_arms(args.arms)
-    seeds = runner.seeds_arg(args.seeds if args.seeds is not None else 2 if args.quick else 5)
+    seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
     budget = runner.default_budget(args.task, quick=args.quick)
+    if args.episodes is not None:
+        check_int("--episodes", args.episodes)
+        if args.episodes > 1000:  # episode i of seed s resets with base + 1000 s + i
+            raise ValueError(f"--episodes must be <= 1000 (more would replay the next seed's scenarios), "
+                             f"got {args.episodes}")
+        budget = dataclasses.replace(budget, eval_episodes=args.episodes)
     out = Path(args.out)
     work = Path(args.work) if args.work else out / "ogbench_work"
     data_ready = dataset_file(args.task, budget, work / "data").is_file()

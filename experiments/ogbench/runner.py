@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -199,11 +199,13 @@ def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: s
     return records
 
 
-def seeds_arg(value: int) -> list[int]:
-    """``--seeds N`` -> seeds ``0..N-1``."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"--seeds must be an integer >= 1, got {value!r}")
-    return list(range(value))
+def seeds_arg(values: Iterable[int]) -> list[int]:
+    """``--seeds S [S ...]`` -> the distinct seeds in increasing order; each an integer in ``[0, 1000)``
+    (episode ``i`` of seed ``s`` resets with ``base + 1000 * s + i``, so larger seeds would meet the next base)."""
+    seeds = list(values)
+    if not seeds or any(isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < 1000 for s in seeds):
+        raise ValueError(f"--seeds must be one or more integers in [0, 1000), got {seeds!r}")
+    return sorted(set(seeds))
 
 
 __all__ = [

@@ -111,7 +111,10 @@ def test_work_directory_of_another_budget_is_refused(quick_run):
     (["--task", "cube-single-v0"], "--task: task must be an OGBench single-task"),
     (["--task", "puzzle-3x3-play-singletask-task1-v0"], "--task: no budget is set for 'puzzle-3x3'"),
     (["--arms", "fixed", "qc"], r"--arms: unknown arm\(s\) \['qc'\]"),
-    (["--seeds", "0"], "--seeds must be an integer >= 1"),
+    (["--seeds", "-1"], r"--seeds must be one or more integers in \[0, 1000\), got \[-1\]"),
+    (["--seeds", "3", "1000"], r"--seeds must be one or more integers in \[0, 1000\)"),
+    (["--episodes", "0"], "--episodes must be an integer >= 1"),
+    (["--episodes", "1001"], "--episodes must be <= 1000"),
     (["--workers", "0"], "--workers"),
 ])
 def test_bad_input_is_a_clear_error(argv, message, capsys):
@@ -121,6 +124,27 @@ def test_bad_input_is_a_clear_error(argv, message, capsys):
     assert main(["--quick", "--out", "unused", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and re.search(message, err), err
+
+
+def test_chosen_seeds_and_episodes_reach_the_units(tmp_path):
+    require("ogbench")
+    from experiments.ogbench.cli import main
+
+    assert main(["--quick", "--seeds", "3", "--episodes", "3", "--arms", "onestep", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "ogbench.json").read_text())
+    assert report["arms"]["onestep"]["seeds"] == [3] and report["budget"]["eval_episodes"] == 3
+    unit = tmp_path / "ogbench_work" / "units" / report["task"] / "onestep-s3" / "record.json"
+    record = json.loads(unit.read_text())
+    assert len(record["eval_offline"]["successes"]) == len(record["eval_online"]["successes"]) == 3
+
+
+def test_seeds_are_a_list_kept_distinct_and_sorted():
+    from experiments.ogbench.runner import seeds_arg
+
+    assert seeds_arg([12, 10, 12]) == [10, 12]
+    assert seeds_arg(range(5)) == [0, 1, 2, 3, 4]  # the default
+    with pytest.raises(ValueError, match="--seeds"):
+        seeds_arg([])
 
 
 # ------------------------------------------------------------------------------------ estimate
