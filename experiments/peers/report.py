@@ -122,8 +122,8 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
     areas = [learning_curve_area([e["end_step"] for e in r["online_episodes"]], [e["reward"] for e in r["online_episodes"]])
              if r["online_episodes"] else float("nan") for r in ordered]
     online_steps = int(records[0]["online_steps"])
-    curve = None  # an offline-only reference row has no online phase
-    if online_steps > 0:
+    curve = None  # an offline-only reference row, or an evaluation variant of another arm, has no curve
+    if online_steps > 0 and all(r["online_episodes"] for r in records):
         curves = np.array([binned_curve(r["online_episodes"], online_steps) for r in ordered])
         curve = {"env_steps": [online_steps * (i + 1) / CURVE_BINS for i in range(CURVE_BINS)],
                  **curve_band(curves, reps=reps)}
@@ -306,7 +306,7 @@ def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
     from matplotlib.figure import Figure
 
     arms = summary["arms"]
-    fig = Figure(figsize=(7.5, 4.5), dpi=120)  # no pyplot: the caller's backend stays untouched
+    fig = Figure(figsize=(10, 4.5), dpi=120)  # no pyplot: the caller's backend stays untouched
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     for name, arm in arms.items():
@@ -318,7 +318,7 @@ def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
     ax.set_xlabel("online env steps")
     ax.set_ylabel("training episode return")
     ax.set_title("Online learning curves (mean over seeds, 95 % bootstrap band)", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the curves, not over them
     fig.tight_layout()
     curves = out / "peers_curves.png"
     fig.savefig(curves)

@@ -181,7 +181,8 @@ def load_records(paths: PeersPaths, seeds: Sequence[int] | None = None) -> dict[
             record = json.loads(f.read_text())
             out.setdefault(record["arm"], []).append(record)
             if record.get("evaluation_best_of_n"):  # the same policy acting by best-of-N: a row of its own
+                # (its training is the base arm's: no learning curve of its own)
                 best = {**record, "arm": f"{record['arm']}_best_of_n", "evaluation": record["evaluation_best_of_n"],
-                        "offline_evaluation": None}
+                        "offline_evaluation": None, "online_episodes": []}
                 out.setdefault(best["arm"], []).append(best)
     return out

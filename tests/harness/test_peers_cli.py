@@ -61,6 +61,10 @@ def test_quick_run_writes_the_report_with_every_arm(quick_run):
     for ref in (*_records(quick_run, "bc"), *_records(quick_run, "behaviour")):  # no online phase, one evaluation
         assert ref["online_steps"] == 0 and ref["online_episodes"] == [] and ref["evaluation"] == ref["offline_evaluation"]
     assert summary["arms"]["bc"]["curve"] is None and summary["arms"]["rebrac"]["curve"] is not None
+    # the best-of-N row evaluates IQL's policy: IQL's training, so no curve or curve area of its own
+    best, iql_arm = summary["arms"]["iql_best_of_n"], summary["arms"]["iql"]
+    assert best["curve"] is None and "mean" not in best["curve_area"]
+    assert iql_arm["curve"] is not None and "mean" in iql_arm["curve_area"]
     rlpd = _records(quick_run, "rlpd")[0]
     assert rlpd["offline_steps"] == 0 and rlpd["hyperparams"]["updates_per_step"] == 4
     assert rlpd["hyperparams"]["config"]["critic_encoder_factory"]["params"]["use_layer_norm"] is True
