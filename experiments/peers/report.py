@@ -159,12 +159,23 @@ def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, 
     out: dict[str, Any] = {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
                                                          higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
                            for m in POI_METRICS}
-    shared = sorted({r["seed"] for r in records[ours]} & {r["seed"] for r in records[peer]})
-    if len(shared) >= 2:
-        x = run_scores([r for r in records[ours] if r["seed"] in shared], "reward")
-        y = run_scores([r for r in records[peer] if r["seed"] in shared], "reward")
-        out["reward_paired"] = paired_difference(x, y)
+    scores = shared_seed_scores(records, ours, peer, "reward")
+    if scores is not None:
+        out["reward_paired"] = paired_difference(*scores)
     return out
+
+
+def shared_seed_scores(records: Mapping[str, Sequence[Mapping[str, Any]]], x: str, y: str, metric: str,
+                       evaluation: str = "evaluation") -> tuple[np.ndarray, np.ndarray] | None:
+    """One score per run of arms ``x`` and ``y`` on the seeds both ran (``(n_shared,)`` each, seed by seed),
+    or ``None`` when they share fewer than 2 seeds or a record lacks ``evaluation``."""
+    shared = sorted({r["seed"] for r in records.get(x, ())} & {r["seed"] for r in records.get(y, ())})
+    if len(shared) < 2:
+        return None
+    xs, ys = ([r for r in records[a] if r["seed"] in shared] for a in (x, y))
+    if not all(r.get(evaluation) for r in (*xs, *ys)):
+        return None
+    return run_scores(xs, metric, evaluation), run_scores(ys, metric, evaluation)
 
 
 def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
@@ -173,13 +184,10 @@ def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[s
     smoother) with its interval, and the two arms' means over those seeds."""
     out = {}
     for claim, (x, y, metric, evaluation, higher) in FIGURE2_CLAIMS.items():
-        shared = sorted({r["seed"] for r in records.get(x, ())} & {r["seed"] for r in records.get(y, ())})
-        if len(shared) < 2:
+        scores = shared_seed_scores(records, x, y, metric, evaluation)
+        if scores is None:
             continue
-        xs, ys = ([r for r in records[a] if r["seed"] in shared] for a in (x, y))
-        if not all(r.get(evaluation) for r in (*xs, *ys)):
-            continue
-        sx, sy = run_scores(xs, metric, evaluation), run_scores(ys, metric, evaluation)  # (n_shared,)
+        sx, sy = scores  # (n_shared,) each
         out[claim] = {"x": x, "y": y, "metric": metric, "evaluation": evaluation, "x_mean": float(sx.mean()),
                       "y_mean": float(sy.mean()), **paired_difference(sx, sy, higher_is_better=higher)}
     return out
