@@ -1,0 +1,145 @@
+"""The paired per-seed difference of any two arms, within one run or across two runs.
+
+Usage::
+
+    python -m experiments.analysis.paired X Y [--metric reward] [--offline] [--lower-is-better]
+
+``X`` and ``Y`` each name one score per seed, in one of two forms:
+
+- ``RAW_DIR:ARM``: the unit records of a head-to-head run (``<out>/peers_raw``, one
+  ``seed<s>/<arm>.json`` per run). A run's score is the mean of ``--metric`` over its evaluation
+  episodes (``--offline``: over the evaluation after the offline phase). The two arms must have
+  used the same dataset and evaluation scenarios on every shared seed, or they are not paired and
+  the command says so.
+- ``FILE.json:KEY.KEY...``: a list of per-seed scores inside a report, e.g.
+  ``results/ogbench_test/ogbench.json:arms.onestep.online``. Its seeds are the nearest ``seeds``
+  list on the way down the key path (the list's parent first, the file's top level last).
+
+It prints both arms' means over the seeds they share and the mean paired difference X − Y with its
+Student-t interval (:func:`experiments.common.stats.paired_difference`; with ``--lower-is-better``
+the difference is Y − X, so that a positive number always means X does better). This is how the
+cross-run differences quoted in ``docs/peers.md`` and ``docs/research-log.md`` are reproduced from
+the committed records.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.stats import paired_difference, run_scores
+
+
+@dataclass(frozen=True)
+class SeedScores:
+    """One score per seed of one arm, and what must match for two arms to be paired."""
+
+    name: str
+    scores: dict[int, float]  # seed -> score of that run
+    conditions: dict[int, Any]  # seed -> (dataset seed, evaluation seeds); empty when the source has none
+
+
+def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
+    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``), one score per run."""
+    files = sorted(raw.glob(f"seed*/{arm}.json"))
+    if not files:
+        arms = sorted({f.stem for f in raw.glob("seed*/*.json")})
+        raise ValueError(f"no records of arm {arm!r} under {raw}; arms there: {arms}")
+    scores, conditions = {}, {}
+    for f in files:
+        record = json.loads(f.read_text())
+        if not record.get(evaluation):
+            raise ValueError(f"{f} has no {evaluation!r} (an online-only arm has no offline evaluation)")
+        scores[record["seed"]] = float(run_scores([record], metric, evaluation)[0])
+        conditions[record["seed"]] = (record["dataset"].get("seed"), tuple(record["eval_seeds"]))
+    return SeedScores(f"{raw}:{arm}", scores, conditions)
+
+
+def json_scores(path: Path, keys: Sequence[str]) -> SeedScores:
+    """The per-seed list at ``keys`` inside the JSON file ``path``, with the nearest ``seeds`` list."""
+    node: Any = json.loads(path.read_text())
+    seeds = node.get("seeds") if isinstance(node, Mapping) else None
+    for i, key in enumerate(keys):
+        if not isinstance(node, Mapping) or key not in node:
+            options = sorted(node) if isinstance(node, Mapping) else type(node).__name__
+            raise ValueError(f"{path}: no key {key!r} at {'.'.join(keys[:i]) or 'the top level'}; there: {options}")
+        seeds = node.get("seeds", seeds)
+        node = node[key]
+    if not isinstance(node, list) or not all(isinstance(v, (int, float)) for v in node):
+        raise ValueError(f"{path}:{'.'.join(keys)} is not a list of numbers")
+    if not isinstance(seeds, list) or len(seeds) != len(node):
+        raise ValueError(f"{path}:{'.'.join(keys)} has {len(node)} scores but the nearest 'seeds' is {seeds!r}")
+    return SeedScores(f"{path}:{'.'.join(keys)}", {int(s): float(v) for s, v in zip(seeds, node, strict=True)}, {})
+
+
+def load_scores(spec: str, metric: str, evaluation: str) -> SeedScores:
+    """:func:`raw_scores` or :func:`json_scores`, from ``RAW_DIR:ARM`` or ``FILE.json:KEY.KEY...``."""
+    where, sep, what = spec.rpartition(":")
+    if not sep or not where or not what:
+        raise ValueError(f"{spec!r}: expected RAW_DIR:ARM or FILE.json:KEY.KEY...")
+    path = Path(where)
+    if path.suffix == ".json":
+        if not path.is_file():
+            raise ValueError(f"{spec!r}: no file {path}")
+        return json_scores(path, what.split("."))
+    if not path.is_dir():
+        raise ValueError(f"{spec!r}: no directory {path}")
+    return raw_scores(path, what, metric, evaluation)
+
+
+def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[str, Any]:
+    """Both arms' means over their shared seeds and :func:`paired_difference` (positive: X does better)."""
+    shared = sorted(set(x.scores) & set(y.scores))
+    if len(shared) < 2:
+        raise ValueError(f"{x.name} and {y.name} share {len(shared)} seed(s); a paired interval needs 2")
+    if x.conditions and y.conditions:
+        differ = [s for s in shared if x.conditions[s] != y.conditions[s]]
+        if differ:
+            raise ValueError(f"not paired: on seed(s) {differ} the two runs used different datasets or "
+                             f"evaluation scenarios ({x.conditions[differ[0]]} vs {y.conditions[differ[0]]})")
+    sx = np.array([x.scores[s] for s in shared])  # (n_shared,)
+    sy = np.array([y.scores[s] for s in shared])  # (n_shared,)
+    return {"seeds": shared, "x_mean": float(sx.mean()), "y_mean": float(sy.mean()),
+            **paired_difference(sx, sy, higher_is_better=higher_is_better)}
+
+
+def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str) -> str:
+    """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval."""
+    if not (x.conditions and y.conditions):  # a report's list: its metric is whatever the list holds
+        metric = "score"
+    return (f"X = {x.name}: {result['x_mean']:.2f}\nY = {y.name}: {result['y_mean']:.2f}\n"
+            f"{metric}, X better when > 0, paired over seeds {result['seeds']}: {result['difference']:+.2f} "
+            f"[{result['ci_low']:+.2f}, {result['ci_high']:+.2f}] (95 % Student-t); "
+            f"X ahead in {result['x_better_runs']} of {result['runs']} runs")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.analysis.paired",
+                                     description="Paired per-seed difference X − Y of two arms or runs.")
+    parser.add_argument("x", metavar="X", help="RAW_DIR:ARM or FILE.json:KEY.KEY...")
+    parser.add_argument("y", metavar="Y", help="RAW_DIR:ARM or FILE.json:KEY.KEY...")
+    parser.add_argument("--metric", default="reward",
+                        help="episode metric of RAW_DIR:ARM (default reward; collision, cumulative_jerk, ...)")
+    parser.add_argument("--offline", action="store_true",
+                        help="RAW_DIR:ARM: score the evaluation after the offline phase")
+    parser.add_argument("--lower-is-better", action="store_true", help="a cost (jerk, collision): report Y − X")
+    args = parser.parse_args(argv)
+    evaluation = "offline_evaluation" if args.offline else "evaluation"
+    try:
+        x, y = (load_scores(s, args.metric, evaluation) for s in (args.x, args.y))
+        result = pair(x, y, higher_is_better=not args.lower_is_better)
+    except ValueError as exc:
+        parser.error(str(exc))
+    print(format_pair(x, y, result, args.metric))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
