@@ -145,10 +145,14 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
                   "", "| arm | offline | online |", "|---|---|---|"]
         lines += [f"| {LABELS.get(arm, arm)} | {format_length_shares(s['offline']['length_shares'])} "
                   f"| {format_length_shares(s['online'].get('length_shares', []))} |" for arm, s in shares]
-    lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
-              "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t interval:", "",
-              "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",
-              "|---|---|---|---|---|"]
+    if not summary["improvement"]:
+        lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments.analysis.paired` "
+                  "pairs its per-seed rates with another run's on the same seeds)."]
+    else:
+        lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
+                  "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t "
+                  "interval:", "", "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",
+                  "|---|---|---|---|---|"]
     for pair, p in summary["improvement"].items():
         paired = [f"{_pct(p[f'{ph}_paired']['difference'])} [{_pct(p[f'{ph}_paired']['ci_low'])}, "
                   f"{_pct(p[f'{ph}_paired']['ci_high'])}]" if f"{ph}_paired" in p else "–" for ph in PHASES]

@@ -236,6 +236,9 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
     assert centres.tolist() == [25.0, 75.0] and means.tolist() == [-15.0, -5.0]
     failing = [_record("fixed", 0, [0, 0], [0, 0]), _record("onestep", 0, [0, 0], [0, 0])]
     assert "**No arm exceeds 10 % success at this budget**" in format_markdown(summarize(failing, reps=50))
+    one_arm = format_markdown(summarize(hand_records[3:], reps=50))  # the one-step arm alone
+    assert "One arm ran: no pair of arms" in one_arm and "| X > Y |" not in one_arm
+    assert "| X > Y |" in text  # two arms: the table of pairs
 
 
 def test_report_rejects_mixed_tasks_and_reads_run_rates(hand_records):
