@@ -8,11 +8,13 @@ Usage::
 
 - ``RAW_DIR:ARM``: the unit records of a head-to-head run (``<out>/peers_raw``, one
   ``seed<s>/<arm>.json`` per run). A run's score is the mean of ``--metric`` over its evaluation
-  episodes (``--offline``: over the evaluation after the offline phase). The two arms must have
+  episodes (``--offline``: the evaluation after the offline phase). ``ARM_best_of_n`` (e.g.
+  ``iql_best_of_n``) is the report's row of a peer acting by the best of N actions under its critic,
+  read from the peer's records. The two arms must have
   used the same dataset and evaluation scenarios on every shared seed, or they are not paired and
   the command says so.
 - ``FILE.json:KEY.KEY...``: a list of per-seed scores inside a report, e.g.
-  ``results/ogbench_test/ogbench.json:arms.onestep.online``. Its seeds are the nearest ``seeds``
+  ``results/ogbench_test/ogbench.json:arms.onestep.online.per_seed``. Its seeds are the nearest ``seeds``
   list on the way down the key path (the list's parent first, the file's top level last).
 
 It prints both arms' means over the seeds they share and the mean paired difference X − Y with its
@@ -36,6 +38,10 @@ import numpy as np
 
 from experiments.common.stats import paired_difference, run_scores
 
+#: The suffix of a report row whose peer acts by the best of N actions under its critic
+#: (:func:`experiments.peers.runner.load_records`)
+BEST_OF_N = "_best_of_n"
+
 
 @dataclass(frozen=True)
 class SeedScores:
@@ -47,7 +53,11 @@ class SeedScores:
 
 
 def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
-    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``), one score per run."""
+    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``), one score per run; for
+    ``<peer>_best_of_n``, the peer's records scored on their best-of-N evaluation."""
+    row, base = arm, arm.removesuffix(BEST_OF_N)
+    if base != arm and evaluation == "evaluation" and not any(raw.glob(f"seed*/{arm}.json")):
+        arm, evaluation = base, "evaluation_best_of_n"
     files = sorted(raw.glob(f"seed*/{arm}.json"))
     if not files:
         arms = sorted({f.stem for f in raw.glob("seed*/*.json")})
@@ -56,10 +66,11 @@ def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
     for f in files:
         record = json.loads(f.read_text())
         if not record.get(evaluation):
-            raise ValueError(f"{f} has no {evaluation!r} (an online-only arm has no offline evaluation)")
+            raise ValueError(f"{f} has no {evaluation!r}" + (" (an online-only arm has no offline evaluation)"
+                                                             if evaluation == "offline_evaluation" else ""))
         scores[record["seed"]] = float(run_scores([record], metric, evaluation)[0])
         conditions[record["seed"]] = (record["dataset"].get("seed"), tuple(record["eval_seeds"]))
-    return SeedScores(f"{raw}:{arm}", scores, conditions)
+    return SeedScores(f"{raw}:{row}", scores, conditions)
 
 
 def json_scores(path: Path, keys: Sequence[str]) -> SeedScores:

@@ -76,6 +76,20 @@ def test_main_prints_the_difference(runs, capsys):
     assert "+2.00 [-0.48, +4.48]" in out and "X ahead in 3 of 3 runs" in out
 
 
+def test_a_best_of_n_row_reads_the_peers_records(tmp_path, runs):
+    a, b = runs
+    for f in sorted(b.glob("seed*/y.json")):  # y acting by the best of N: its rewards + 10
+        record = json.loads(f.read_text())
+        best = [{**e, "reward": e["reward"] + 10.0} for e in record["evaluation"]["episodes"]]
+        f.write_text(json.dumps({**record, "evaluation_best_of_n": {"episodes": best}}))
+    best = paired.load_scores(f"{b}:y_best_of_n", "reward", "evaluation")
+    assert best.scores == {1: 12.0, 2: 13.0, 3: 15.0, 4: 110.0}
+    result = paired.pair(paired.load_scores(f"{a}:x", "reward", "evaluation"), best)
+    assert result["difference"] == pytest.approx(-8.0)
+    with pytest.raises(ValueError, match="has no 'evaluation_best_of_n'$"):  # x has no best-of-N evaluation
+        paired.load_scores(f"{a}:x_best_of_n", "reward", "evaluation")
+
+
 @pytest.mark.parametrize("spec, message", [
     ("nocolon", "expected RAW_DIR:ARM"),
     ("{a}:missing", "no records of arm 'missing'"),
