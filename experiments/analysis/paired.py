@@ -15,7 +15,9 @@ Usage::
   the command says so.
 - ``FILE.json:KEY.KEY...``: a list of per-seed scores inside a report, e.g.
   ``results/ogbench_test/ogbench.json:arms.onestep.online.per_seed``. Its seeds are the nearest ``seeds``
-  list on the way down the key path (the list's parent first, the file's top level last).
+  list on the way down the key path (the list's parent first, the file's top level last). A list
+  carries no dataset or scenarios, so nothing checks that it pairs: name lists of runs that share
+  their seeds' data and evaluation (the report says which).
 
 It prints both arms' means over the seeds they share and the mean paired difference X − Y with its
 Student-t interval (:func:`experiments.common.stats.paired_difference`; with ``--lower-is-better``
