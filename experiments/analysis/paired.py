@@ -39,10 +39,7 @@ from typing import Any
 import numpy as np
 
 from experiments.common.stats import paired_difference, run_scores
-
-#: The suffix of a report row whose peer acts by the best of N actions under its critic
-#: (:func:`experiments.peers.runner.load_records`)
-BEST_OF_N = "_best_of_n"
+from experiments.peers.runner import PeersPaths, load_records
 
 
 @dataclass(frozen=True)
@@ -55,24 +52,23 @@ class SeedScores:
 
 
 def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
-    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``), one score per run; for
-    ``<peer>_best_of_n``, the peer's records scored on their best-of-N evaluation."""
-    row, base = arm, arm.removesuffix(BEST_OF_N)
-    if base != arm and evaluation == "evaluation" and not any(raw.glob(f"seed*/{arm}.json")):
-        arm, evaluation = base, "evaluation_best_of_n"
-    files = sorted(raw.glob(f"seed*/{arm}.json"))
-    if not files:
-        arms = sorted({f.stem for f in raw.glob("seed*/*.json")})
-        raise ValueError(f"no records of arm {arm!r} under {raw}; arms there: {arms}")
-    scores, conditions = {}, {}
-    for f in files:
-        record = json.loads(f.read_text())
+    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``, or the ``<peer>_best_of_n`` row
+    that :func:`~experiments.peers.runner.load_records` derives from a peer's records), one score per run."""
+    records = load_records(PeersPaths(raw.parent, raw, raw.parent))
+    base = arm.removesuffix("_best_of_n")
+    if arm not in records and base in records:  # the peer ran, but was not evaluated by best of N
+        raise ValueError(f"{base!r} under {raw} has no 'evaluation_best_of_n'")
+    if arm not in records:
+        raise ValueError(f"no records of arm {arm!r} under {raw}; arms there: {sorted(records)}")
+    runs = sorted(records[arm], key=lambda r: r["seed"])  # run_scores' order
+    for record in runs:
         if not record.get(evaluation):
-            raise ValueError(f"{f} has no {evaluation!r}" + (" (an online-only arm has no offline evaluation)"
-                                                             if evaluation == "offline_evaluation" else ""))
-        scores[record["seed"]] = float(run_scores([record], metric, evaluation)[0])
-        conditions[record["seed"]] = (record["dataset"].get("seed"), tuple(record["eval_seeds"]))
-    return SeedScores(f"{raw}:{row}", scores, conditions)
+            raise ValueError(f"seed {record['seed']} of {arm!r} has no {evaluation!r}"
+                             + (" (an online-only arm has no offline evaluation)"
+                                if evaluation == "offline_evaluation" else ""))
+    scores = run_scores(runs, metric, evaluation)  # (n_runs,)
+    return SeedScores(f"{raw}:{arm}", {r["seed"]: float(v) for r, v in zip(runs, scores, strict=True)},
+                      {r["seed"]: (r["dataset"].get("seed"), tuple(r["eval_seeds"])) for r in runs})
 
 
 def json_scores(path: Path, keys: Sequence[str]) -> SeedScores:
