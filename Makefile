@@ -17,7 +17,7 @@ $(STAMP): setup.cfg pyproject.toml
 install: $(STAMP)
 
 main: $(STAMP)
-	$(PY) -m sb3_ua2c main
+	$(PY) -m envs main
 
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow"

@@ -11,8 +11,9 @@ module             role
 ``scenario``       the road network and the scenario generator; ``sumo``: the libsumo adapter
 ``style``          driving-style inference (Eq. 5): the classifier, its data and training
 ``wrappers``       :class:`DrivingStyleContext`, the style context c_t of Eq. 6 in the observation
-``collection``     the SUMO behaviour policy, offline dataset collection, :func:`make_env`
+``collection``     the SUMO behaviour policy, offline dataset collection, :func:`make_traffic_env`
 ``evaluation``     reward, jerk, collision, merge and L_t of a checkpoint on seeded scenarios
+``cli``            the traffic job's command line, ``python -m envs`` (console script ``ua2c``)
 ================== ============================================================================
 """
 
@@ -22,7 +23,7 @@ from envs.mdp import SLOT_FEATURES, SLOT_NAMES, STYLES, RewardConfig
 
 __all__ = [
     "STYLES", "SLOT_NAMES", "SLOT_FEATURES", "RewardConfig", "MixedTrafficConfig", "MixedTrafficEnv",
-    "DrivingStyleContext", "TRAFFIC_DEFAULTS", "make_env",
+    "DrivingStyleContext", "TRAFFIC_DEFAULTS", "make_traffic_env",
 ]
 
 if "MixedTraffic-v0" not in registry:
@@ -33,7 +34,7 @@ _LAZY = {
     "MixedTrafficConfig": "envs.mixed_traffic",
     "DrivingStyleContext": "envs.wrappers",
     "TRAFFIC_DEFAULTS": "envs.collection",
-    "make_env": "envs.collection",
+    "make_traffic_env": "envs.collection",
 }
 
 

@@ -1,6 +1,7 @@
 """Offline data of ``MixedTraffic-v0``: the SUMO behaviour policy, dataset collection, and the
-environment every offline-to-online stage rebuilds from a dataset's metadata (with the
-driving-style context c_t when the dataset records a ``style_classifier``)."""
+environment every offline-to-online stage rebuilds from a dataset's metadata
+(:func:`make_traffic_env`: with the driving-style context c_t when the dataset records a
+``style_classifier``)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ua2c import offline
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset, write_dataset
 
@@ -77,12 +79,15 @@ class BehaviourConfig:
         return cls(**values)
 
 
-def make_env(
+def make_traffic_env(
     env_id: str = "MixedTraffic-v0",
     env_kwargs: dict[str, Any] | None = None,
     style_classifier: str | os.PathLike | None = None,
 ) -> gym.Env:
-    """Create the environment used by every offline-to-online stage (same spaces everywhere).
+    """The environment a traffic dataset's metadata names (:func:`sb3_ua2c.pipeline.env_settings`):
+    the algorithm's generic :func:`sb3_ua2c.offline.make_env`, plus the driving-style context c_t
+    (Eq. 6) when the dataset records a ``style_classifier``. Pass it as ``make_env=`` to
+    :func:`sb3_ua2c.pipeline.pretrain` / :func:`~sb3_ua2c.pipeline.finetune`.
 
     :param env_id: a registered gymnasium id (``import envs`` registers ``MixedTraffic-v0``)
     :param env_kwargs: keyword arguments of the environment
@@ -90,9 +95,7 @@ def make_env(
         ``"default"`` for the packaged one; when given, observations carry the driving-style
         context c_t (Eq. 6) through :class:`~envs.wrappers.DrivingStyleContext`
     """
-    import envs  # noqa: F401  (registers MixedTraffic-v0)
-
-    env = gym.make(env_id, **(env_kwargs or {}))
+    env = offline.make_env(env_id, env_kwargs)
     if style_classifier is not None:
         from envs.wrappers import DrivingStyleContext
 
@@ -231,7 +234,7 @@ def collect_dataset(
     :return: the dataset, loaded back from disk
     """
     behaviour = behaviour or BehaviourConfig()
-    env = make_env(env_id, env_kwargs, style_classifier)
+    env = make_traffic_env(env_id, env_kwargs, style_classifier)
     try:
         episodes = collect_episodes(env, n_episodes, behaviour, seed=seed, progress_bar=progress_bar)
         metadata = {

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from envs.collection import BehaviourConfig, BehaviourDriver, make_env
+from envs.collection import BehaviourConfig, BehaviourDriver, make_traffic_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.execution import length_shares
@@ -64,7 +64,7 @@ def evaluate(
         takes none of the UA2C overrides below
     :param n_episodes: episodes per seed
     :param seeds: evaluation seeds
-    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
+    :param env_settings_: :func:`~envs.collection.make_traffic_env` arguments (default ``MixedTraffic-v0``)
     :param entropy_threshold: override δ for execution
     :param deterministic: fixed candidate noise (see ``UA2CPolicy.predict``); ``False``: fresh,
         seeded noise per replanning
@@ -73,7 +73,7 @@ def evaluate(
     """
     check_int("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
-    env = make_env(**settings)
+    env = make_traffic_env(**settings)
     try:
         if isinstance(checkpoint, str | os.PathLike):
             model = load_checkpoint(checkpoint, env)
@@ -164,11 +164,11 @@ def evaluate_behaviour(
         dataset's is in its metadata, ``behaviour_config``)
     :param n_episodes: episodes per seed
     :param seeds: evaluation seeds
-    :param env_settings_: ``make_env`` arguments (default ``MixedTraffic-v0``)
+    :param env_settings_: :func:`~envs.collection.make_traffic_env` arguments (default ``MixedTraffic-v0``)
     """
     check_int("n_episodes", n_episodes)
     behaviour = behaviour or BehaviourConfig()
-    env = make_env(**dict(env_settings_ or {"env_id": "MixedTraffic-v0"}))
+    env = make_traffic_env(**dict(env_settings_ or {"env_id": "MixedTraffic-v0"}))
     try:
         results = []
         for s in seeds:

@@ -253,7 +253,7 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, **settings: 
     convention), so that no import is needed first. A dataset written by an application package
     may record further settings (e.g. ``style_classifier`` of ``envs``): this generic maker
     builds only datasets whose further settings are all ``None``; pass the application's own maker
-    (``make_env=envs.make_env``) to the stages of :mod:`sb3_ua2c.pipeline` otherwise.
+    (``make_env=envs.make_traffic_env``) to the stages of :mod:`sb3_ua2c.pipeline` otherwise.
 
     :param env_id: a registered gymnasium id
     :param env_kwargs: keyword arguments of the environment
@@ -263,7 +263,7 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, **settings: 
     if given:
         raise ValueError(
             f"the dataset records the setting(s) {given}, which the generic make_env cannot apply: "
-            f"pass the make_env of the package that wrote the dataset (e.g. envs.make_env)"
+            f"pass the make_env of the package that wrote the dataset (e.g. envs.make_traffic_env)"
         )
     return gym.make(env_id, **(env_kwargs or {}))
 

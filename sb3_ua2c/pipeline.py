@@ -137,7 +137,7 @@ def finetune(
     dataset: str | os.PathLike | OfflineDataset | None = None,
     env_settings_: dict[str, Any] | None = None,
     offline_ratio: float | None = None,
-    entropy_threshold: float | None = None,
+    entropy_threshold: float | str | None = None,
     seed: int = 0,
     progress_bar: bool = False,
     callback: Any = None,
@@ -157,7 +157,9 @@ def finetune(
     :param dataset: offline data kept in the replay buffer (its metadata also defines the env)
     :param env_settings_: ``make_env`` arguments when no dataset is given
     :param offline_ratio: override the checkpoint's offline mixing ratio
-    :param entropy_threshold: override δ (``inf`` = fixed chunk execution)
+    :param entropy_threshold: override δ of Eq. 7: a float (``inf`` = fixed chunk execution) or
+        ``"auto"`` (set from recent plans, as ``UA2C(entropy_threshold="auto")``); ``None`` keeps the
+        checkpoint's
     :param seed: seed of the online phase
     :param callback: SB3 callback(s) passed to ``learn``
     :param algo_overrides: further attributes to override on load (e.g. ``{"gradient_steps": 1}``);

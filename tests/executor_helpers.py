@@ -21,9 +21,9 @@ def fail(message: str) -> None:
 
 def sumo_episode(seed: int, accel: float = 1.0, time_limit: float = 2.0) -> dict[str, float]:
     """A short MixedTraffic-v0 episode at constant acceleration: its return and length (uses libsumo)."""
-    from envs.collection import make_env
+    from envs.collection import make_traffic_env
 
-    env = make_env(env_kwargs={"time_limit": time_limit})
+    env = make_traffic_env(env_kwargs={"time_limit": time_limit})
     try:
         env.reset(seed=seed)
         total, steps, done = 0.0, 0, False

@@ -1,10 +1,12 @@
 """The layout the docs promise (docs/layout.md): three one-way layers, modules small enough to read,
 and a wheel that holds the algorithm and the traffic application, never a research harness.
 
-* ``sb3_ua2c``: the algorithm. Imports neither ``envs`` nor ``experiments``; its command line
-  (``sb3_ua2c/__main__.py``, the user's traffic job) may import ``envs``.
-* ``envs``: the traffic application. May import ``sb3_ua2c``, never ``experiments``.
+* ``sb3_ua2c``: the algorithm. Imports neither ``envs`` nor ``experiments``, with no exception.
+* ``envs``: the traffic application, with the traffic job's command line (``python -m envs``).
+  May import ``sb3_ua2c``, never ``experiments``.
 * ``experiments``: the research harnesses of a checkout, outside the wheel. May import both.
+
+No import cycle exists between the modules of the three packages.
 """
 
 import ast
@@ -27,8 +29,6 @@ FORBIDDEN = {
     "envs": {"experiments", "ray", "d3rlpy", "rliable", "ogbench"},
     "experiments": set(),
 }
-#: What the user's command line (``python -m sb3_ua2c``) may import beyond the library.
-ENTRY_SCRIPT_MAY_IMPORT = {"envs"}
 #: Modules that ``import sb3_ua2c`` / ``import envs`` must not load.
 HEAVY = ("envs", "experiments", "libsumo", "traci", "sumolib", "ray", "d3rlpy", "rliable", "ogbench", "minari",
          "optuna", "rl_zoo3")
@@ -80,14 +80,83 @@ def test_module_length(path: Path) -> None:
 def test_layers_import_one_way(path: Path) -> None:
     layer = path.relative_to(ROOT).parts[0]
     tops = {name.split(".")[0] for name in imported_modules(path.read_text(encoding="utf-8"), _package_of(path))}
-    forbidden = FORBIDDEN[layer] - (ENTRY_SCRIPT_MAY_IMPORT if _rel(path) == "sb3_ua2c/__main__.py" else set())
-    assert not tops & forbidden, f"{_rel(path)} imports {sorted(tops & forbidden)} (layer {layer})"
+    assert not tops & FORBIDDEN[layer], f"{_rel(path)} imports {sorted(tops & FORBIDDEN[layer])} (layer {layer})"
 
 
-@pytest.mark.parametrize("path", MODULES, ids=_rel)
-def test_no_module_imports_the_entry_script(path: Path) -> None:
-    if path.name != "__main__.py":
-        assert "sb3_ua2c.__main__" not in imported_modules(path.read_text(encoding="utf-8"), _package_of(path))
+def test_the_algorithm_has_no_command_line_of_the_traffic_job() -> None:
+    assert not (ROOT / "sb3_ua2c" / "__main__.py").exists()
+    assert (ROOT / "envs" / "__main__.py").is_file()
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if path.name == "__init__.py" else parts)
+
+
+def import_edges(source: str, package: str, modules: set[str]) -> set[str]:
+    """The modules of ``modules`` that ``source`` imports, anywhere (lazily or not): ``import a.b`` and
+    ``from a.b import c`` name ``a.b``, or ``a.b.c`` when that is a module of ``modules``; relative
+    imports are resolved against ``package``. Importing ``a.b`` also runs ``a/__init__.py``; that
+    implicit edge to a parent package is not counted (every submodule would close a cycle with it)."""
+    names = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            (base,) = imported_modules(ast.unparse(node), package)
+            names |= {f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base for alias in node.names}
+    return names & modules
+
+
+def import_graph(paths: list[Path]) -> dict[str, set[str]]:
+    """Module name -> the modules it imports (:func:`import_edges`), over ``paths``."""
+    names = {_module_name(p): p for p in paths}
+    return {name: import_edges(p.read_text(encoding="utf-8"), _package_of(p), set(names)) - {name}
+            for name, p in names.items()}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One import cycle of ``graph`` (``[a, b, ..., a]``), or ``[]`` when it is acyclic (depth-first search)."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return [*path[path.index(nxt):], nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        state[node] = 2
+        path.pop()
+        return []
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return []
+
+
+def test_find_cycle_by_hand() -> None:
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert find_cycle({"a": {"b", "c"}, "b": {"d"}, "c": {"d"}, "d": set()}) == []  # a diamond is no cycle
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"x": set(), "p": {"q"}, "q": {"q2"}, "q2": {"p"}}) == ["p", "q", "q2", "p"]
+
+
+def test_import_edges_by_hand() -> None:
+    modules = {"pkg", "pkg.a", "pkg.b", "pkg.sub", "pkg.sub.c"}
+    source = "import os\nfrom pkg import a, NAME\nfrom . import c\ndef f():\n    import pkg.b\n"
+    assert import_edges(source, "pkg.sub", modules) == {"pkg", "pkg.a", "pkg.sub.c", "pkg.b"}
+    assert import_edges("from ..b import X\nfrom .c import Y\n", "pkg.sub", modules) == {"pkg.b", "pkg.sub.c"}
+
+
+def test_no_import_cycle_between_modules() -> None:
+    graph = import_graph(MODULES)
+    assert sum(map(len, graph.values())) > 150  # the walk sees the tree's imports
+    assert graph["envs.cli"] >= {"envs.collection", "sb3_ua2c.pipeline"}
+    assert find_cycle(graph) == [], " -> ".join(find_cycle(graph))
 
 
 @pytest.mark.parametrize("package", ["sb3_ua2c", "envs"])
@@ -112,3 +181,6 @@ def test_the_wheel_holds_the_algorithm_and_the_application_only(tmp_path: Path) 
     assert tops == {"sb3_ua2c", "envs"}
     assert "envs/data/style_classifier.pt" in names and "sb3_ua2c/ua2c.py" in names
     assert not [n for n in names if "experiments" in n.split("/") or n.startswith(("tests/", "benchmarks/"))]
+    (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
+    scripts = zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "ua2c = envs.cli:main" in scripts and "ua2c-zoo = sb3_ua2c.zoo:main" in scripts

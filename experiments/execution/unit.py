@@ -20,7 +20,7 @@ from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_con
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
 
-#: ``make main``'s budget (``MAIN_BUDGET["full"]`` of ``sb3_ua2c/__main__.py``) and a smoke-test one
+#: ``make main``'s budget (``MAIN_BUDGET["full"]`` of ``envs/cli.py``) and a smoke-test one
 BUDGETS = {
     "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 20},
     "quick": {"episodes": 3, "pretrain_steps": 8, "finetune_steps": 30, "eval_episodes": 1, "time_limit": 4.0},

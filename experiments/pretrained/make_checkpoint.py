@@ -6,9 +6,9 @@
    ``ExperimentManager`` and writes ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0/{config,args}.yml``
    as ``ua2c-zoo train --algo ua2c --env MixedTraffic-v0 --gym-packages envs --conf-file
    zoo_configs/ua2c.yml -f <out> --seed <seed>`` writes them;
-2. collects the offline dataset with the driving-style context c_t, as ``python -m sb3_ua2c main`` does
-   (``python -m sb3_ua2c collect --style-classifier default``);
-3. pre-trains UA2C on it (``python -m sb3_ua2c pretrain``) with the zoo config's constructor
+2. collects the offline dataset with the driving-style context c_t, as ``python -m envs main`` does
+   (``python -m envs collect --style-classifier default``);
+3. pre-trains UA2C on it (``python -m envs pretrain``) with the zoo config's constructor
    arguments, so ``-i`` and ``enjoy`` accept the checkpoint;
 4. saves the weights without the optimizers' moment estimates as ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0.zip``;
 5. evaluates it with ``envs.evaluation.evaluate`` on held-out scenarios and writes ``README.md``.
@@ -39,8 +39,8 @@ ENV_ID = "MixedTraffic-v0"
 EXP_ID = 1
 SCRIPT = "python -m experiments.pretrained.make_checkpoint"
 
-#: The budget of ``python -m sb3_ua2c main`` (``MAIN_BUDGET["full"]`` of ``sb3_ua2c/__main__.py``,
-#: which no module imports; ``tests/traffic/test_pretrained.py`` checks that they agree).
+#: The budget of ``python -m envs main`` (``MAIN_BUDGET["full"]`` of ``envs/cli.py``;
+#: ``tests/traffic/test_pretrained.py`` checks that they agree).
 EPISODES = 200
 PRETRAIN_STEPS = 3000
 EVAL_EPISODES = 10
@@ -117,7 +117,7 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
 
 def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """
-    ``python -m sb3_ua2c pretrain --hyperparams`` of the zoo config: its constructor arguments
+    ``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments
     (every key but rl-zoo3's own, ``sb3_ua2c.zoo.ZOO_KEYS``; ``policy_kwargs`` evaluated as rl-zoo3
     does) without ``policy`` (pre-training uses ``MlpPolicy``) and without ``discrete_action_dims``,
     which must equal the one ``pretrain`` adds itself (``TRAFFIC_DEFAULTS``; JSON keys would be strings).
@@ -176,12 +176,12 @@ def drop_optimizer_moments(src: Path, dst: Path) -> Path:
 
 
 def run_cli(argv: list[str]) -> float:
-    """Run ``python -m sb3_ua2c <argv>`` (the project's command line); return its wall time [s]."""
+    """Run ``python -m envs <argv>`` (the project's command line); return its wall time [s]."""
     print("$ python -m sb3_ua2c " + " ".join(_quote(a) for a in argv), flush=True)
     t0 = time.time()
-    code = subprocess.run([sys.executable, "-m", "sb3_ua2c", *argv]).returncode
+    code = subprocess.run([sys.executable, "-m", "envs", *argv]).returncode
     if code != 0:
-        raise SystemExit(f"python -m sb3_ua2c {argv[0]} failed with exit code {code}")
+        raise SystemExit(f"python -m envs {argv[0]} failed with exit code {code}")
     return time.time() - t0
 
 
@@ -258,7 +258,7 @@ afresh when training continues. Acting, loading and continuing need nothing else
 
 `envs.evaluation.evaluate` on {len(info['episodes'])} held-out scenarios (evaluation seed {info['eval_seed']}:
 resets with seeds {info['episodes'][0].seed}..{info['episodes'][-1].seed}, none of them in the dataset), deterministic
-stateful `predict` with adaptive execution (δ = {info['entropy_threshold']}), as `python -m sb3_ua2c main` evaluates:
+stateful `predict` with adaptive execution (δ = {info['entropy_threshold']}), as `python -m envs main` evaluates:
 
 | metric | value |
 |---|---|
@@ -347,7 +347,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from sb3_ua2c.version import __version__
 
         def shown(cmd: list[str]) -> str:
-            text = "python -m sb3_ua2c " + " ".join(_quote(a) for a in cmd)
+            text = "python -m envs " + " ".join(_quote(a) for a in cmd)
             return text.replace(str(dataset_dir), "DATA/dataset").replace(str(full_ckpt), "DATA/pretrained.zip")
 
         info = {

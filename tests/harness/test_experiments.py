@@ -777,17 +777,6 @@ def test_the_cli_subcommand_names_itself(capsys) -> None:
     assert capsys.readouterr().out.startswith("usage: python -m experiments.fig2 ")
 
 
-def test_the_library_does_not_import_its_entry_script() -> None:
-    """``experiments.fig2`` takes its argument types from :mod:`sb3_ua2c.cli_args`, not from
-    ``sb3_ua2c.__main__`` (which imports the runner: a circle)."""
-    import subprocess
-    import sys
-
-    code = "import sys, experiments.fig2; print('sb3_ua2c.__main__' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "False"
-
-
 def test_package_re_exports_the_public_names() -> None:
     import importlib
 
@@ -815,17 +804,6 @@ def test_cli_argument_types() -> None:
     with pytest.raises(ValueError):
         float_arg("x")
 
-
-
-def test_entropy_threshold_argument_takes_auto() -> None:
-    from sb3_ua2c.__main__ import build_parser
-
-    parser = build_parser()
-    for command in (["finetune", "--checkpoint", "c.zip"], ["evaluate", "--checkpoint", "c.zip"]):
-        assert parser.parse_args([*command, "--entropy-threshold", "auto"]).entropy_threshold == "auto"
-        assert parser.parse_args([*command, "--entropy-threshold", "inf"]).entropy_threshold == math.inf
-        with pytest.raises(SystemExit):
-            parser.parse_args([*command, "--entropy-threshold", "Auto"])
 
 
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:

@@ -20,10 +20,10 @@ CHECKPOINT = Path(__file__).resolve().parents[2] / "rl-trained-agents" / "ua2c" 
 @pytest.fixture(scope="module")
 def histories():
     """The checkpoint and the (observation, action) histories of every step of one driven episode."""
-    from envs.collection import make_env
+    from envs.collection import make_traffic_env
 
     model = UA2C.load(CHECKPOINT, device="cpu")
-    env = make_env("MixedTraffic-v0", None, "default")
+    env = make_traffic_env("MixedTraffic-v0", None, "default")
     try:
         obs, _ = env.reset(seed=7)
         state, obs_h, act_h, done = None, [], [], False

@@ -1,8 +1,7 @@
-"""Offline datasets, Phase 1 / Phase 2 stages and the command line (issue: offline-to-online)."""
+"""Offline datasets and the Phase 1 / Phase 2 stages (the command line: ``test_cli.py``)."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -161,9 +160,9 @@ def test_collected_dataset_records_the_performed_actions(traffic_dataset) -> Non
 
 def test_behaviour_driver_style_changes_how_sumo_drives_the_av(tmp_path: Path) -> None:
     import envs  # noqa: F401
-    from envs.collection import collect_episodes, make_env
+    from envs.collection import collect_episodes, make_traffic_env
 
-    env = make_env(env_kwargs={"time_limit": 10.0})
+    env = make_traffic_env(env_kwargs={"time_limit": 10.0})
     try:
         accel = {}
         for style in ("conservative", "aggressive"):
@@ -182,9 +181,9 @@ def test_behaviour_driver_style_changes_how_sumo_drives_the_av(tmp_path: Path) -
 
 def test_behaviour_takeover_holds_its_acceleration_for_perturb_steps() -> None:
     import envs  # noqa: F401
-    from envs.collection import collect_episodes, make_env
+    from envs.collection import collect_episodes, make_traffic_env
 
-    env = make_env(env_kwargs={"time_limit": 4.0})
+    env = make_traffic_env(env_kwargs={"time_limit": 4.0})
     try:
         behaviour = BehaviourConfig(
             sumo_fraction=1.0, perturb_prob=1.0, perturb_steps=5, accel_noise=0.5, lane_change_prob=0.0
@@ -216,12 +215,12 @@ def _params(model: UA2C) -> dict[str, th.Tensor]:
 def test_pretrain_then_finetune_starts_from_loaded_weights(traffic_dataset, tmp_path: Path) -> None:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from envs.collection import make_env
+    from envs.collection import make_traffic_env
     from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain
 
     ckpt = pretrain(traffic_dataset, tmp_path / "pre", 5, seed=0, algo_kwargs=TINY)
     assert ckpt == tmp_path / "pre.zip" and ckpt.is_file()
-    env = make_env(env_kwargs=SHORT_ENV)
+    env = make_traffic_env(env_kwargs=SHORT_ENV)
     try:
         saved = _params(load_checkpoint(ckpt, env))
     finally:
@@ -244,7 +243,7 @@ def test_pretrain_then_finetune_starts_from_loaded_weights(traffic_dataset, tmp_
     assert StartsFromCheckpoint.checked
     # offline-to-online: the default online_targets="auto" chose Eq. 8 (offline episodes in the buffer)
     assert StartsFromCheckpoint.targets == "prefix"
-    env = make_env(env_kwargs=SHORT_ENV)
+    env = make_traffic_env(env_kwargs=SHORT_ENV)
     try:
         tuned = load_checkpoint(out, env)
     finally:
@@ -341,35 +340,6 @@ def test_sampled_evaluation_is_seeded_per_episode(traffic_dataset, tmp_path: Pat
     assert run(True) != sampled
 
 
-@pytest.mark.slow
-def test_cli_main_quick_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from sb3_ua2c.__main__ import main
-
-    assert main(["main", "--quick", "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 0
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert set(summary["summary"]) == {"pretrained", "finetuned", "dataset"}
-    # the L_t histogram of each checkpoint's evaluation plans, printed under the table
-    out = capsys.readouterr().out
-    for name in ("pretrained", "finetuned"):
-        lengths = [n for e in summary["episodes"][name] for n in e["plan_lengths"]]
-        shares = [100 * lengths.count(u) / len(lengths) for u in range(1, 6)]
-        assert f"{name:>11} | L_t = 1..5, % of plans: " + " ".join(f"{p:.0f}" for p in shares) in out
-    for name in ("pretrained.zip", "finetuned.zip", "finetuned.monitor.csv", "dataset/data"):
-        assert (tmp_path / "run" / name).exists()
-
-
-def test_cli_bad_input_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from sb3_ua2c.__main__ import main
-
-    assert main(["pretrain", "--dataset", str(tmp_path / "none"), "--out", str(tmp_path / "m.zip")]) == 2
-    assert "no dataset at" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["finetune", "--checkpoint", "x.zip", "--env-kwargs", "[1, 2]"])
-    assert "expected a JSON object" in capsys.readouterr().err
-    assert main(["pretrain", "--dataset", "x", "--threads", "-1"]) == 2
-    assert "--threads must be an integer >= 0, got -1" in capsys.readouterr().err
-
-
 def test_finetune_writes_a_monitor_log_of_the_online_episodes(traffic_dataset, tmp_path: Path) -> None:
     from sb3_ua2c.pipeline import finetune, pretrain, read_monitor
 
@@ -419,7 +389,7 @@ def test_generic_stages_refuse_what_they_cannot_build(tmp_path: Path) -> None:
     env = generic_make_env("Pendulum-v1", None, style_classifier=None)
     assert env.observation_space.shape == (3,)
     env.close()
-    with pytest.raises(ValueError, match=r"records the setting\(s\) \['style_classifier'\].*envs.make_env"):
+    with pytest.raises(ValueError, match=r"records the setting\(s\) \['style_classifier'\].*envs.make_traffic_env"):
         generic_make_env("MixedTraffic-v0", None, style_classifier="default")
     styled = load_dataset(write_dataset([hand_episode()], tmp_path / "styled", PENDULUM_OBS, PENDULUM_ACT,
                                         metadata={"env_id": "Pendulum-v1", "style_classifier": "default"}))
@@ -433,16 +403,28 @@ def test_generic_stages_refuse_what_they_cannot_build(tmp_path: Path) -> None:
     assert not (tmp_path / "x.zip").exists()
 
 
+def test_finetune_takes_a_float_or_auto_entropy_threshold(tmp_path: Path) -> None:
+    from sb3_ua2c.pipeline import finetune, pretrain
+
+    env = gym.make("Pendulum-v1")
+    ds = load_dataset(write_dataset([hand_episode(8)], tmp_path / "data", env.observation_space, env.action_space,
+                                    metadata={"env_id": "Pendulum-v1"}))
+    pre = pretrain(ds, tmp_path / "pre.zip", 1, algo_kwargs=TINY)
+    for delta in ("auto", 0.5, None):
+        fine = finetune(pre, tmp_path / "fine.zip", 4, dataset=ds, entropy_threshold=delta)
+        assert UA2C.load(fine, device="cpu").entropy_threshold == (0.0 if delta is None else delta)
+
+
 def test_the_behaviour_policy_is_evaluated_on_the_scenarios_it_collects():
     # evaluate_behaviour's episode 0 of seed 2 is scenario 2000 with the behaviour's generator seeded 2000:
     # the episode collect_episodes makes with seed 2000, step for step
-    from envs.collection import BehaviourConfig, collect_episodes, make_env
+    from envs.collection import BehaviourConfig, collect_episodes, make_traffic_env
     from envs.evaluation import evaluate_behaviour
 
     settings = {"env_id": "MixedTraffic-v0", "env_kwargs": {"time_limit": 10.0}}
     behaviour = BehaviourConfig(perturb_prob=0.2, perturb_steps=3)
     (metrics,) = evaluate_behaviour(behaviour, n_episodes=1, seeds=(2,), env_settings_=settings)
-    env = make_env(**settings)
+    env = make_traffic_env(**settings)
     try:
         (episode,) = collect_episodes(env, 1, behaviour, seed=2000)
     finally:

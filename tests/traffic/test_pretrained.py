@@ -102,8 +102,8 @@ def test_predict_on_a_reset_observation(model, zoo_env):
 
 
 def test_the_script_uses_the_main_budget():
+    from envs.cli import MAIN_BUDGET
     from experiments.pretrained import make_checkpoint
-    from sb3_ua2c.__main__ import MAIN_BUDGET
 
     full = MAIN_BUDGET["full"]
     assert (make_checkpoint.EPISODES, make_checkpoint.PRETRAIN_STEPS, make_checkpoint.EVAL_EPISODES) == (

@@ -14,7 +14,7 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 from ua2c_helpers import FAST
 
-from sb3_ua2c import UA2C, MlpPolicy, UA2CPolicy
+from sb3_ua2c import UA2C, UA2CPolicy
 
 
 class TwoDimEnv(gym.Env):
@@ -146,12 +146,22 @@ def test_evaluate_policy_and_eval_callback_use_the_state():
     assert -2000.0 < mean < 0.0
 
 
-def test_progress_bar():
-    UA2C("MlpPolicy", "Pendulum-v1", **FAST).learn(60, progress_bar=True)
+def test_progress_bar(capsys):
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST).learn(60, progress_bar=True)
+    assert model.num_timesteps == 60
+    assert "60/60" in capsys.readouterr().out  # SB3's bar counted every environment step
 
 
 def test_policy_aliases():
-    assert UA2C.policy_aliases["MlpPolicy"] is MlpPolicy is UA2CPolicy
+    assert UA2C.policy_aliases == {"MlpPolicy": UA2CPolicy}
+    by_alias = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
+    by_class = UA2C(UA2CPolicy, "Pendulum-v1", seed=0, **FAST)
+    assert type(by_alias.policy) is type(by_class.policy) is UA2CPolicy
+    # the same policy, built from the same seed: the same initial weights
+    pairs = zip(by_alias.policy.parameters(), by_class.policy.parameters(), strict=True)
+    assert all(np.array_equal(a.detach().numpy(), b.detach().numpy()) for a, b in pairs)
+    with pytest.raises(ValueError, match="Policy CnnPolicy unknown"):
+        UA2C("CnnPolicy", "Pendulum-v1", **FAST)
 
 
 @pytest.mark.parametrize(("chunk_size", "expected_updates"), [(4, 10), (1, 40)])

@@ -1,11 +1,14 @@
-"""Command line of sb3-ua2c: ``python -m sb3_ua2c <command>`` (console script: ``ua2c``).
+"""Command line of the traffic job: ``python -m envs <command>`` (console script: ``ua2c``).
 
-Commands, all on ``MixedTraffic-v0`` (the traffic application, package ``envs``): ``collect``
-(offline dataset), ``pretrain`` (Phase 1), ``finetune`` (Phase 2), ``evaluate`` (metrics table +
-JSON), ``main`` (all four end to end), ``style`` (driving-style classifier: collect / train /
-evaluate). Each run writes into its own run directory (``--run-dir``, default
-``runs/<command>-<date>-<time>``). The research experiments (Figure 2, the head-to-head, OGBench)
-run from a checkout as ``python -m experiments.<name>``.
+Commands, all on ``MixedTraffic-v0``: ``collect`` (offline dataset), ``pretrain`` (Phase 1),
+``finetune`` (Phase 2), ``evaluate`` (metrics table + JSON), ``main`` (all four end to end),
+``style`` (driving-style classifier: collect / train / evaluate). Each run writes into its own run
+directory (``--run-dir``, default ``runs/<command>-<date>-<time>``). The research experiments
+(Figure 2, the head-to-head, OGBench) run from a checkout as ``python -m experiments.<name>``.
+
+The algorithm package ``sb3_ua2c`` knows no traffic: this module drives its generic stages
+(:func:`sb3_ua2c.pipeline.pretrain`, :func:`~sb3_ua2c.pipeline.finetune`) with the traffic
+environment maker :func:`envs.collection.make_traffic_env`.
 """
 
 from __future__ import annotations
@@ -17,9 +20,29 @@ import time
 from pathlib import Path
 from typing import Any
 
+from envs.collection import (
+    DRIVER_STYLES,
+    TRAFFIC_DEFAULTS,
+    BehaviourConfig,
+    collect_dataset,
+    make_traffic_env,
+)
+from envs.evaluation import evaluate, format_table, plan_length_shares, summarize
+from envs.style import main as style_main
+from sb3_ua2c import UA2C
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg, threshold_arg
+from sb3_ua2c.execution import format_length_shares
+from sb3_ua2c.offline import load_dataset
+from sb3_ua2c.pipeline import env_settings, finetune, pretrain, write_json
 
 DEFAULT_RUNS = Path("runs")
+
+#: Embedded defaults of ``main``: a few minutes on 2 cores.
+MAIN_BUDGET = {
+    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 10},
+    "quick": {"episodes": 4, "pretrain_steps": 30, "finetune_steps": 200, "eval_episodes": 1},
+}
 
 
 def _run_dir(args: argparse.Namespace) -> Path:
@@ -31,18 +54,22 @@ def _run_dir(args: argparse.Namespace) -> Path:
     return path
 
 
-def _behaviour(args: argparse.Namespace):
-    from envs.collection import BehaviourConfig
-
+def _behaviour(args: argparse.Namespace) -> BehaviourConfig:
     return BehaviourConfig(
         sumo_fraction=args.sumo_fraction, perturb_prob=args.perturb_prob, accel_noise=args.accel_noise,
         perturb_steps=args.perturb_steps, lane_change_prob=args.lane_change_prob, driver_style=args.driver_style,
     )
 
 
-def cmd_collect(args: argparse.Namespace) -> int:
-    from envs.collection import collect_dataset
+def _settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``make_traffic_env`` arguments: the dataset's (``--dataset``), else ``--env-kwargs`` /
+    ``--style-classifier``."""
+    if getattr(args, "dataset", None):
+        return env_settings(load_dataset(args.dataset))
+    return {"env_id": "MixedTraffic-v0", "env_kwargs": args.env_kwargs, "style_classifier": args.style_classifier}
 
+
+def cmd_collect(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else _run_dir(args) / "dataset"
     ds = collect_dataset(
         out, args.episodes, env_kwargs=args.env_kwargs, style_classifier=args.style_classifier,
@@ -53,46 +80,28 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
-    from envs.collection import TRAFFIC_DEFAULTS, make_env
-    from sb3_ua2c.pipeline import pretrain
-
     out = Path(args.out) if args.out else _run_dir(args) / "pretrained.zip"
     path = pretrain(
         args.dataset, out, args.steps, seed=args.seed, algo_kwargs={**TRAFFIC_DEFAULTS, **(args.hyperparams or {})},
-        progress_bar=not args.no_progress, verbose=args.verbose, make_env=make_env,
+        progress_bar=not args.no_progress, verbose=args.verbose, make_env=make_traffic_env,
     )
     print(f"checkpoint: {path}")
     return 0
 
 
 def cmd_finetune(args: argparse.Namespace) -> int:
-    from envs.collection import make_env
-    from sb3_ua2c.pipeline import finetune
-
     out = Path(args.out) if args.out else _run_dir(args) / "finetuned.zip"
     path = finetune(
         args.checkpoint, out, args.timesteps, dataset=args.dataset,
         env_settings_=_settings_from_args(args), offline_ratio=args.offline_ratio,
         entropy_threshold=args.entropy_threshold, seed=args.seed, progress_bar=not args.no_progress,
-        monitor_file=out.with_suffix(""), make_env=make_env,
+        monitor_file=out.with_suffix(""), make_env=make_traffic_env,
     )
     print(f"checkpoint: {path}; online episodes: {out.with_suffix('')}.monitor.csv")
     return 0
 
 
-def _settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
-    if getattr(args, "dataset", None):
-        from sb3_ua2c.offline import load_dataset
-        from sb3_ua2c.pipeline import env_settings
-
-        return env_settings(load_dataset(args.dataset))
-    return {"env_id": "MixedTraffic-v0", "env_kwargs": args.env_kwargs, "style_classifier": args.style_classifier}
-
-
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from envs.evaluation import evaluate, format_table, summarize
-    from sb3_ua2c.pipeline import write_json
-
     settings = _settings_from_args(args)
     rows, raw = {}, {}
     for ckpt in args.checkpoint:
@@ -109,90 +118,71 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Embedded defaults of ``main``: a few minutes on 2 cores.
-MAIN_BUDGET = {
-    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 10},
-    "quick": {"episodes": 4, "pretrain_steps": 30, "finetune_steps": 200, "eval_episodes": 1},
-}
-
-
 def cmd_main(args: argparse.Namespace) -> int:
-    from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
-    from envs.evaluation import evaluate, format_table, plan_length_shares, summarize
-    from sb3_ua2c import UA2C
-    from sb3_ua2c.execution import format_length_shares
-    from sb3_ua2c.pipeline import env_settings, finetune, pretrain, write_json
-
+    """collect -> pretrain -> finetune -> evaluate with :data:`MAIN_BUDGET`; prints the metrics table and
+    the ``L_t`` histogram of each checkpoint, and writes ``summary.json`` into the run directory."""
     budget = MAIN_BUDGET["quick" if args.quick else "full"]
     run = _run_dir(args)
     progress = not args.no_progress
     t0 = time.time()
     print(f"[1/4] collect {budget['episodes']} episodes of SUMO-driven data -> {run / 'dataset'}"
           f"{'' if args.no_style_context else ' (with the driving-style context c_t)'}")
-    style = None if args.no_style_context else "default"
+    style_classifier = None if args.no_style_context else "default"
     ds = collect_dataset(
-        run / "dataset", budget["episodes"], seed=args.seed, style_classifier=style, progress_bar=progress, overwrite=True
+        run / "dataset", budget["episodes"], seed=args.seed, style_classifier=style_classifier, progress_bar=progress,
+        overwrite=True,
     )
     print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
     pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress,
-                   algo_kwargs=TRAFFIC_DEFAULTS, make_env=make_env)
+                   algo_kwargs=TRAFFIC_DEFAULTS, make_env=make_traffic_env)
     print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
     fine = finetune(
         pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress,
         monitor_file=run / "finetuned",  # SB3's Monitor log of the online episodes: finetuned.monitor.csv
-        make_env=make_env,
+        make_env=make_traffic_env,
     )
     print(f"[4/4] evaluate on {budget['eval_episodes']} held-out episodes")
     settings = env_settings(ds)
+    models = {name: UA2C.load(ckpt, device="cpu") for name, ckpt in (("pretrained", pre), ("finetuned", fine))}
     rows, raw = {}, {}
-    for name, ckpt in (("pretrained", pre), ("finetuned", fine)):
-        results = evaluate(ckpt, n_episodes=budget["eval_episodes"], seeds=(args.seed + 100,), env_settings_=settings)
+    for name, model in models.items():
+        results = evaluate(model, n_episodes=budget["eval_episodes"], seeds=(args.seed + 100,), env_settings_=settings)
         rows[name], raw[name] = summarize(results), results
     rows["dataset"] = {
         "reward": ds.metadata["mean_return"], "cumulative_jerk": math.nan, "collision": math.nan,
         "merge_success": math.nan, "mean_speed": math.nan, "mean_executed_length": math.nan,
     }
     print(format_table(rows))
-    k = UA2C.load(fine, device="cpu").chunk_size
-    for name in ("pretrained", "finetuned"):
-        shares = format_length_shares(plan_length_shares(raw[name], k))
-        print(f"{name:>11} | L_t = 1..{k}, % of plans: {shares}")
+    for name, model in models.items():
+        k = model.chunk_size
+        print(f"{name:>11} | L_t = 1..{k}, % of plans: {format_length_shares(plan_length_shares(raw[name], k))}")
     write_json(run / "summary.json", {"summary": rows, "episodes": raw, "budget": budget, "seconds": time.time() - t0})
     print(f"run directory: {run}  ({time.time() - t0:.0f} s)")
     return 0
 
 
-def cmd_style(argv: list[str]) -> int:
-    from envs import style
+def _common_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run-dir", default=None, help="output directory (default: runs/<command>-<date>-<time>)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--threads", type=int, default=0,
+                   help="torch CPU threads (default 0: torch's default; 1 is faster on a busy machine, where "
+                        "more threads spin-wait)")
 
-    return int(style.main(argv) or 0)
+
+def _env_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--env-kwargs", type=json_object_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
+    p.add_argument("--style-classifier", default=None,
+                   help="append the driving-style context c_t (Eq. 6): a classifier path or 'default'")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m sb3_ua2c", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--run-dir", default=None, help="output directory (default: runs/<command>-<date>-<time>)")
-        p.add_argument("--seed", type=int, default=0)
-        p.add_argument("--no-progress", action="store_true", help="no progress bars")
-        p.add_argument("--threads", type=int, default=0,
-                       help="torch CPU threads (default 0: torch's default; 1 is faster on a busy machine, where "
-                            "more threads spin-wait)")
-
-    def env_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--env-kwargs", type=json_object_arg, default={}, help="MixedTraffic-v0 keyword arguments as JSON")
-        p.add_argument("--style-classifier", default=None,
-                       help="append the driving-style context c_t (Eq. 6): a classifier path or 'default'")
-
+def _add_collect(sub: Any) -> None:
     p = sub.add_parser("collect", help="collect an offline dataset (local Minari) with a human-like behaviour policy")
-    common(p)
-    env_args(p)
+    _common_args(p)
+    _env_args(p)
     p.add_argument("--out", default=None, help="dataset directory (default: <run-dir>/dataset)")
     p.add_argument("--episodes", type=int, default=100)
-    from envs.collection import BehaviourConfig  # the behaviour defaults live in one place
-
-    b = BehaviourConfig()
+    b = BehaviourConfig()  # the behaviour defaults live in one place
     p.add_argument("--sumo-fraction", type=float, default=b.sumo_fraction,
                    help="fraction of episodes driven by SUMO's model")
     p.add_argument("--perturb-prob", type=float, default=b.perturb_prob,
@@ -202,14 +192,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--perturb-steps", type=int, default=b.perturb_steps, help="length of a takeover [steps]")
     p.add_argument("--lane-change-prob", type=float, default=b.lane_change_prob,
                    help="per-step random lane-change probability")
-    p.add_argument("--driver-style", default=b.driver_style,
-                   choices=("default", "conservative", "neutral", "aggressive", "mixed"),
+    p.add_argument("--driver-style", default=b.driver_style, choices=DRIVER_STYLES,
                    help="SUMO driver parameters of the AV ('mixed': one style drawn per episode)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_collect)
 
+
+def _add_pretrain(sub: Any) -> None:
     p = sub.add_parser("pretrain", help="Phase 1: pre-train UA2C from a dataset")
-    common(p)
+    _common_args(p)
     p.add_argument("--dataset", required=True, help="dataset directory")
     p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/pretrained.zip)")
     p.add_argument("--steps", type=int, default=20_000, help="gradient steps")
@@ -218,9 +209,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--verbose", type=int, default=0)
     p.set_defaults(func=cmd_pretrain)
 
+
+def _add_finetune(sub: Any) -> None:
     p = sub.add_parser("finetune", help="Phase 2: online adaptation from a pre-trained checkpoint")
-    common(p)
-    env_args(p)
+    _common_args(p)
+    _env_args(p)
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--dataset", default=None, help="offline data kept in the replay buffer (also defines the env)")
     p.add_argument("--out", default=None, help="checkpoint (default: <run-dir>/finetuned.zip)")
@@ -230,9 +223,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="δ of Eq. 7; 'inf' = fixed chunks; 'auto' = set from recent plans")
     p.set_defaults(func=cmd_finetune)
 
+
+def _add_evaluate(sub: Any) -> None:
     p = sub.add_parser("evaluate", help="evaluate checkpoints: reward, jerk, collisions, merges, mean L_t")
-    common(p)
-    env_args(p)
+    _common_args(p)
+    _env_args(p)
     p.add_argument("--checkpoint", required=True, nargs="+")
     p.add_argument("--dataset", default=None, help="take the env configuration from this dataset")
     p.add_argument("--episodes", type=int, default=10, help="episodes per seed")
@@ -243,21 +238,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default=None, help="results file (default: <run-dir>/evaluation.json)")
     p.set_defaults(func=cmd_evaluate)
 
+
+def _add_main(sub: Any) -> None:
     p = sub.add_parser("main", help="collect -> pretrain -> finetune -> evaluate, end to end with embedded defaults")
-    common(p)
+    _common_args(p)
     p.add_argument("--quick", action="store_true", help="a tiny budget (seconds), for smoke tests")
     p.add_argument("--no-style-context", action="store_true",
                    help="train on the raw 20-number observation (no driving-style context c_t)")
     p.set_defaults(func=cmd_main)
 
+
+def build_parser(prog: str = "ua2c") -> argparse.ArgumentParser:
+    """The parser of every command but ``style`` (which :func:`main` hands to :func:`envs.style.main`).
+
+    :param prog: the program name in the usage line
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_collect, _add_pretrain, _add_finetune, _add_evaluate, _add_main):
+        add(sub)
     sub.add_parser("style", help="driving-style classifier: collect / train / evaluate (see 'style --help')",
                    add_help=False)
     return parser
 
 
 def _set_threads(threads: int) -> None:
-    from sb3_ua2c.checks import check_int
-
     check_int("--threads", threads, low=0)
     if threads > 0:
         import torch
@@ -265,18 +270,19 @@ def _set_threads(threads: int) -> None:
         torch.set_num_threads(threads)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = "ua2c") -> int:
+    """Run one command; return its exit code (2 on bad input, with the reason on stderr).
+
+    :param argv: the arguments (default ``sys.argv[1:]``)
+    :param prog: the program name in the usage line (``ua2c``, or ``python -m envs``)
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "style":
-        return cmd_style(argv[1:])
-    args = build_parser().parse_args(argv)
+        return int(style_main(argv[1:]) or 0)
+    args = build_parser(prog).parse_args(argv)
     try:
         _set_threads(args.threads)
         return args.func(args)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
