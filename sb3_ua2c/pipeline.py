@@ -97,7 +97,7 @@ def pretrain(
     :param seed: seed of the networks and minibatch sampling
     :param algo_kwargs: UA2C constructor arguments
     :param make_env: builds the environment from the dataset's settings (:func:`env_settings`);
-        :func:`sb3_ua2c.offline.make_env` by default, ``envs.make_env`` for ``MixedTraffic-v0`` data
+        :func:`sb3_ua2c.offline.make_env` by default, ``envs.make_traffic_env`` for ``MixedTraffic-v0`` data
     :return: the checkpoint path
     """
     ds = dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)

@@ -305,7 +305,7 @@ class OfflineDatasetCallback(BaseCallback):
     Nothing is added when the buffer already holds offline data (a ``replay_buffer.pkl`` next to
     the checkpoint, which rl-zoo3 loads with ``-i``), so the data is never counted twice.
 
-    :param dataset: directory of a dataset written by ``python -m sb3_ua2c collect``
+    :param dataset: directory of a dataset written by ``python -m envs collect``
         (:func:`sb3_ua2c.offline.write_dataset`)
     :param verbose: 1 prints how many steps were added
     """

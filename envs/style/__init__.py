@@ -16,14 +16,14 @@ module           role
                  accuracy, per-class precision/recall, the confusion figure
 ``baseline``     logistic regression on summary features, the reference to beat
 ``train``        training with early stopping, evaluation on held-out episodes
-``cli``          ``python -m sb3_ua2c style collect|train|evaluate``
+``cli``          ``python -m envs style collect|train|evaluate``
 ================ ==============================================================================
 
 Every public name is importable from ``envs.style`` itself. The command line::
 
-    python -m sb3_ua2c style collect  --out style_data.npz          # 1500 episodes, ~5 min
-    python -m sb3_ua2c style train    --data style_data.npz --out style_classifier.pt
-    python -m sb3_ua2c style evaluate --data style_data.npz --model style_classifier.pt
+    python -m envs style collect  --out style_data.npz          # 1500 episodes, ~5 min
+    python -m envs style train    --data style_data.npz --out style_classifier.pt
+    python -m envs style evaluate --data style_data.npz --model style_classifier.pt
     # -> results/style_eval.json, results/style_confusion.png
 
 (``python -m envs.style ...`` is the same command line.) The classifier shipped in

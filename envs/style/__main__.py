@@ -1,4 +1,4 @@
-"""``python -m envs.style``: the same command line as ``python -m sb3_ua2c style``."""
+"""``python -m envs.style``: the same command line as ``python -m envs style``."""
 
 from envs.style.cli import main
 

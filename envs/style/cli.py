@@ -1,4 +1,4 @@
-"""Command line of the style module: ``python -m sb3_ua2c style collect|train|evaluate`` (also
+"""Command line of the style module: ``python -m envs style collect|train|evaluate`` (also
 reachable as ``python -m envs.style``)."""
 
 from __future__ import annotations
@@ -145,7 +145,7 @@ _COMMANDS = {"collect": _collect, "train": _train, "evaluate": _evaluate}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m sb3_ua2c style`` / ``python -m envs.style``; returns the exit code."""
+    """Entry point of ``python -m envs style`` / ``python -m envs.style``; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     torch.set_num_threads(1)

@@ -21,7 +21,7 @@ import time
 
 import torch as th
 
-from envs.collection import TRAFFIC_DEFAULTS, make_env
+from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.flow import flow_matching_loss, interpolate
 from sb3_ua2c.offline import load_dataset
@@ -65,7 +65,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     ds = load_dataset(args.dataset)
-    env = make_env(**env_settings(ds))
+    env = make_traffic_env(**env_settings(ds))
     try:
         rows = []
         for arch in args.net_arch:

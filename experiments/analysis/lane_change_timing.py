@@ -23,7 +23,7 @@ import math
 import numpy as np
 import torch as th
 
-from envs.collection import make_env
+from envs.collection import make_traffic_env
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import categorize, commit_through_switch
 from sb3_ua2c.offline import load_dataset
@@ -80,7 +80,7 @@ def main() -> None:
     parser.add_argument("--delta", type=float, default=0.0)
     args = parser.parse_args()
     th.set_num_threads(1)
-    env = make_env(**env_settings(load_dataset(args.dataset)))
+    env = make_traffic_env(**env_settings(load_dataset(args.dataset)))
     seeds = [1000 * args.eval_seed + i for i in range(args.episodes)]
     rules = {
         "fixed (δ = inf)": dict(entropy_threshold=math.inf, commit_discrete=False),

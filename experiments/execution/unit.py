@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_env
+from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
 from envs.evaluation import evaluate
 from experiments.common.names import DATASET_SEED_BASE
 from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
@@ -91,15 +91,15 @@ def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequ
     ds = collect_dataset(root / "dataset", budget["episodes"], seed=DATASET_SEED_BASE + 10_000 * seed,
                          env_kwargs=env_kwargs, style_classifier="default", overwrite=True)
     pre = pretrain(ds, root / "pretrained.zip", budget["pretrain_steps"], seed=seed, algo_kwargs=TRAFFIC_DEFAULTS,
-                   make_env=make_env)
+                   make_env=make_traffic_env)
     settings = env_settings(ds)
     checkpoints = {"offline": pre}
     for rule in online_rules:
         checkpoints[f"online_{rule}"] = finetune(pre, root / f"online_{rule}.zip", budget["finetune_steps"], dataset=ds,
-                                                 seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_env)
+                                                 seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_traffic_env)
     record: dict[str, Any] = {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
                               "dataset_mean_return": ds.metadata["mean_return"], "checkpoints": {}}
-    env = make_env(**settings)
+    env = make_traffic_env(**settings)
     try:
         for name, path in checkpoints.items():
             model = load_checkpoint(path, env)

@@ -30,7 +30,7 @@ import torch as th
 from bench_ua2c import cpu_ms  # benchmarks/ is on sys.path when run as a script
 from stable_baselines3 import SAC
 
-from envs.collection import TRAFFIC_DEFAULTS, collect_episodes, make_env
+from envs.collection import TRAFFIC_DEFAULTS, collect_episodes, make_traffic_env
 from experiments.fig2 import CostModel, extra_kweights, velocity_field_weights
 from sb3_ua2c import UA2C
 
@@ -55,7 +55,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     print(f"torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
-    env = make_env()
+    env = make_traffic_env()
     try:
         episodes = collect_episodes(env, args.episodes, seed=0)
         obs, _ = env.reset(seed=0)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from envs.collection import TRAFFIC_DEFAULTS, make_env
+from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from experiments.common.budget import Fig2Budget, finetune_overrides
 from experiments.common.names import (
     DATASET_SEED_BASE,
@@ -251,7 +251,7 @@ class _SeedUnits:
         path = self.work / f"{name}.zip"
         if not path.is_file():
             with self.log.timed(f"seed{self.seed}/pretrain/{name}"):
-                pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_env,
+                pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_traffic_env,
                          algo_kwargs={**TRAFFIC_DEFAULTS, **self.budget.arm_kwargs(k)})
         return path
 
@@ -266,7 +266,7 @@ class _SeedUnits:
                 finetune(
                     start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
                     seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
-                    algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_env,
+                    algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env,
                 )
         _online_episodes(self.raw / "online" / f"{name}.json", monitor)
         return path

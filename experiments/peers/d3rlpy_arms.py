@@ -316,9 +316,9 @@ def _fit_online(d3rlpy: Any, learner: Any, ds: OfflineDataset, settings: Mapping
     """``fit_online`` on the dataset's environment, ``offline_ratio`` of each batch from ``offline``."""
     from stable_baselines3.common.monitor import Monitor
 
-    from envs.collection import make_env
+    from envs.collection import make_traffic_env
 
-    env = make_env(**settings)
+    env = make_traffic_env(**settings)
     try:
         ds.check_compatible(env)
         env.reset(seed=seed)  # fit_online resets without a seed: the episodes continue this generator

@@ -137,7 +137,7 @@ def _train_and_evaluate(
     offline_ratio: float | None,
     notes: str,
 ) -> dict[str, Any]:
-    from envs.collection import make_env
+    from envs.collection import make_traffic_env
     from sb3_ua2c.pipeline import env_settings
 
     th.set_num_threads(1)
@@ -145,7 +145,7 @@ def _train_and_evaluate(
     out.mkdir(parents=True, exist_ok=True)
     settings = env_settings(ds)
     clock = PhaseClock()
-    env = Monitor(make_env(**settings), str(out / "online"), info_keywords=("collision",))
+    env = Monitor(make_traffic_env(**settings), str(out / "online"), info_keywords=("collision",))
     try:
         ds.check_compatible(env)
         kwargs = copy.deepcopy(params)  # SB3 adds keys to policy_kwargs: keep the record as given

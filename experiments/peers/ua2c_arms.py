@@ -17,7 +17,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from envs.collection import TRAFFIC_DEFAULTS, make_env
+from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from experiments.peers.common import (
     EvalProtocol,
     PhaseClock,
@@ -57,7 +57,7 @@ def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrai
     clock = PhaseClock()
     with clock.phase("offline"):
         path = pretrain(dataset, out, pretrain_steps, seed=seed, algo_kwargs={**TRAFFIC_DEFAULTS, **algo_kwargs},
-                        make_env=make_env)
+                        make_env=make_traffic_env)
     return {"checkpoint": str(path), "pretrain_steps": pretrain_steps, "seed": seed,
             "algo_kwargs": dict(algo_kwargs), **clock.as_dict()}
 
@@ -112,7 +112,7 @@ def run_ua2c_arm(
         offline_evaluation = ua2c_evaluation_record(checkpoint, settings, protocol, delta)
     with clock.phase("online"):
         tuned = finetune(checkpoint, out / "model.zip", online_steps, dataset=ds, entropy_threshold=delta, seed=seed,
-                         algo_overrides=dict(finetune_overrides), monitor_file=out / "online", make_env=make_env)
+                         algo_overrides=dict(finetune_overrides), monitor_file=out / "online", make_env=make_traffic_env)
     with clock.phase("evaluate"):
         evaluation = ua2c_evaluation_record(tuned, settings, protocol, delta)
     # the shared offline phase, counted in every arm that starts from it

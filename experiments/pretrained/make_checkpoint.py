@@ -177,7 +177,7 @@ def drop_optimizer_moments(src: Path, dst: Path) -> Path:
 
 def run_cli(argv: list[str]) -> float:
     """Run ``python -m envs <argv>`` (the project's command line); return its wall time [s]."""
-    print("$ python -m sb3_ua2c " + " ".join(_quote(a) for a in argv), flush=True)
+    print("$ python -m envs " + " ".join(_quote(a) for a in argv), flush=True)
     t0 = time.time()
     code = subprocess.run([sys.executable, "-m", "envs", *argv]).returncode
     if code != 0:
