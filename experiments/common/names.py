@@ -16,7 +16,7 @@ CLAIM_COMPARISONS = {
     "offline_jerk_change_pct": "offline_jerk",
     "online_reward_gain_pct": "online_reward",
 }
-#: Metrics of :class:`sb3_ua2c.pipeline.EpisodeMetrics` aggregated per method.
+#: Metrics of :class:`envs.evaluation.EpisodeMetrics` aggregated per method.
 METRICS = (
     "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
 )

@@ -89,7 +89,7 @@ def _evaluation(
     deterministic: bool = True,
 ) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists
-    (``deterministic``: fixed candidate noise, see :func:`sb3_ua2c.pipeline.evaluate`)."""
+    (``deterministic``: fixed candidate noise, see :func:`envs.evaluation.evaluate`)."""
     from envs.evaluation import evaluate, plan_length_shares, summarize
     from sb3_ua2c.pipeline import write_json
 

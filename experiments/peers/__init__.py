@@ -16,7 +16,7 @@ the report (:mod:`~experiments.peers.report`); see ``docs/peers.md``.
 
 Every unit reads the seed's dataset (which defines the environment), trains for the same online
 step budget and evaluates on the same held-out scenarios as the UA2C arms, with
-:func:`sb3_ua2c.pipeline.evaluate`. Run units through :mod:`experiments.common.runner`.
+:func:`envs.evaluation.evaluate`. Run units through :mod:`experiments.common.runner`.
 """
 
 from experiments.peers.common import EvalProtocol, zoo_hyperparams

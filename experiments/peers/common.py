@@ -4,7 +4,7 @@ transitions, the online learning curve, timing and the result record.
 A peer unit reads the same inputs as the UA2C arms of one Figure-2 seed: the seed's Minari dataset
 (its metadata defines the environment: ``env_id``, ``env_kwargs`` and whether observations carry
 the style context c_t), the online step budget, and the held-out evaluation scenarios
-(``eval_seeds`` and ``eval_episodes``, the arguments of :func:`sb3_ua2c.pipeline.evaluate`; the
+(``eval_seeds`` and ``eval_episodes``, the arguments of :func:`envs.evaluation.evaluate`; the
 Figure-2 runner passes ``(EVAL_SEED_BASE + seed,)`` and ``Fig2Budget.eval_episodes``). It returns
 a JSON-serialisable record (:func:`unit_record`).
 """
@@ -37,7 +37,7 @@ ZOO_ONLY_KEYS = frozenset({
 @dataclass(frozen=True)
 class EvalProtocol:
     """The held-out evaluation scenarios of a unit: episode ``i`` of seed ``e`` resets with
-    ``1000 * e + i`` (:func:`sb3_ua2c.pipeline.evaluate`).
+    ``1000 * e + i`` (:func:`envs.evaluation.evaluate`).
 
     :param seeds: evaluation seeds (Figure 2: ``(EVAL_SEED_BASE + seed,)``)
     :param episodes: episodes per evaluation seed (Figure 2: ``Fig2Budget.eval_episodes``)

@@ -72,7 +72,7 @@ def import_d3rlpy() -> Any:
 
 
 class D3rlpyPolicy:
-    """A d3rlpy algorithm behind SB3's ``predict`` (what :func:`sb3_ua2c.pipeline.evaluate` calls).
+    """A d3rlpy algorithm behind SB3's ``predict`` (what :func:`envs.evaluation.evaluate` calls).
 
     :param algo: a built d3rlpy Q-learning algorithm (IQL, Cal-QL, ...)
     :param observation_space: the environment's observation space
