@@ -1,0 +1,62 @@
+"""Sphinx configuration of the sb3-ua2c documentation.
+
+Build (from the repository root; CI and ``make docs`` run exactly this):
+
+    sphinx-build -W --keep-going -n -b html docs docs/_build/html
+
+The user pages are the Markdown files of this folder (read by MyST, the same files GitHub shows);
+the API pages are generated from the docstrings by autodoc; the README, the changelog and the
+reports of ``results/`` are included through ``_ext/repo_pages.py``. Importing ``sb3_ua2c`` and
+``envs`` needs neither SUMO nor the optional extras, so nothing is mocked.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+sys.path[:0] = [str(DOCS.parent), str(DOCS / "_ext")]
+
+from sb3_ua2c import __version__  # noqa: E402
+
+project = "sb3-ua2c"
+author = "sb3-ua2c contributors"
+copyright = "the sb3-ua2c contributors"
+version = release = __version__
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.viewcode",
+    "repo_pages",
+]
+
+root_doc = "index"
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+# docs/README.md is the folder's index on GitHub; the site shows it as its root page, index.md
+exclude_patterns = ["_build", "README.md", "Thumbs.db", ".DS_Store"]
+
+# MyST: the pages are GitHub Markdown; headings get GitHub's anchors so page.md#section links resolve
+myst_enable_extensions = ["dollarmath", "colon_fence"]
+myst_heading_anchors = 6
+
+# autodoc: signatures with their type hints, the class docstring for the constructor's parameters
+autoclass_content = "class"
+autodoc_member_order = "bysource"
+autodoc_typehints = "signature"
+autodoc_default_options = {"members": True, "show-inheritance": True}
+napoleon_google_docstring = False
+napoleon_numpy_docstring = False
+
+html_theme = "furo"
+html_title = f"sb3-ua2c {release}"
+html_static_path: list[str] = []
+
+# nitpicky (-n): every cross-reference must resolve. The machines that build this have no network,
+# so there are no intersphinx inventories: references into other packages are not checked.
+nitpick_ignore_regex = [
+    ("py:.*", r"(torch|th|numpy|np|collections|os|pathlib|io|types|typing|gymnasium|gym"
+              r"|stable_baselines3|optuna)(\..*)?"),
+]
