@@ -12,6 +12,7 @@ reports of ``results/`` are included through ``_ext/repo_pages.py``. Importing `
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -31,6 +32,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "repo_pages",
+    "python_names",
 ]
 
 root_doc = "index"
@@ -46,6 +48,8 @@ myst_heading_anchors = 6
 autoclass_content = "class"
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
+# only the docstrings written here: an override without one does not show its base class's text
+autodoc_inherit_docstrings = False
 autodoc_default_options = {"members": True, "show-inheritance": True}
 napoleon_google_docstring = False
 napoleon_numpy_docstring = False
@@ -60,3 +64,18 @@ nitpick_ignore_regex = [
     ("py:.*", r"(torch|th|numpy|np|collections|os|pathlib|io|types|typing|gymnasium|gym"
               r"|stable_baselines3|optuna)(\..*)?"),
 ]
+
+
+def dataclass_factories(app, what, name, obj, options, signature, return_annotation):
+    """A dataclass field with a ``default_factory`` shows as ``= <factory>`` in the signature, which
+    is no Python and makes Sphinx split the signature at every comma: show ``= dict()`` instead."""
+    if signature and "<factory>" in signature and dataclasses.is_dataclass(obj):
+        for field in dataclasses.fields(obj):
+            if field.init and field.default_factory is not dataclasses.MISSING:
+                factory = getattr(field.default_factory, "__name__", "factory")
+                signature = signature.replace("<factory>", f"{factory}()", 1)
+    return signature, return_annotation
+
+
+def setup(app):
+    app.connect("autodoc-process-signature", dataclass_factories)
