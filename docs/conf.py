@@ -29,7 +29,6 @@ version = release = __version__
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
-    "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "repo_pages",
     "python_names",
@@ -39,6 +38,9 @@ root_doc = "index"
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 # docs/README.md is the folder's index on GitHub; the site shows it as its root page, index.md
 exclude_patterns = ["_build", "README.md", "Thumbs.db", ".DS_Store"]
+
+# every cross-reference must resolve (as with -n), whoever runs the build
+nitpicky = True
 
 # MyST: the pages are GitHub Markdown; headings get GitHub's anchors so page.md#section links resolve
 myst_enable_extensions = ["dollarmath", "colon_fence"]
@@ -51,8 +53,6 @@ autodoc_typehints = "signature"
 # only the docstrings written here: an override without one does not show its base class's text
 autodoc_inherit_docstrings = False
 autodoc_default_options = {"members": True, "show-inheritance": True}
-napoleon_google_docstring = False
-napoleon_numpy_docstring = False
 
 html_theme = "furo"
 html_title = f"sb3-ua2c {release}"
