@@ -43,7 +43,6 @@ exclude_patterns = ["_build", "README.md", "Thumbs.db", ".DS_Store"]
 nitpicky = True
 
 # MyST: the pages are GitHub Markdown; headings get GitHub's anchors so page.md#section links resolve
-myst_enable_extensions = ["dollarmath", "colon_fence"]
 myst_heading_anchors = 6
 
 # autodoc: signatures with their type hints, the class docstring for the constructor's parameters
@@ -58,8 +57,7 @@ html_theme = "furo"
 html_title = f"sb3-ua2c {release}"
 html_static_path: list[str] = []
 
-# nitpicky (-n): every cross-reference must resolve. The machines that build this have no network,
-# so there are no intersphinx inventories: references into other packages are not checked.
+# No intersphinx (the build works offline): references into other packages are not checked.
 nitpick_ignore_regex = [
     ("py:.*", r"(torch|th|numpy|np|collections|os|pathlib|io|types|typing|gymnasium|gym"
               r"|stable_baselines3|optuna)(\..*)?"),

@@ -68,9 +68,10 @@ def resolve(app, env, node, contnode):
         return None
     target = node["reftarget"].lstrip("~.")
     module, cls = node.get("py:module"), node.get("py:class")
-    scopes = [f"{module}.{cls}" if module and cls else None, module, None]
+    # the innermost scope first: the class of the docstring, its module, then the name as written
+    scopes = [s for s in (f"{module}.{cls}" if module and cls else "", module or "") if s] + [""]
     domain = env.get_domain("py")
-    for scope in filter(lambda s: s is not False, scopes):
+    for scope in scopes:
         path = f"{scope}.{target}" if scope else target
         obj = lookup(path)
         if obj is _MISSING and scope and inherited_annotation(lookup(scope), target):
