@@ -49,9 +49,13 @@ myst_heading_anchors = 6
 autoclass_content = "class"
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
+# a long signature (UA2C has 38 arguments) shows one argument per line
+python_maximum_signature_line_length = 100
 # only the docstrings written here: an override without one does not show its base class's text
 autodoc_inherit_docstrings = False
-autodoc_default_options = {"members": True, "show-inheritance": True}
+# each object on the page of the module that defines it: a name a module re-exports in ``__all__``
+# (``envs.mixed_traffic.RewardConfig``) is not documented twice
+autodoc_default_options = {"members": True, "show-inheritance": True, "ignore-module-all": True}
 
 html_theme = "furo"
 html_title = f"sb3-ua2c {release}"
