@@ -1,8 +1,11 @@
-"""The documentation's links resolve: every relative link in README.md, docs/*.md and
-results/README.md names a file or directory of the repository, and an anchor (``page.md#section``)
-names a heading of that page. The README stays a short front page: at most 200 lines of at most 100
-characters, code blocks included. docs/api.md documents every constructor argument of ``UA2C`` and
-``UA2CPolicy`` and names none they lack, so a changed signature fails here until the page follows."""
+"""The documentation: every relative link in README.md, docs/*.md and results/README.md names a file
+or directory of the repository, and an anchor (``page.md#section``) names a heading of that page, as
+GitHub shows them. The README stays a short front page: at most 200 lines of at most 100 characters,
+code blocks included. The API reference is generated from the docstrings (``make docs``, Sphinx
+autodoc, built with warnings as errors in CI): here, every module of ``sb3_ua2c`` and ``envs`` is on an
+API page, every constructor argument of ``UA2C``, ``UA2CPolicy`` and ``ChunkReplayBuffer`` is described
+in the docstring the page shows, and the site's link rewriting (``docs/_ext``) is checked on hand-made
+pages."""
 
 from __future__ import annotations
 
@@ -14,10 +17,13 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PAGES = sorted([REPO / "README.md", REPO / "results" / "README.md", *(REPO / "docs").glob("*.md")])
+DOCS = REPO / "docs"
+#: The pages GitHub shows; docs/index.md is only the site's wrapper around docs/README.md.
+PAGES = sorted(
+    [REPO / "README.md", REPO / "results" / "README.md", *(p for p in DOCS.glob("*.md") if p.name != "index.md")]
+)
 README_MAX_LINES = 200
 README_MAX_WIDTH = 100
-#: The one README block allowed past the width: ``make main``'s measured output table, kept verbatim.
 
 # [text](target) and ![alt](target); the target stops at whitespace or ")" (no titles are used)
 LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?\s*\)")
@@ -133,44 +139,35 @@ def test_the_width_check() -> None:
 
 
 def test_every_docs_page_is_in_the_index() -> None:
-    index = set(links((REPO / "docs" / "README.md").read_text(encoding="utf-8")))
-    for page in (REPO / "docs").glob("*.md"):
-        if page.name != "README.md":
+    index = set(links((DOCS / "README.md").read_text(encoding="utf-8")))
+    for page in DOCS.glob("*.md"):
+        if page.name not in ("README.md", "index.md"):
             assert page.name in index, f"docs/README.md does not link {page.name}"
 
 
-# docs/api.md against the signatures
+# the API reference generated from the docstrings
 
-API = REPO / "docs" / "api.md"
-#: Constructor parameters the reference need not document: plumbing that SB3 or UA2C passes itself.
-NOT_DOCUMENTED = {"self", "policy", "env", "observation_space", "action_space", "lr_schedule", "_init_setup_model"}
-TABLE_NAME = re.compile(r"^\|\s*`([A-Za-z_]\w*)`")
-TABLE_CELL_NAMES = re.compile(r"`([A-Za-z_]\w*)`")
-CALL_NAME = re.compile(r"^\|\s*`(?:\w+\.)?([A-Za-z_]\w*)\(")
-
-
-def section(text: str, heading: str) -> str:
-    """The lines after the heading line ``heading`` up to the next heading of the same or a higher
-    level (fenced code included)."""
-    lines = text.splitlines()
-    level = len(heading) - len(heading.lstrip("#"))
-    start = lines.index(heading) + 1
-    for end in range(start, len(lines)):
-        match = re.match(r"^(#{1,6})\s", lines[end])
-        if match and len(match.group(1)) <= level:
-            return "\n".join(lines[start:end])
-    return "\n".join(lines[start:])
+API_PAGES = sorted((DOCS / "api").glob("*.rst"))
+AUTOMODULE = re.compile(r"^\.\. automodule:: ([\w.]+)", re.MULTILINE)
+#: Constructor parameters the docstrings need not describe: plumbing that SB3 or UA2C passes itself.
+NOT_DOCUMENTED = {"self", "observation_space", "action_space", "lr_schedule", "device", "n_envs"}
+PARAM = re.compile(r"^\s*:param (\w+):", re.MULTILINE)
 
 
-def table_names(text: str, pattern: re.Pattern = TABLE_NAME) -> list[str]:
-    """The name in the first cell of every table row (a backticked identifier, or a call)."""
-    return [m.group(1) for line in text.splitlines() if (m := pattern.match(line))]
+def documented_modules() -> list[str]:
+    """The modules the API pages pass to ``automodule``, in page order."""
+    return [m for page in API_PAGES for m in AUTOMODULE.findall(page.read_text(encoding="utf-8"))]
 
 
-def first_cell_names(text: str) -> list[str]:
-    """Every backticked identifier in the first cell of a table row (``| `a`, `b` | ...``)."""
-    rows = [line.split("|")[1] for line in text.splitlines() if line.startswith("|") and line.count("|") > 2]
-    return [name for cell in rows for name in TABLE_CELL_NAMES.findall(cell)]
+def package_modules(package: str) -> set[str]:
+    """Every module of ``package`` (itself included) but its command lines (``__main__``, ``cli``),
+    which ``--help`` documents."""
+    import importlib
+    import pkgutil
+
+    root = importlib.import_module(package)
+    names = {package} | {m.name for m in pkgutil.walk_packages(root.__path__, f"{package}.")}
+    return {n for n in names if n.rsplit(".", 1)[-1] not in ("__main__", "cli")}
 
 
 def parameters(function) -> set[str]:
@@ -179,47 +176,109 @@ def parameters(function) -> set[str]:
     return {n for n, p in inspect.signature(function).parameters.items() if p.kind not in kinds}
 
 
-def test_api_documents_every_ua2c_argument() -> None:
-    from sb3_ua2c import UA2C
-
-    table = table_names(section(API.read_text(encoding="utf-8"), "### UA2C arguments"))
-    signature = parameters(UA2C.__init__)
-    assert len(table) == len(set(table)), f"docs/api.md lists an argument twice: {sorted(table)}"
-    assert sorted(signature - NOT_DOCUMENTED - set(table)) == [], "UA2C arguments missing from docs/api.md"
-    assert sorted(set(table) - signature) == [], "docs/api.md documents UA2C arguments the signature lacks"
+def test_every_module_is_on_an_api_page() -> None:
+    modules = documented_modules()
+    assert len(modules) == len(set(modules)), f"a module is on two API pages: {sorted(modules)}"
+    expected = (package_modules("sb3_ua2c") | package_modules("envs")) - {"sb3_ua2c.version"}
+    assert sorted(expected - set(modules)) == [], "modules on no page of docs/api/"
+    assert sorted(set(modules) - expected) == [], "docs/api/ documents modules that do not exist"
 
 
-def test_api_documents_every_policy_argument() -> None:
-    from sb3_ua2c import MlpPolicy, UA2CPolicy
-
-    assert MlpPolicy is UA2CPolicy
-    text = section(API.read_text(encoding="utf-8"), "## `sb3_ua2c.UA2CPolicy`, `MlpPolicy`")
-    signature = parameters(UA2CPolicy.__init__)
-    table = first_cell_names(text)
-    assert len(table) == len(set(table)), f"docs/api.md lists a policy argument twice: {sorted(table)}"
-    assert sorted(signature - NOT_DOCUMENTED - set(table)) == [], "UA2CPolicy arguments missing from docs/api.md"
-    assert sorted(set(table) - signature) == [], "docs/api.md documents policy arguments the signature lacks"
+def test_every_api_page_is_in_the_api_toctree() -> None:
+    text = (DOCS / "api.md").read_text(encoding="utf-8")
+    for page in API_PAGES:
+        assert f"\napi/{page.stem}\n" in text, f"docs/api.md has no toctree entry for {page.name}"
+        assert f"(api/{page.name})" in text, f"docs/api.md does not link {page.name}"
 
 
-def test_api_names_only_existing_ua2c_methods() -> None:
-    from sb3_ua2c import UA2C
+@pytest.mark.parametrize("name", ["sb3_ua2c.ua2c.UA2C", "sb3_ua2c.policies.UA2CPolicy", "sb3_ua2c.buffers.ChunkReplayBuffer"])
+def test_the_docstring_describes_every_argument(name: str) -> None:
+    """The class docstring (the text autodoc shows, ``autoclass_content = "class"``) has one
+    ``:param x:`` per constructor argument, and none for an argument the signature lacks."""
+    import importlib
 
-    methods = table_names(section(API.read_text(encoding="utf-8"), "### UA2C methods"), CALL_NAME)
-    assert methods, "no UA2C methods table in docs/api.md"
-    assert [m for m in methods if not callable(getattr(UA2C, m, None))] == []
+    module, cls_name = name.rsplit(".", 1)
+    assert module in documented_modules()
+    cls = getattr(importlib.import_module(module), cls_name)
+    described = PARAM.findall(cls.__doc__ or "")
+    signature = parameters(cls.__init__)
+    assert len(described) == len(set(described)), f"{cls_name} describes an argument twice"
+    assert sorted(signature - NOT_DOCUMENTED - set(described)) == [], f"{cls_name} arguments without :param:"
+    assert sorted(set(described) - signature) == [], f"{cls_name} describes arguments the signature lacks"
 
 
-def test_the_api_table_reader() -> None:
-    page = (
-        "# API\n\n## `A`\n\n### A arguments\n\n| argument | default |\n|---|---|\n"
-        "| `alpha` | 1 |\n| `beta_2` | `None` |\n| not code | x |\n\n### A methods\n\n"
-        "| method | meaning |\n|---|---|\n| `learn(n)` | x |\n| `A.load(path)` | x |\n\n## `B`\n\n| `gamma` | 2 |\n"
-    )
-    assert table_names(section(page, "### A arguments")) == ["alpha", "beta_2"]
-    assert table_names(section(page, "### A methods"), CALL_NAME) == ["learn", "load"]
-    assert first_cell_names("| `a`, `b_1` | `c` |\n|---|---|\n| `d` | x |\nnot | a `row`\n") == ["a", "b_1", "d"]
-    assert "gamma" not in section(page, "## `A`")
+def test_the_module_and_parameter_readers() -> None:
+    page = ".. automodule:: a.b\n   :no-members:\n\ntext .. automodule:: not.this\n.. automodule:: c\n"
+    assert AUTOMODULE.findall(page) == ["a.b", "c"]
+    doc = "Text.\n\n    :param alpha: one\n    :param beta_2: two\n        :param gamma: nested\n x :param no: mid-line"
+    assert PARAM.findall(doc) == ["alpha", "beta_2", "gamma"]
     assert parameters(lambda self, a, *args, b=1, **kwargs: None) == {"self", "a", "b"}
+    assert "envs.style.model" in package_modules("envs") and "envs.style.cli" not in package_modules("envs")
+
+
+# the site's link rewriting (docs/_ext/repo_pages.py) and name resolution (docs/_ext/python_names.py)
+
+
+@pytest.fixture
+def ext(monkeypatch):
+    monkeypatch.syspath_prepend(str(DOCS / "_ext"))
+    import python_names
+    import repo_pages
+
+    return repo_pages, python_names
+
+
+def test_links_are_aimed_at_site_pages(tmp_path: Path, ext) -> None:
+    repo_pages, _ = ext
+    src = tmp_path / "docs"
+    for path in ("README.md", "CHANGELOG.md", "results/README.md", "results/run/report.md", "results/a.json",
+                 "docs/README.md", "docs/page.md", "docs/index.md"):
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / path).write_text("# x\n")
+    stubs = repo_pages.write_stubs(src, tmp_path)
+    assert [s.relative_to(src).as_posix() for s in stubs] == [
+        "_repo/CHANGELOG.md", "_repo/README.md", "_repo/results/README.md", "_repo/results/run/report.md",
+    ]
+    assert (src / "_repo/results/README.md").read_text() == (
+        "```{include} ../../../results/README.md\n```\n\n```{toctree}\n:hidden:\n\nrun/report\n```\n"
+    )
+    # a page of docs/, read as it is
+    page = "[a](page.md#s) [b](../results/run/report.md#t) [c](README.md) `[d](../CHANGELOG.md)` [e](https://x.org)\n"
+    assert repo_pages.rewrite_links(page, src, src, src, tmp_path) == (
+        "[a](page.md#s) [b](_repo/results/run/report.md#t) [c](index.md) `[d](../CHANGELOG.md)` [e](https://x.org)\n"
+    )
+    # results/README.md, shown by its stub in docs/_repo/results
+    report = "[a](run/report.md) ![p](a.json) [b](../docs/page.md#s) [c](../README.md) [gone](nothing.md)\n"
+    report += "```\n[fenced](../README.md)\n```\n[ref]: ../CHANGELOG.md\n"
+    shown_in = src / "_repo" / "results"
+    assert repo_pages.rewrite_links(report, tmp_path / "results", shown_in, src, tmp_path) == (
+        "[a](run/report.md) ![p](../../../results/a.json) [b](../../page.md#s) [c](../README.md) [gone](nothing.md)\n"
+        "```\n[fenced](../README.md)\n```\n[ref]: ../CHANGELOG.md\n"
+    )
+    (tmp_path / "results/run/report.md").unlink()
+    repo_pages.write_stubs(src, tmp_path)
+    assert not (src / "_repo/results/run/report.md").exists()
+
+
+def test_names_are_looked_up_as_python_does(ext) -> None:
+    _, python_names = ext
+    from sb3_ua2c.buffers import ChunkReplayBuffer
+    from sb3_ua2c.chunking import chunk_target
+
+    assert python_names.lookup("sb3_ua2c.ua2c.ChunkReplayBuffer") is ChunkReplayBuffer  # imported there
+    assert python_names.lookup("sb3_ua2c.chunking.chunk_target") is chunk_target
+    assert python_names.lookup("sb3_ua2c.chunking.no_such_function") is python_names._MISSING
+    assert python_names.lookup("no_such_package.x") is python_names._MISSING
+    assert python_names.canonical_names(ChunkReplayBuffer, "x", {}) == ["sb3_ua2c.buffers.ChunkReplayBuffer"]
+    import gymnasium as gym
+
+    class Wrapper(gym.Wrapper):
+        pass
+
+    assert python_names.inherited_annotation(Wrapper, "env")  # gymnasium.Wrapper declares it
+    assert python_names.inherited_annotation(Wrapper, "observation_space")  # gymnasium.Env does
+    assert not python_names.inherited_annotation(Wrapper, "no_such_attribute")
+    assert not python_names.inherited_annotation(gym.Wrapper, "env")  # its own, not a base's
 
 
 # the checker itself, on hand-made pages: a broken file, a broken anchor and a link in code
