@@ -27,7 +27,7 @@ import numpy as np
 STYLES = ("conservative", "neutral", "aggressive")
 #: Observed slots; h = 1, 2, 3 are the LEFT, CURRENT and RIGHT lane relative to the AV (Eq. 1 order).
 SLOT_NAMES = ("l_1", "l_2", "l_3", "f_1", "f_2", "f_3")
-#: Per-slot features of ``info["slots"]["features"]`` (units in :func:`slot_features`).
+#: Per-slot features of ``info["slots"]["features"]`` (units: the table of :mod:`envs.style.sequences`).
 SLOT_FEATURES = ("dp", "dv", "accel", "speed", "lane_offset", "gap_to_leader", "lane_density")
 #: Number of observed lanes H.
 NUM_OBSERVED_LANES = 3
@@ -197,7 +197,8 @@ def _check_number(owner: str, name: str, value: Any, low: float = 0.0, strict: b
 class RewardConfig:
     """Weights η_α of the seven reward terms and the parameters of the safety distance.
 
-    Every term ``R_α`` is dimensionless and bounded (see :func:`reward_terms`); the weights are
+    Every term ``R_α`` is dimensionless and bounded (the functions below, :func:`target_speed_reward` to
+    :func:`collision_penalty`); the weights are
     non-negative, so penalties enter with their sign. With the defaults a random policy's
     per-step reward mixes speed (+), jerk, lane-change and distance terms of comparable size,
     while one collision (-100) outweighs a whole episode of speed reward.
@@ -238,7 +239,7 @@ class RewardConfig:
 
 
 def target_speed_reward(speed: float, target_speed: float) -> float:
-    """R_1 = 1 − |v − v*| / v*, clipped to [-1, 1]: 1 at the target speed, 0 at standstill."""
+    """R_1 = 1 − ``|v − v*|`` / v*, clipped to [-1, 1]: 1 at the target speed, 0 at standstill."""
     return float(max(-1.0, 1.0 - abs(speed - target_speed) / target_speed))
 
 

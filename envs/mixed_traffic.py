@@ -221,13 +221,14 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     so that each style has a temporal signature. HDVs that reach the end of the road re-enter
     at its start, so the density holds. Paper: §2 and §4.1.
 
-    ## Action space
-    ``Box([a_min, -1], [a_max, 1], (2,), float32)``:
+    **Action space**: ``Box([a_min, -1], [a_max, 1], (2,), float32)``:
 
-    | idx | action | unit | meaning |
-    |-----|--------|------|---------|
-    | 0 | acceleration | m/s² | in [a_min, a_max] = [-4.5, 3.0] by default |
-    | 1 | lane change | - | ``< -1/3`` → -1 = change LEFT, ``> 1/3`` → +1 = change RIGHT, else 0 = keep |
+    ===  ============  =====  ==========================================================================
+    idx  action        unit   meaning
+    ===  ============  =====  ==========================================================================
+    0    acceleration  m/s²   in [a_min, a_max] = [-4.5, 3.0] by default
+    1    lane change   —      ``< -1/3`` → -1 = change LEFT, ``> 1/3`` → +1 = change RIGHT, else 0 = keep
+    ===  ============  =====  ==========================================================================
 
     Out-of-range values are clipped; a NaN / inf or wrongly shaped action raises ``ValueError``.
     The AV's speed after the step is ``clip(v + a · dt, 0, max_speed)``. A lane change is
@@ -235,16 +236,19 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     gap collides) if the target lane exists on the AV's current edge; otherwise it is ignored.
     The merge is the left change from the acceleration lane to highway lane 0.
 
-    ## Observation space (Eq. 1, 20 numbers, float32, normalised and clipped into the bounds)
+    **Observation space** (Eq. 1, 20 numbers, float32, normalised and clipped into the bounds):
 
-    | idx | symbol | meaning | raw unit | scaled by |
-    |-----|--------|---------|----------|-----------|
-    | 0 | v | AV speed | m/s | 1/30 |
-    | 1 | p | AV position along the road from the highway entry | m | 1/1500 |
-    | 2-7 | Δv | speed of l_1, l_2, l_3, f_1, f_2, f_3 minus AV speed | m/s | 1/30 |
-    | 8-13 | Δp | position of the same vehicles minus AV position | m | 1/V = 1/30 |
-    | 14-16 | ρ_1..ρ_3 | vehicles per km within ±V on the left, current, right lane | veh/km | 1/133.3 (jam) |
-    | 17-19 | ζ_1..ζ_3 | length of that lane still available ahead (end of the acceleration lane or of the road) | m | 1/300 (capped) |
+    =====  ========  ========  ==============  ==========================================================
+    idx    symbol    raw unit  scaled by       meaning
+    =====  ========  ========  ==============  ==========================================================
+    0      v         m/s       1/30            AV speed
+    1      p         m         1/1500          AV position along the road from the highway entry
+    2-7    Δv        m/s       1/30            speed of l_1, l_2, l_3, f_1, f_2, f_3 minus AV speed
+    8-13   Δp        m         1/V = 1/30      position of the same vehicles minus AV position
+    14-16  ρ_1..ρ_3  veh/km    1/133.3 (jam)   vehicles per km within ±V on the left, current, right lane
+    17-19  ζ_1..ζ_3  m         1/300 (capped)  length of that lane still available ahead (end of the
+                                               acceleration lane or of the road)
+    =====  ========  ========  ==============  ==========================================================
 
     Lanes h = 1, 2, 3 are LEFT, CURRENT and RIGHT of the AV; ``l_h`` is the nearest vehicle
     ahead and ``f_h`` the nearest behind on lane h within V = 30 m. Sentinels (never NaN): an
@@ -252,23 +256,25 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     an absent lane (left of lane 2, right of lane 0, lane -1 after the merge area) also has
     ρ = 0 and ζ = 0. On the ramp, the left lane is highway lane 0 (observed, not reachable).
 
-    ## Reward (paper §2.2: r = Σ_α η_α R_α; weights in :class:`envs.mdp.RewardConfig`)
+    **Reward** (paper §2.2: r = Σ_α η_α R_α; weights in :class:`envs.mdp.RewardConfig`):
 
-    | term | R_α | η default |
-    |------|-----|-----------|
-    | speed | 1 − \|v − v*\| / v*, v* = 25 m/s, in [-1, 1] | 1.0 |
-    | leader_distance | −max(0, 1 − gap / (2 m + 1 s · v)) w.r.t. l_2, in [-1, 0] | 1.0 |
-    | follower_distance | same w.r.t. f_2, with the follower's speed | 0.5 |
-    | merge | once at the merge: 0.5 + 0.5 × unused fraction of the acceleration lane | 10 |
-    | jerk | −(j / j_max)², j = Δa / dt of the performed acceleration, j_max = (a_max − a_min) / dt | 0.5 |
-    | lane_change | −1 per executed lane change other than the merge | 0.5 |
-    | collision | −1 on a collision | 100 |
+    =================  =========  ==========================================================================
+    term               η default  R_α
+    =================  =========  ==========================================================================
+    speed              1.0        1 − ``|v − v*|`` / v*, v* = 25 m/s, in [-1, 1]
+    leader_distance    1.0        −max(0, 1 − gap / (2 m + 1 s · v)) w.r.t. l_2, in [-1, 0]
+    follower_distance  0.5        same w.r.t. f_2, with the follower's speed
+    merge              10         once at the merge: 0.5 + 0.5 × unused fraction of the acceleration lane
+    jerk               0.5        −(j / j_max)², j = Δa / dt of the performed acceleration,
+                                  j_max = (a_max − a_min) / dt
+    lane_change        0.5        −1 per executed lane change other than the merge
+    collision          100        −1 on a collision
+    =================  =========  ==========================================================================
 
     ``info["reward_terms"]`` holds the weighted terms (they sum to the reward) and
     ``info["reward_terms_raw"]`` the R_α.
 
-    ## Start state
-    All randomness comes from ``np_random``. The HDVs (style counts from ``style_mix``,
+    **Start state**: all randomness comes from ``np_random``. The HDVs (style counts from ``style_mix``,
     shuffled) are spread uniformly over the first 800 m of the three highway lanes at least
     25 m apart, a third of them per lane, sorted keep-right style with some mixing (about 63 %
     of the conservative drivers start in the right lane and 62 % of the aggressive ones in the
@@ -285,14 +291,14 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     numbers (IDM has no noise term; the speed fluctuation is drawn from ``np_random``), so the
     same seed gives a bit-identical episode.
 
-    ## Episode end
+    **Episode end**:
+
     * terminated: collision of the AV (SUMO collision detection: overlap, junctions checked,
       no teleporting), the AV running into the end of the acceleration lane (a collision too,
       ``info["collision_type"] == "lane_end"``), or the AV leaving the road at its end;
     * truncated: after ``time_limit`` = 40 s (200 steps of ``step_length`` = 0.2 s).
 
-    ## Info (every ``reset`` and ``step``)
-    ``slots`` (the style-inference contract: ``ids``, ``styles``, ``features`` (6, 7) with
+    **Info** (every ``reset`` and ``step``): ``slots`` (the style-inference contract: ``ids``, ``styles``, ``features`` (6, 7) with
     :data:`SLOT_FEATURES`, ``present``), ``applied_action`` (performed acceleration and lane
     change in action units, float32 (2,)), ``reward_terms``, ``reward_terms_raw``, ``jerk``
     [m/s³], ``collision``, ``collision_type``, ``lane_change`` (executed, -1 left / +1 right),

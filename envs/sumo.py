@@ -15,7 +15,7 @@ garbage collected) and is ignored in a forked child process, which starts its ow
 Crashes of the interpreter known for libsumo are avoided here: no neighbour/leader query is
 made on a vehicle before it is on the road (``getNeighbors`` on a pending vehicle segfaults;
 only setters such as the speed factor are applied to pending vehicles), lane indices are passed
-as Python ``int`` (numpy integers are rejected), and every call after :meth:`close` raises
+as Python ``int`` (numpy integers are rejected), and every call after :meth:`SumoSimulation.close` raises
 instead of reaching libsumo.
 
 Importing this module never fails; :func:`import_libsumo` raises :class:`SumoNotInstalledError`

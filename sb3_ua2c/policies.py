@@ -327,7 +327,7 @@ class UA2CPolicy(BasePolicy):
     ) -> th.Tensor:
         """
         Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
-        ``n_samples`` candidates each, and set :attr:`calibrated_thresholds` to their per-position
+        ``n_samples`` candidates each, and set ``calibrated_thresholds`` to their per-position
         ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
 
         :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``

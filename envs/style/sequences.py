@@ -7,12 +7,12 @@ step, the occupant's id, its ground-truth style (for training only) and one toke
 =============== ================================================================== ========
 feature         meaning                                                            unit
 =============== ================================================================== ========
-dp              occupant position minus AV position along the road (> 0: ahead)   m
+dp              occupant position minus AV position along the road (> 0: ahead)    m
 dv              occupant speed minus AV speed                                      m/s
 accel           occupant acceleration over the last step                           m/s²
 speed           occupant speed                                                     m/s
 lane_offset     occupant lane relative to the AV lane (+1 left, -1 right)          lanes
-gap_to_leader   occupant's own gap to its leader (capped by the environment)      m
+gap_to_leader   occupant's own gap to its leader (capped by the environment)       m
 lane_density    vehicles per km on the occupant's lane in the observation window   veh/km
 =============== ================================================================== ========
 
