@@ -28,7 +28,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_ua2c.config import check_arguments, hyperparameters
+from sb3_ua2c.config import check_arguments
 
 
 class ChunkReplaySamples(NamedTuple):
@@ -323,7 +323,8 @@ class ChunkReplayBuffer(BaseBuffer):
     :param action_space: Box action space
     :param device: torch device of the sampled tensors
     :param n_envs: number of parallel environments
-    :param chunk_size: ``k``
+    :param chunk_size: ``k`` (this and the next arguments are keyword-only and required:
+        :class:`~sb3_ua2c.ua2c.UA2C` passes its own, where their defaults are declared)
     :param history_len: ``ℓ``
     :param offline_ratio: fraction of each batch drawn from the offline part when both parts hold data
     :param online_targets: ``"prefix"`` (the paper, Eq. 8): one online sample per plan, its chunk the
@@ -341,17 +342,24 @@ class ChunkReplayBuffer(BaseBuffer):
         action_space: spaces.Space,
         device: th.device | str = "auto",
         n_envs: int = 1,
-        chunk_size: int = 5,
-        history_len: int = 4,
-        offline_ratio: float = 0.5,
-        online_targets: str = "prefix",
+        *,
+        chunk_size: int,
+        history_len: int,
+        offline_ratio: float,
+        online_targets: str,
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
         self.chunk_size = chunk_size
         self.history_len = history_len
         self.offline_ratio = offline_ratio
         self.online_targets = online_targets
-        check_arguments(**hyperparameters(self, ChunkReplayBuffer))
+        check_arguments(
+            buffer_size=buffer_size,
+            chunk_size=chunk_size,
+            history_len=history_len,
+            offline_ratio=offline_ratio,
+            online_targets=online_targets,
+        )
         if buffer_size < chunk_size + history_len:
             raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
         self.obs_dim = int(np.prod(self.obs_shape))
@@ -568,30 +576,23 @@ class ChunkReplayBuffer(BaseBuffer):
         return t_len
 
     # ------------------------------------------------------------------ sampling
-    def size(self) -> int:
-        """Number of stored online steps per env (SB3 convention)."""
-        return super().size()
-
-    def _online_starts(self) -> np.ndarray:
-        """The valid online sample starts as flat indices ``slot * n_envs + env``, in increasing order."""
+    def online_starts(self) -> np.ndarray:
+        """The valid online sample starts, flat indices ``slot * n_envs + env`` in increasing order (int64)."""
         return self._starts.members()
 
-    def _scan_online_starts(self) -> np.ndarray:
+    def reindex(self) -> None:
         """
-        The valid online starts found by scanning the whole ring, O(buffer_size): a complete window
-        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots
-        back) is still in the ring. The reference for the index :meth:`add` keeps.
+        Recompute the valid online starts by scanning the whole ring, O(buffer_size): a complete window
+        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots back)
+        is still in the ring. :meth:`add` keeps the index up to date itself; this is for storage written
+        directly (a benchmark filling the ring) and the reference the index is tested against.
         """
         size = self.buffer_size if self.full else self.pos
         slots = np.arange(size)
         age = (slots - self.pos) % self.buffer_size if self.full else slots  # (size,) 0 = oldest
         lookback = np.minimum(self.online.episode_step[:size], self.history_len)  # (size, n_envs)
-        return np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None]))
-
-    def _rebuild_start_index(self) -> None:
-        """Rebuild the start index from a scan (after the ring was filled directly, as a benchmark does)."""
         self._starts.clear()
-        self._starts.insert(self._scan_online_starts())
+        self._starts.insert(np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None])))
 
     def n_samples(self) -> tuple[int, int]:
         """Number of sample starts available ``(online, offline)``."""

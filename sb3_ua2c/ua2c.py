@@ -40,15 +40,8 @@ from sb3_ua2c.chunking import (
     chunk_target,
     pessimistic_q,
 )
-from sb3_ua2c.config import (
-    EXECUTION_RULE_DEFAULTS,
-    POLICY_CHUNKING_ARGUMENTS,
-    check_arguments,
-    check_policy_kwargs,
-    check_spaces,
-    hyperparameters,
-    policy_arguments,
-)
+from sb3_ua2c.compat import legacy_execution_rule
+from sb3_ua2c.config import ExecutionRule, check_arguments, check_policy_kwargs, check_spaces
 from sb3_ua2c.execution import AdaptiveChunkExecutor, ExecutorStep, PlanResult
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import CALIBRATION_SAMPLES, MlpPolicy, UA2CPolicy
@@ -231,11 +224,14 @@ class UA2C(OffPolicyAlgorithm):
         self.target_flow_steps = target_flow_steps
         self.n_candidates = n_candidates
         self.n_target_candidates = n_target_candidates
-        self.execution_rule = execution_rule
-        self.entropy_threshold = entropy_threshold
-        self.target_plan_length = target_plan_length
-        self.entropy_quantile = entropy_quantile
-        self.entropy_growth = entropy_growth
+        #: the execution rule the policy acts with (change it with :meth:`set_execution_rule`)
+        self.execution = ExecutionRule(
+            rule=execution_rule,
+            entropy_threshold=entropy_threshold,
+            target_plan_length=target_plan_length,
+            entropy_quantile=entropy_quantile,
+            entropy_growth=entropy_growth,
+        )
         self.q_weight = q_weight
         self.smooth_weight = smooth_weight
         self.discrete_entropy = discrete_entropy
@@ -248,18 +244,36 @@ class UA2C(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
+        # a checkpoint of the earlier layout, or load(path, entropy_threshold=...): into the one rule
+        self.execution = legacy_execution_rule(self.__dict__, self.execution)
         # the policy and the replay buffer check the arguments they take; UA2C checks the others
-        delegated = {*policy_arguments(self.policy_class), *policy_arguments(ChunkReplayBuffer)}
-        check_arguments(**{k: v for k, v in hyperparameters(self).items() if k not in delegated})
+        check_arguments(
+            learning_rate=self.learning_rate,
+            learning_starts=self.learning_starts,
+            batch_size=self.batch_size,
+            tau=self.tau,
+            gamma=self.gamma,
+            target_flow_steps=self.target_flow_steps,
+            n_target_candidates=self.n_target_candidates,
+            q_weight=self.q_weight,
+            smooth_weight=self.smooth_weight,
+        )
         check_spaces(self.observation_space, self.action_space)
-        check_policy_kwargs(self.policy_kwargs, self.policy_class)
+        check_policy_kwargs(self.policy_kwargs, self.policy_class, UA2C)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space,
             self.action_space,
             self.lr_schedule,
-            **{name: getattr(self, name) for name in POLICY_CHUNKING_ARGUMENTS},
+            chunk_size=self.chunk_size,
+            history_len=self.history_len,
+            flow_steps=self.flow_steps,
+            n_candidates=self.n_candidates,
+            execution=self.execution,
+            discrete_action_dims=self.discrete_action_dims,
+            discrete_entropy=self.discrete_entropy,
+            commit_discrete=self.commit_discrete,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
@@ -600,31 +614,30 @@ class UA2C(OffPolicyAlgorithm):
             self.logger.record("rollout/entropy_threshold", float(self.policy.current_entropy_threshold()))
         super().dump_logs()
 
-    def set_execution_rule(self, **rule: Any) -> None:
+    def set_execution_rule(self, execution: ExecutionRule) -> None:
         """
-        Change the execution rule (execution only; the losses do not depend on it), e.g. to evaluate
-        one checkpoint under several rules. Keyword arguments as the constructor's ``execution_rule``,
-        ``entropy_threshold``, ``target_plan_length``, ``entropy_quantile`` and ``entropy_growth``
-        (validated alike); those not given take their defaults. ``"quantile"`` keeps calibrated
-        thresholds (or needs :meth:`calibrate_execution`), ``"auto"`` keeps the entropy window (or starts
-        an empty one). Kept by :meth:`save`.
+        Change the execution rule (execution only; the losses do not depend on it), e.g. to evaluate one
+        checkpoint under several rules: ``model.set_execution_rule(ExecutionRule("growth", entropy_growth=0.2))``
+        or ``dataclasses.replace(model.execution, entropy_threshold=math.inf)``. ``"quantile"`` keeps
+        calibrated thresholds (or needs :meth:`calibrate_execution`), ``"auto"`` keeps the entropy window
+        (or starts an empty one). Kept by :meth:`save`.
+
+        :param execution: the new rule (:class:`~sb3_ua2c.config.ExecutionRule`)
         """
-        self.policy.set_execution_rule(**rule)
-        for name in EXECUTION_RULE_DEFAULTS:
-            setattr(self, name, getattr(self.policy, name))
+        self.policy.set_execution_rule(execution)
+        self.execution = execution
 
     def set_entropy_threshold(
         self, entropy_threshold: float | str, target_plan_length: float | None = None
     ) -> None:
         """
-        Change δ of Eq. 7 (``execution_rule="threshold"``; execution only), e.g. to evaluate one
-        checkpoint with fixed (``inf``) and adaptive execution; ``"auto"`` with ``target_plan_length``
-        keeps the model's entropy window (or starts an empty one). Kept by :meth:`save`.
+        Alias of :meth:`set_execution_rule` for Eq. 7 with one δ:
+        ``set_execution_rule(ExecutionRule(entropy_threshold=entropy_threshold, target_plan_length=...))``.
 
-        :param entropy_threshold: the new threshold (validated like the constructor argument)
+        :param entropy_threshold: δ in nats, ``math.inf`` (fixed chunks) or ``"auto"``
         :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
         """
-        self.set_execution_rule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length)
+        self.set_execution_rule(ExecutionRule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length))
 
     def calibrate_execution(
         self,
@@ -745,8 +758,9 @@ class UA2C(OffPolicyAlgorithm):
         :return: shape ``(M,)``
         """
         m = obs_history.shape[0]
-        cond = self.actor.condition(self.policy.flatten_history(obs_history, action_history))
-        candidates = self.policy.sample_chunks(cond, self.n_target_candidates, self.target_flow_steps)
+        candidates = self.policy.sample_chunks(
+            obs_history, action_history, self.n_target_candidates, self.target_flow_steps
+        )
         next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
         return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
 
@@ -760,9 +774,7 @@ class UA2C(OffPolicyAlgorithm):
         x0 = th.randn_like(x1)
         tau = th.rand(x1.shape[0], device=x1.device)
         x_tau = interpolate(x0, x1, tau)
-        cond = self.actor.condition(
-            self.policy.flatten_history(data.observation_history, data.action_history)
-        )
+        cond = self.policy.condition(data.observation_history, data.action_history)
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
