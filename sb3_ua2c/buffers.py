@@ -18,8 +18,7 @@ as measured (docs/benchmarks.md).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Iterable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -29,6 +28,7 @@ from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_ua2c.config import check_arguments
+from sb3_ua2c.offline import Episode
 
 
 class ChunkReplaySamples(NamedTuple):
@@ -52,61 +52,7 @@ class ChunkReplaySamples(NamedTuple):
     next_action_history: th.Tensor
 
 
-@dataclass(frozen=True)
-class OfflineEpisode:
-    """
-    One logged episode of per-step transitions (actions in SB3's normalised space [-1, 1]).
-
-    :param observations: ``o_0..o_{T-1}``, shape ``(T, *obs_shape)`` (``T + 1`` rows are accepted when
-        ``next_observations`` is omitted: ``o_T`` is then the last next observation)
-    :param actions: shape ``(T, action_dim)``
-    :param rewards: shape ``(T,)``
-    :param terminations: shape ``(T,)``; only the last step may be true
-    :param truncations: shape ``(T,)``; only the last step may be true
-    :param next_observations: ``o_1..o_T``, shape ``(T, *obs_shape)``
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
-    terminations: np.ndarray
-    truncations: np.ndarray
-    next_observations: np.ndarray | None = None
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, np.ndarray]) -> OfflineEpisode:
-        """Build from a mapping with the field names above (unknown keys raise ``ValueError``)."""
-        allowed = set(cls.__dataclass_fields__)
-        unknown = set(data) - allowed
-        if unknown:
-            raise ValueError(f"unknown offline episode key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-        return cls(**data)
-
-    @classmethod
-    def coerce(cls, episode: Any) -> OfflineEpisode:
-        """
-        Accept an :class:`OfflineEpisode`, a mapping with its field names, or any object with the
-        attributes ``observations, actions, rewards, terminations, truncations`` (e.g. an episode of
-        :mod:`sb3_ua2c.offline`).
-        """
-        if isinstance(episode, cls):
-            return episode
-        if isinstance(episode, Mapping):
-            return cls.from_mapping(episode)
-        try:
-            return cls(
-                observations=episode.observations,
-                actions=episode.actions,
-                rewards=episode.rewards,
-                terminations=episode.terminations,
-                truncations=episode.truncations,
-                next_observations=getattr(episode, "next_observations", None),
-            )
-        except AttributeError as exc:
-            raise ValueError(f"not an offline episode: {type(episode).__name__} lacks {exc.name!r}") from exc
-
-
-def episode_arrays(ep: OfflineEpisode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
+def episode_arrays(ep: Episode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
     """
     The checked per-step arrays of a logged episode, named as the fields of the buffer's storage.
 
@@ -124,12 +70,7 @@ def episode_arrays(ep: OfflineEpisode, index: int, obs_dim: int, action_dim: int
     if t_len == 0:
         raise ValueError(f"offline episode {index} is empty")
     obs = np.asarray(ep.observations, dtype=np.float32)
-    if ep.next_observations is None:
-        if obs.shape[0] != t_len + 1:
-            raise ValueError(
-                f"offline episode {index}: observations must have T+1={t_len + 1} rows when "
-                f"next_observations is omitted, got {obs.shape[0]}"
-            )
+    if ep.next_observations is None:  # (T+1, ...) rows, checked by the Episode
         next_obs, obs = obs[1:], obs[:-1]
     else:
         next_obs = np.asarray(ep.next_observations, dtype=np.float32)
@@ -552,15 +493,16 @@ class ChunkReplayBuffer(BaseBuffer):
         chunk (Eq. 4): ``L = min(k, steps to the episode end)``, bootstrap unless the episode
         terminated inside the window.
 
-        :param episodes: episodes accepted by :meth:`OfflineEpisode.coerce` (actions normalised)
+        :param episodes: :class:`~sb3_ua2c.offline.Episode` objects or mappings with their field names
+            (:meth:`~sb3_ua2c.offline.Episode.coerce`), actions normalised
         :return: number of steps added
         """
         added = 0
         for i, ep in enumerate(episodes):
-            added += self._add_offline_episode(OfflineEpisode.coerce(ep), i)
+            added += self._add_offline_episode(Episode.coerce(ep), i)
         return added
 
-    def _add_offline_episode(self, ep: OfflineEpisode, index: int) -> int:
+    def _add_offline_episode(self, ep: Episode, index: int) -> int:
         arrays = episode_arrays(ep, index, self.obs_dim, self.action_dim)
         t_len = arrays["actions"].shape[0]
         s, start = self.offline, self.offline_size

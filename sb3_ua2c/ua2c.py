@@ -7,6 +7,7 @@ Mixed Traffic", §3.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import pathlib
@@ -32,7 +33,7 @@ from stable_baselines3.common.utils import (
 )
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.chunking import (
     bootstrap_value,
@@ -44,6 +45,7 @@ from sb3_ua2c.compat import legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_policy_kwargs, check_spaces
 from sb3_ua2c.execution import AdaptiveChunkExecutor, ExecutorStep, PlanResult
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
+from sb3_ua2c.offline import Episode
 from sb3_ua2c.policies import CALIBRATION_SAMPLES, MlpPolicy, UA2CPolicy
 
 SelfUA2C = TypeVar("SelfUA2C", bound="UA2C")
@@ -397,9 +399,8 @@ class UA2C(OffPolicyAlgorithm):
         Add logged episodes to the offline part of the replay buffer (sampled as k-step windows with
         the logged actions as the chunk, Eq. 4; mixed into each batch with ``offline_ratio``).
 
-        :param episodes: :class:`~sb3_ua2c.buffers.OfflineEpisode` objects, mappings or objects with the
-            fields ``observations, actions, rewards, terminations, truncations[, next_observations]``
-            (e.g. the episodes of a :class:`sb3_ua2c.offline.OfflineDataset`)
+        :param episodes: :class:`~sb3_ua2c.offline.Episode` objects (e.g. those of a
+            :class:`~sb3_ua2c.offline.OfflineDataset`) or mappings with their field names
         :param actions_normalized: ``True`` if the actions are already in [-1, 1] (else they are in
             the env's action units and are rescaled with the policy's ``scale_action``)
         :return: number of steps added
@@ -407,23 +408,16 @@ class UA2C(OffPolicyAlgorithm):
 
         return self.replay_buffer.add_offline_episodes(self._normalized_episodes(episodes, actions_normalized))
 
-    def _normalized_episodes(self, episodes: Iterable[Any], actions_normalized: bool) -> Iterator[OfflineEpisode]:
-        """Episodes as :class:`OfflineEpisode` with actions in [-1, 1] (rescaled unless ``actions_normalized``)."""
+    def _normalized_episodes(self, episodes: Iterable[Any], actions_normalized: bool) -> Iterator[Episode]:
+        """Episodes with actions in [-1, 1] (rescaled with ``scale_action`` unless ``actions_normalized``)."""
         for ep in episodes:
-            episode = OfflineEpisode.coerce(ep)
+            episode = Episode.coerce(ep)
             if actions_normalized:
                 yield episode
                 continue
             actions = np.asarray(episode.actions, dtype=np.float32)
             scaled = self.policy.scale_action(actions.reshape(actions.shape[0], -1))
-            yield OfflineEpisode(
-                episode.observations,
-                np.clip(scaled, -1.0, 1.0),
-                episode.rewards,
-                episode.terminations,
-                episode.truncations,
-                episode.next_observations,
-            )
+            yield dataclasses.replace(episode, actions=np.clip(scaled, -1.0, 1.0))
 
     def pretrain(
         self: SelfUA2C, n_gradient_steps: int, batch_size: int | None = None, log_interval: int = 1000

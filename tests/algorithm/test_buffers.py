@@ -8,7 +8,8 @@ import torch as th
 from gymnasium import spaces
 from ua2c_helpers import ACT, OBS
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, _StartIndex
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, _StartIndex
+from sb3_ua2c.offline import Episode
 
 
 @pytest.fixture(autouse=True)
@@ -209,7 +210,7 @@ def test_online_targets_is_validated():
 
 
 def offline_episode(offset=0.0, terminated=True):
-    return OfflineEpisode(
+    return Episode(
         observations=np.arange(5, dtype=np.float32).reshape(5, 1) + offset,
         actions=np.array([[0.1], [0.2], [0.3], [0.4]], np.float32),
         rewards=np.array([1.0, 2.0, 3.0, 4.0]),
@@ -315,7 +316,7 @@ def test_offline_ratio_mixes_batches():
 def test_offline_episode_validation():
     buf = make_buffer()
     bad = offline_episode()
-    with pytest.raises(ValueError, match="rewards has shape"):
+    with pytest.raises(ValueError, match="rewards must have T=4 rows, got 3"):
         buf.add_offline_episodes([{**bad.__dict__, "rewards": np.zeros(3)}])
     with pytest.raises(ValueError, match="normalised"):
         buf.add_offline_episodes([{**bad.__dict__, "actions": np.full((4, 1), 2.0)}])
