@@ -16,8 +16,8 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.utils import configure_logger
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.execution import CALIBRATION_SAMPLES
 from sb3_ua2c.offline import Episode
-from sb3_ua2c.policies import CALIBRATION_SAMPLES
 
 SelfOfflineTraining = TypeVar("SelfOfflineTraining", bound="OfflineTraining")
 

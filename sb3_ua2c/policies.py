@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import math
 import pathlib
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -17,7 +16,6 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.utils import get_device
 from torch import nn
@@ -26,24 +24,16 @@ from sb3_ua2c.chunking import (
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
-    default_target_plan_length,
-    entropy_growth_length,
-    executable_prefix_length,
     pessimistic_q,
-    quantile_entropy_thresholds,
     select_chunk,
 )
 from sb3_ua2c.compat import legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
-from sb3_ua2c.execution import EntropyWindow, PlanResult, resume_and_act
+from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
 from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, VelocityField
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
-
-#: candidates per history when :meth:`UA2CPolicy.calibrate_entropy_thresholds` measures ``H_u``: the
-#: estimator's SD (about 0.04 nats per action dim) is small next to the spread of ``H_u`` across states
-CALIBRATION_SAMPLES = 256
 
 
 def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: int, chunk_size: int) -> th.Tensor:
@@ -71,16 +61,13 @@ def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: 
     return noise.to(obs_history.device)
 
 
-#: state-dict keys of the execution rule (:meth:`UA2CPolicy.load_state_dict`)
-_RULE_STATE = ("entropy_window.", "calibrated_thresholds")
-
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
 DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
 #: Hidden sizes of the MLP critics (``critic_arch="mlp"``) when ``critic_net_arch`` is not given: SAC's.
 DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
 
-class UA2CPolicy(BasePolicy):
+class UA2CPolicy(ExecutionRuleState):
     """
     Policy of UA2C: flow-matching chunk actor, twin Transformer chunk critics (+ Polyak targets) and
     the adaptive-chunk planner (Eq. 7) used by ``predict``.
@@ -313,69 +300,6 @@ class UA2CPolicy(BasePolicy):
         check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
         self.n_elite = n_elite
 
-    def set_execution_rule(self, execution: ExecutionRule) -> None:
-        """
-        Set the execution rule (execution only: the losses do not read it), e.g. to evaluate one checkpoint
-        under several rules. ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
-        ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
-
-        :param execution: the new rule (its ``target_plan_length`` must not exceed ``chunk_size``)
-        """
-        self._check_execution(execution)
-        self.execution = execution
-        self._follow_entropy_threshold()
-
-    def _check_execution(self, execution: Any) -> None:
-        if not isinstance(execution, ExecutionRule):
-            raise ValueError(f"execution must be an ExecutionRule, got {execution!r}")
-        execution.check_chunk_size(self.chunk_size)
-
-    def _follow_entropy_threshold(self) -> None:
-        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``, and the calibrated
-        thresholds under ``"quantile"``; drop what the rule does not use."""
-        if not self.execution.auto:
-            self.entropy_window = None
-        elif self.entropy_window is None:
-            self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
-        if self.execution.rule != "quantile":
-            self.calibrated_thresholds = None
-        elif self.calibrated_thresholds is None:
-            self.calibrated_thresholds = th.full((self.chunk_size,), math.nan, device=self.device)
-
-    @property
-    def needs_calibration(self) -> bool:
-        """``execution_rule="quantile"`` without calibrated thresholds (:meth:`calibrate_entropy_thresholds`)."""
-        return self.calibrated_thresholds is not None and bool(th.isnan(self.calibrated_thresholds).any())
-
-    def calibrate_entropy_thresholds(
-        self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int = CALIBRATION_SAMPLES,
-        batch_size: int = 64,
-    ) -> th.Tensor:
-        """
-        Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
-        ``n_samples`` candidates each, and set :attr:`calibrated_thresholds` to their per-position
-        ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
-
-        :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``
-        :param action_history: their past actions, shape ``(n, ℓ, action_dim)``
-        :param n_samples: candidates per history (more than ``n_candidates``: less estimator noise)
-        :param batch_size: histories per sampling pass (memory only)
-        :return: the measured ``H_u``, shape ``(n, k)``
-        """
-        if self.execution.rule != "quantile":
-            raise ValueError(f"calibration applies to execution_rule='quantile', not {self.execution.rule!r}")
-        check_arguments(n_candidates=n_samples)
-        if obs_history.shape[0] < 2:
-            raise ValueError(f"calibration needs at least 2 histories, got {obs_history.shape[0]}")
-        with th.inference_mode():
-            batches = range(0, obs_history.shape[0], batch_size)
-            entropy = th.cat([self.sample_candidates(obs_history[i : i + batch_size],
-                                                     action_history[i : i + batch_size], n_samples)[1]
-                              for i in batches])  # (n, k)
-        assert self.calibrated_thresholds is not None
-        self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, self.execution.quantile))
-        return entropy
-
     def sample_candidates(
         self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int,
         generator: th.Generator | None = None, x0: th.Tensor | None = None,
@@ -387,29 +311,6 @@ class UA2CPolicy(BasePolicy):
         chunks = self.sample_chunks(obs_history, action_history, n_samples, self.flow_steps, generator, x0)
         clipped = chunks.clamp(-1.0, 1.0)
         return clipped, chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)
-
-    def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
-        """
-        δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
-        :attr:`entropy_window` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
-        While the window is empty, each row of the replanning's entropies ``entropy`` ``(m, k)`` gets its
-        own δ ``(m, 1)``, and without them the answer is ``nan``.
-        """
-        if self.entropy_window is None:
-            return float(self.execution.entropy_threshold)
-        if entropy is None and int(self.entropy_window.count) == 0:
-            return math.nan
-        target = self.execution.target_plan_length or default_target_plan_length(self.chunk_size)
-        return self.entropy_window.threshold(target, entropy)
-
-    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """``nn.Module.load_state_dict``; the execution rule's state (``entropy_window.*``,
-        ``calibrated_thresholds``) follows this policy's rule, which a load may override: a checkpoint
-        saved under another rule loads into an ``"auto"`` policy with an empty window and into a
-        ``"quantile"`` policy uncalibrated, and a rule ignores the state of another."""
-        own = {k: v for k, v in self.state_dict().items() if k.startswith(_RULE_STATE)}
-        state_dict = {k: v for k, v in state_dict.items() if not k.startswith(_RULE_STATE) or k in own}
-        return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)
@@ -502,21 +403,6 @@ class UA2CPolicy(BasePolicy):
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
         return chunks, lengths, entropy
-
-    def plan_lengths(self, entropy: th.Tensor) -> th.Tensor:
-        """
-        ``L_t`` of a replanning from its entropies ``H_u`` ``(m, k)`` by the execution rule: Eq. 7 with
-        δ (``"threshold"``) or with the calibrated ``delta_u`` (``"quantile"``), or the growth rule
-        (:func:`~sb3_ua2c.chunking.entropy_growth_length`). Returns a long tensor ``(m,)`` in ``[1, k]``.
-        """
-        if self.execution.rule == "growth":
-            return entropy_growth_length(entropy, self.execution.growth)
-        if self.execution.rule == "quantile":
-            if self.needs_calibration:
-                raise RuntimeError("execution_rule='quantile' acts once its thresholds are calibrated: call "
-                                   "UA2C.calibrate_execution() (learn() does it from the replay buffer)")
-            return executable_prefix_length(entropy, self.calibrated_thresholds)
-        return executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
 
     def plan(
         self,
