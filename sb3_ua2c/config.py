@@ -227,26 +227,30 @@ def check_spaces(observation_space: spaces.Space | None, action_space: spaces.Sp
         raise ValueError("UA2C needs a bounded Box action space (finite low and high)")
 
 
+def _model_arguments(model_class: type) -> set[str]:
+    """What a model passes to its policy itself: its constructor's arguments, and ``execution`` (the
+    :class:`ExecutionRule` it builds from its execution-rule arguments)."""
+    return set(inspect.signature(model_class.__init__).parameters) | {"execution"}
+
+
 def policy_kwargs_names(policy_class: type, model_class: type) -> tuple[str, ...]:
     """
     The arguments of ``policy_class`` that ``policy_kwargs`` may set: its constructor's arguments without
-    the spaces and the schedule, and without those the model passes itself (the model's own
-    constructor arguments, and ``execution``, which the model builds from its execution-rule arguments).
+    the spaces and the schedule, and without those the model passes itself (:func:`_model_arguments`).
     """
-    model = set(inspect.signature(model_class.__init__).parameters) | {"execution"}
+    model = _model_arguments(model_class)
     names = inspect.signature(policy_class.__init__).parameters
     return tuple(p for p in names if p not in _POLICY_PLUMBING and p not in model)
 
 
 def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: type, model_class: type) -> None:
     """
-    Raise ``ValueError`` naming a key of ``policy_kwargs`` that is not an argument of ``policy_class``,
-    or that the model sets from its own argument (:func:`policy_kwargs_names`).
+    Raise ``ValueError`` naming a key of ``policy_kwargs`` that the model sets from its own argument, or
+    that is not an argument of ``policy_class`` (:func:`policy_kwargs_names`).
     """
-    allowed = policy_kwargs_names(policy_class, model_class)
-    owned = set(inspect.signature(policy_class.__init__).parameters) - set(allowed) - set(_POLICY_PLUMBING)
+    allowed, model = policy_kwargs_names(policy_class, model_class), _model_arguments(model_class)
     for key in policy_kwargs or {}:
-        if key in owned:
+        if key in model:
             raise ValueError(f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead")
         if key not in allowed:
             raise ValueError(f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed)}")
