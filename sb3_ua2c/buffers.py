@@ -259,6 +259,10 @@ class ChunkReplayBuffer(BaseBuffer):
     """
     Replay buffer for chunked off-policy learning (online ring + offline episodes).
 
+    It stays over 300 lines for the bookkeeping of the online ring that keeps sampling O(batch): open
+    plans (Eq. 8), closing windows (``online_targets="window"``) and the index of valid starts as the
+    ring overwrites itself.
+
     :param buffer_size: capacity of the online ring (steps per env)
     :param observation_space: Box observation space
     :param action_space: Box action space

@@ -1,6 +1,6 @@
 """Loading checkpoints of earlier layouts.
 
-Before version 0.5 the execution rule was five separate arguments (``execution_rule``,
+Before release 0.1.0 the execution rule was five separate arguments (``execution_rule``,
 ``entropy_threshold``, ``target_plan_length``, ``entropy_quantile``, ``entropy_growth``), saved one by
 one among a model's attributes and a policy's constructor arguments. They are now one
 :class:`~sb3_ua2c.config.ExecutionRule`; :func:`legacy_execution_rule` turns the old entries into it, so
