@@ -49,7 +49,7 @@ class Checkpoints(OffPolicyAlgorithm):
         """
         SB3's ``load``; keyword arguments override the saved attributes as in SB3
         (``UA2C.load(path, flow_steps=2)``), and ``n_elite=m`` sets the elite mean of the loaded
-        policy (:meth:`set_n_elite`). Without that, SB3 would store ``n_elite`` as an unused
+        policy (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`). Without that, SB3 would store ``n_elite`` as an unused
         attribute and the policy would go on acting with its saved ``m``.
         """
         n_elite = kwargs.pop("n_elite", None)

@@ -288,7 +288,7 @@ def resume_and_act(
 class ExecutionRuleState(BasePolicy):
     """
     The execution rule's part of :class:`~sb3_ua2c.policies.UA2CPolicy` (not a policy of its own): the
-    :class:`~sb3_ua2c.config.ExecutionRule` in force (:attr:`execution`), the state it keeps (the
+    :class:`~sb3_ua2c.config.ExecutionRule` in force (``execution``), the state it keeps (the
     :class:`EntropyWindow` of ``entropy_threshold="auto"``, the calibrated thresholds ``delta_u`` of
     ``"quantile"``; buffers, saved with the policy) and the executed length ``L_t`` it gives a replanning
     (:meth:`plan_lengths`).
@@ -317,7 +317,7 @@ class ExecutionRuleState(BasePolicy):
         execution.check_chunk_size(self.chunk_size)
 
     def _follow_entropy_threshold(self) -> None:
-        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``, and the calibrated
+        """Keep ``entropy_window`` (or start an empty one) under ``"auto"``, and the calibrated
         thresholds under ``"quantile"``; drop what the rule does not use."""
         if not self.execution.auto:
             self.entropy_window = None
@@ -339,7 +339,7 @@ class ExecutionRuleState(BasePolicy):
     ) -> th.Tensor:
         """
         Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
-        ``n_samples`` candidates each, and set :attr:`calibrated_thresholds` to their per-position
+        ``n_samples`` candidates each, and set ``calibrated_thresholds`` to their per-position
         ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
 
         :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``
@@ -365,7 +365,7 @@ class ExecutionRuleState(BasePolicy):
     def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
         """
         δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
-        :attr:`entropy_window` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
+        ``entropy_window`` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
         While the window is empty, each row of the replanning's entropies ``entropy`` ``(m, k)`` gets its
         own δ ``(m, 1)``, and without them the answer is ``nan``.
         """

@@ -93,7 +93,8 @@ class OfflineTraining(OffPolicyAlgorithm):
         Calibrate ``execution_rule="quantile"``: draw ``n_histories`` histories from the replay buffer
         (after Phase 1: the dataset) or from held-out ``episodes``, measure ``H_u`` at each with
         ``n_samples`` fresh-noise candidates, and set the per-position thresholds ``delta_u`` to the
-        ``entropy_quantile`` of ``H_u`` (:meth:`UA2CPolicy.calibrate_entropy_thresholds`). Saved with the
+        ``entropy_quantile`` of ``H_u``
+        (:meth:`~sb3_ua2c.execution.ExecutionRuleState.calibrate_entropy_thresholds`). Saved with the
         model. The draw and the noise come from the model's random generators (seeded by ``seed``), as a
         training batch's do.
 
