@@ -313,6 +313,21 @@ def test_offline_ratio_mixes_batches():
     assert offline_rows == 2
 
 
+def test_one_episode_type_with_or_without_next_observations():
+    """An Episode with o_1..o_T given apart, or as a mapping, is stored as the one with T+1 observations."""
+    whole = offline_episode()
+    split = Episode(whole.observations[:-1], whole.actions, whole.rewards, whole.terminations, whole.truncations,
+                    next_observations=whole.observations[1:])
+    buffers = [make_buffer(), make_buffer(), make_buffer()]
+    for buf, episode in zip(buffers, [whole, split, vars(split)], strict=True):
+        assert buf.add_offline_episodes([episode]) == 4
+    same_samples(buffers[0], buffers[1])
+    same_samples(buffers[0], buffers[2])
+    with pytest.raises(ValueError, match="next_observations must have T=4 rows, got 3"):
+        Episode(whole.observations[:-1], whole.actions, whole.rewards, whole.terminations, whole.truncations,
+                next_observations=whole.observations[2:])
+
+
 def test_offline_episode_validation():
     buf = make_buffer()
     bad = offline_episode()
