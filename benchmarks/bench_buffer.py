@@ -103,7 +103,7 @@ class Trajectory:
 def chunk_buffer(size: int, traj: Trajectory, fill: str, online_targets: str = "prefix") -> ChunkReplayBuffer:
     """A full ring of ``size`` steps of ``traj`` (which holds a whole number of episodes)."""
     buf = ChunkReplayBuffer(
-        size, OBS_SPACE, ACTION_SPACE, "cpu", chunk_size=CHUNK, history_len=HISTORY,
+        size, OBS_SPACE, ACTION_SPACE, "cpu", chunk_size=CHUNK, history_len=HISTORY, offline_ratio=0.5,
         online_targets=online_targets,
     )
     if fill == "add":
@@ -124,7 +124,7 @@ def chunk_buffer(size: int, traj: Trajectory, fill: str, online_targets: str = "
     s.bootstrap[:, 0] = s.horizon[:, 0] > 0  # time limits only: every window bootstraps
     buf.full, buf.pos = True, 0
     buf._next_episode_step[:] = steps[-1] + 1
-    buf._rebuild_start_index()
+    buf.reindex()
     return buf
 
 
@@ -183,7 +183,10 @@ def bench_size(size: int, fill: str, calls: int, add_steps: int) -> list[tuple[s
     """Rows (what, ours, SB3) at one buffer size."""
     traj = Trajectory(size + add_steps, seed=size)
     sb3 = sb3_buffer(size, traj, fill)
-    offline = ChunkReplayBuffer(size, OBS_SPACE, ACTION_SPACE, "cpu", chunk_size=CHUNK, history_len=HISTORY)
+    offline = ChunkReplayBuffer(
+        size, OBS_SPACE, ACTION_SPACE, "cpu", chunk_size=CHUNK, history_len=HISTORY, offline_ratio=0.5,
+        online_targets="prefix",
+    )
     offline.add_offline_episodes(offline_episodes(traj, size))
     rows = [
         sample_row("sample, online (prefix)", chunk_buffer(size, traj, fill), sb3, calls),
@@ -196,7 +199,9 @@ def bench_size(size: int, fill: str, calls: int, add_steps: int) -> list[tuple[s
     ours = chunk_buffer(size, traj, fill)
     # add() into the full rings, overwriting (the bookkeeping of the valid starts included)
     rows.append(add_row(ours, sb3, traj, size, add_steps))
-    assert ours._online_starts().tolist() == ours._scan_online_starts().tolist()  # the index kept up
+    kept = ours.online_starts().tolist()
+    ours.reindex()
+    assert ours.online_starts().tolist() == kept  # the index kept up
     rows.append(("memory (MB), online ring", footprint_mb(ours), footprint_mb(sb3)))
     return rows
 

@@ -106,11 +106,10 @@ def latency(repeats: int, ua2c_kwargs: dict) -> None:
 def _plan_parts(policy, obs_t: th.Tensor, act_t: th.Tensor, repeats: int) -> dict[str, float]:
     """CPU ms of the parts of one replanning: flow sampler (N Euler steps), entropy, critic scoring."""
     m = obs_t.shape[0]
-    cond = policy.actor.condition(policy.flatten_history(obs_t, act_t))
-    samples = policy.sample_chunks(cond, policy.n_candidates, policy.flow_steps)
+    samples = policy.sample_chunks(obs_t, act_t, policy.n_candidates, policy.flow_steps)
     clipped = samples.clamp(-1.0, 1.0)
     return {
-        "sampler": cpu_ms(lambda: policy.sample_chunks(cond, policy.n_candidates, policy.flow_steps), repeats),
+        "sampler": cpu_ms(lambda: policy.sample_chunks(obs_t, act_t, policy.n_candidates, policy.flow_steps), repeats),
         "entropy": cpu_ms(
             lambda: chunk_entropy(samples, policy.discrete_dims, discrete=policy.discrete_entropy), repeats
         ),

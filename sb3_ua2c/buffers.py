@@ -18,8 +18,7 @@ as measured (docs/benchmarks.md).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Iterable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -28,7 +27,8 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_ua2c.config import check_arguments, hyperparameters
+from sb3_ua2c.config import check_arguments
+from sb3_ua2c.offline import Episode
 
 
 class ChunkReplaySamples(NamedTuple):
@@ -52,61 +52,7 @@ class ChunkReplaySamples(NamedTuple):
     next_action_history: th.Tensor
 
 
-@dataclass(frozen=True)
-class OfflineEpisode:
-    """
-    One logged episode of per-step transitions (actions in SB3's normalised space [-1, 1]).
-
-    :param observations: ``o_0..o_{T-1}``, shape ``(T, *obs_shape)`` (``T + 1`` rows are accepted when
-        ``next_observations`` is omitted: ``o_T`` is then the last next observation)
-    :param actions: shape ``(T, action_dim)``
-    :param rewards: shape ``(T,)``
-    :param terminations: shape ``(T,)``; only the last step may be true
-    :param truncations: shape ``(T,)``; only the last step may be true
-    :param next_observations: ``o_1..o_T``, shape ``(T, *obs_shape)``
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
-    terminations: np.ndarray
-    truncations: np.ndarray
-    next_observations: np.ndarray | None = None
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, np.ndarray]) -> OfflineEpisode:
-        """Build from a mapping with the field names above (unknown keys raise ``ValueError``)."""
-        allowed = set(cls.__dataclass_fields__)
-        unknown = set(data) - allowed
-        if unknown:
-            raise ValueError(f"unknown offline episode key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-        return cls(**data)
-
-    @classmethod
-    def coerce(cls, episode: Any) -> OfflineEpisode:
-        """
-        Accept an :class:`OfflineEpisode`, a mapping with its field names, or any object with the
-        attributes ``observations, actions, rewards, terminations, truncations`` (e.g. an episode of
-        :mod:`sb3_ua2c.offline`).
-        """
-        if isinstance(episode, cls):
-            return episode
-        if isinstance(episode, Mapping):
-            return cls.from_mapping(episode)
-        try:
-            return cls(
-                observations=episode.observations,
-                actions=episode.actions,
-                rewards=episode.rewards,
-                terminations=episode.terminations,
-                truncations=episode.truncations,
-                next_observations=getattr(episode, "next_observations", None),
-            )
-        except AttributeError as exc:
-            raise ValueError(f"not an offline episode: {type(episode).__name__} lacks {exc.name!r}") from exc
-
-
-def episode_arrays(ep: OfflineEpisode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
+def episode_arrays(ep: Episode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
     """
     The checked per-step arrays of a logged episode, named as the fields of the buffer's storage.
 
@@ -124,12 +70,7 @@ def episode_arrays(ep: OfflineEpisode, index: int, obs_dim: int, action_dim: int
     if t_len == 0:
         raise ValueError(f"offline episode {index} is empty")
     obs = np.asarray(ep.observations, dtype=np.float32)
-    if ep.next_observations is None:
-        if obs.shape[0] != t_len + 1:
-            raise ValueError(
-                f"offline episode {index}: observations must have T+1={t_len + 1} rows when "
-                f"next_observations is omitted, got {obs.shape[0]}"
-            )
+    if ep.next_observations is None:  # (T+1, ...) rows, checked by the Episode
         next_obs, obs = obs[1:], obs[:-1]
     else:
         next_obs = np.asarray(ep.next_observations, dtype=np.float32)
@@ -318,12 +259,17 @@ class ChunkReplayBuffer(BaseBuffer):
     """
     Replay buffer for chunked off-policy learning (online ring + offline episodes).
 
+    It stays over 300 lines for the bookkeeping of the online ring that keeps sampling O(batch): open
+    plans (Eq. 8), closing windows (``online_targets="window"``) and the index of valid starts as the
+    ring overwrites itself.
+
     :param buffer_size: capacity of the online ring (steps per env)
     :param observation_space: Box observation space
     :param action_space: Box action space
     :param device: torch device of the sampled tensors
     :param n_envs: number of parallel environments
-    :param chunk_size: ``k``
+    :param chunk_size: ``k`` (this and the next arguments are keyword-only and required:
+        :class:`~sb3_ua2c.ua2c.UA2C` passes its own, where their defaults are declared)
     :param history_len: ``ℓ``
     :param offline_ratio: fraction of each batch drawn from the offline part when both parts hold data
     :param online_targets: ``"prefix"`` (the paper, Eq. 8): one online sample per plan, its chunk the
@@ -341,17 +287,24 @@ class ChunkReplayBuffer(BaseBuffer):
         action_space: spaces.Space,
         device: th.device | str = "auto",
         n_envs: int = 1,
-        chunk_size: int = 5,
-        history_len: int = 4,
-        offline_ratio: float = 0.5,
-        online_targets: str = "prefix",
+        *,
+        chunk_size: int,
+        history_len: int,
+        offline_ratio: float,
+        online_targets: str,
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs=n_envs)
         self.chunk_size = chunk_size
         self.history_len = history_len
         self.offline_ratio = offline_ratio
         self.online_targets = online_targets
-        check_arguments(**hyperparameters(self, ChunkReplayBuffer))
+        check_arguments(
+            buffer_size=buffer_size,
+            chunk_size=chunk_size,
+            history_len=history_len,
+            offline_ratio=offline_ratio,
+            online_targets=online_targets,
+        )
         if buffer_size < chunk_size + history_len:
             raise ValueError(f"buffer_size={buffer_size} must be >= chunk_size + history_len")
         self.obs_dim = int(np.prod(self.obs_shape))
@@ -544,15 +497,16 @@ class ChunkReplayBuffer(BaseBuffer):
         chunk (Eq. 4): ``L = min(k, steps to the episode end)``, bootstrap unless the episode
         terminated inside the window.
 
-        :param episodes: episodes accepted by :meth:`OfflineEpisode.coerce` (actions normalised)
+        :param episodes: :class:`~sb3_ua2c.offline.Episode` objects or mappings with their field names
+            (:meth:`~sb3_ua2c.offline.Episode.coerce`), actions normalised
         :return: number of steps added
         """
         added = 0
         for i, ep in enumerate(episodes):
-            added += self._add_offline_episode(OfflineEpisode.coerce(ep), i)
+            added += self._add_offline_episode(Episode.coerce(ep), i)
         return added
 
-    def _add_offline_episode(self, ep: OfflineEpisode, index: int) -> int:
+    def _add_offline_episode(self, ep: Episode, index: int) -> int:
         arrays = episode_arrays(ep, index, self.obs_dim, self.action_dim)
         t_len = arrays["actions"].shape[0]
         s, start = self.offline, self.offline_size
@@ -568,30 +522,23 @@ class ChunkReplayBuffer(BaseBuffer):
         return t_len
 
     # ------------------------------------------------------------------ sampling
-    def size(self) -> int:
-        """Number of stored online steps per env (SB3 convention)."""
-        return super().size()
-
-    def _online_starts(self) -> np.ndarray:
-        """The valid online sample starts as flat indices ``slot * n_envs + env``, in increasing order."""
+    def online_starts(self) -> np.ndarray:
+        """The valid online sample starts, flat indices ``slot * n_envs + env`` in increasing order (int64)."""
         return self._starts.members()
 
-    def _scan_online_starts(self) -> np.ndarray:
+    def reindex(self) -> None:
         """
-        The valid online starts found by scanning the whole ring, O(buffer_size): a complete window
-        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots
-        back) is still in the ring. The reference for the index :meth:`add` keeps.
+        Recompute the valid online starts by scanning the whole ring, O(buffer_size): a complete window
+        starts there and its history ``o_{t-ℓ+1:t}``, ``a_{t-ℓ:t-1}`` (``min(episode step, ℓ)`` slots back)
+        is still in the ring. :meth:`add` keeps the index up to date itself; this is for storage written
+        directly (a benchmark filling the ring) and the reference the index is tested against.
         """
         size = self.buffer_size if self.full else self.pos
         slots = np.arange(size)
         age = (slots - self.pos) % self.buffer_size if self.full else slots  # (size,) 0 = oldest
         lookback = np.minimum(self.online.episode_step[:size], self.history_len)  # (size, n_envs)
-        return np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None]))
-
-    def _rebuild_start_index(self) -> None:
-        """Rebuild the start index from a scan (after the ring was filled directly, as a benchmark does)."""
         self._starts.clear()
-        self._starts.insert(self._scan_online_starts())
+        self._starts.insert(np.flatnonzero((self.online.horizon[:size] > 0) & (lookback <= age[:, None])))
 
     def n_samples(self) -> tuple[int, int]:
         """Number of sample starts available ``(online, offline)``."""

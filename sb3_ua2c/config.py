@@ -1,7 +1,7 @@
-"""UA2C's hyperparameters: the one validator of every argument of :class:`~sb3_ua2c.ua2c.UA2C`,
+"""UA2C's hyperparameters: the execution rule (:class:`ExecutionRule`, one frozen object that checks
+itself), the one validator of the other arguments of :class:`~sb3_ua2c.ua2c.UA2C`,
 :class:`~sb3_ua2c.policies.UA2CPolicy` and :class:`~sb3_ua2c.buffers.ChunkReplayBuffer`
-(:func:`check_arguments`), the list of the policy's chunking arguments that UA2C forwards to it
-(:data:`POLICY_CHUNKING_ARGUMENTS`), and the checks of the spaces and of ``policy_kwargs``.
+(:func:`check_arguments`), and the checks of the spaces and of ``policy_kwargs``.
 
 Each hyperparameter is declared once, as a constructor argument; its check lives here, once.
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,33 +20,8 @@ from gymnasium import spaces
 
 from sb3_ua2c.checks import check_bool, check_int
 
-#: The chunking arguments of :class:`~sb3_ua2c.policies.UA2CPolicy`. UA2C takes each of them as a
-#: constructor argument of its own and forwards it to the policy; ``policy_kwargs`` may not set them.
-POLICY_CHUNKING_ARGUMENTS = (
-    "chunk_size",
-    "history_len",
-    "flow_steps",
-    "n_candidates",
-    "execution_rule",
-    "entropy_threshold",
-    "target_plan_length",
-    "entropy_quantile",
-    "entropy_growth",
-    "discrete_action_dims",
-    "discrete_entropy",
-    "commit_discrete",
-)
-
-#: values of ``execution_rule``: how ``L_t`` is set from the entropies ``H_u`` (:class:`~sb3_ua2c.ua2c.UA2C`)
+#: values of ``ExecutionRule.rule`` (UA2C's ``execution_rule``): how ``L_t`` is set from the entropies ``H_u``
 EXECUTION_RULES = ("threshold", "quantile", "growth")
-#: the arguments that make up the execution rule, with their defaults (``None``: the rule's own default)
-EXECUTION_RULE_DEFAULTS: dict[str, Any] = {
-    "execution_rule": "threshold",
-    "entropy_threshold": 0.0,
-    "target_plan_length": None,
-    "entropy_quantile": None,
-    "entropy_growth": None,
-}
 #: ``q`` of ``execution_rule="quantile"`` when ``entropy_quantile`` is not given
 DEFAULT_ENTROPY_QUANTILE = 0.75
 #: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
@@ -93,34 +69,12 @@ def _learning_rate(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a finite number >= 0 or a schedule, got {value!r}")
 
 
-def _entropy_threshold(name: str, value: Any) -> None:
-    if not (value == "auto" if isinstance(value, str) else _is_number(value)):
-        raise ValueError(f"{name} must be a number or 'auto', got {value!r}")
-    if value == -math.inf:
-        raise ValueError(f"{name} must not be -inf (it would execute one action per plan: use chunk_size=1)")
-
-
 def _one_of(choices: Sequence[str]) -> Callable[[str, Any], None]:
     def check(name: str, value: Any) -> None:
         if not isinstance(value, str) or value not in choices:
             raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
 
     return check
-
-
-def _optional_fraction(name: str, value: Any) -> None:
-    if value is not None:
-        _fraction(name, value)
-
-
-def _optional_non_negative_number(name: str, value: Any) -> None:
-    if value is not None:
-        _non_negative_number(name, value)
-
-
-def _optional_number(name: str, value: Any) -> None:
-    if value is not None and not _is_number(value):
-        raise ValueError(f"{name} must be a number or None, got {value!r}")
 
 
 def _net_arch(name: str, value: Any) -> None:
@@ -168,11 +122,6 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "target_flow_steps": _positive_int,
     "n_candidates": _positive_int,
     "n_target_candidates": _positive_int,
-    "execution_rule": _one_of(EXECUTION_RULES),
-    "entropy_threshold": _entropy_threshold,
-    "target_plan_length": _optional_number,
-    "entropy_quantile": _optional_fraction,
-    "entropy_growth": _optional_non_negative_number,
     "q_weight": _non_negative_number,
     "smooth_weight": _non_negative_number,
     "discrete_entropy": check_bool,
@@ -205,11 +154,9 @@ def check_arguments(**arguments: Any) -> None:
     constructors spell them) and the constraints between those given together. A bad value raises a
     ``ValueError`` that names the parameter.
 
-    Constraints between arguments: a parameter of an execution rule is set only with that rule
-    (``entropy_threshold`` other than 0 and ``target_plan_length`` with ``"threshold"``,
-    ``entropy_quantile`` with ``"quantile"``, ``entropy_growth`` with ``"growth"``);
-    ``target_plan_length`` (not ``None``) needs ``entropy_threshold="auto"`` and lies in
-    ``[1, chunk_size]``; ``n_elite <= n_candidates``; ``critic_n_heads`` divides ``critic_embed_dim``.
+    Constraints between arguments: ``n_elite <= n_candidates``; ``critic_net_arch`` only with
+    ``critic_arch="mlp"``; ``critic_n_heads`` divides ``critic_embed_dim``. The execution rule checks
+    itself (:class:`ExecutionRule`).
 
     :param arguments: hyperparameters by name (any subset of the constructors' arguments)
     """
@@ -217,18 +164,6 @@ def check_arguments(**arguments: Any) -> None:
         if name not in _CHECKS:
             raise ValueError(f"unknown UA2C hyperparameter {name!r}")
         _CHECKS[name](name, value)
-    _check_rule_parameters(arguments)
-    target = arguments.get("target_plan_length")
-    if target is not None:
-        delta = arguments.get("entropy_threshold")
-        if delta != "auto":
-            raise ValueError(
-                f"target_plan_length applies to entropy_threshold='auto' only, got it with "
-                f"entropy_threshold={delta!r} (pass target_plan_length=None)"
-            )
-        k = arguments.get("chunk_size", math.inf)
-        if not 1 <= target <= k:
-            raise ValueError(f"target_plan_length must be a number in [1, chunk_size={k}], got {target!r}")
     if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
         raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
     if arguments.get("critic_net_arch") is not None and arguments.get("critic_arch", "transformer") != "mlp":
@@ -240,29 +175,6 @@ def check_arguments(**arguments: Any) -> None:
         raise ValueError(
             f"critic_n_heads={arguments['critic_n_heads']} must divide critic_embed_dim={arguments['critic_embed_dim']}"
         )
-
-
-#: the parameters of each execution rule (their defaults in :data:`EXECUTION_RULE_DEFAULTS` mean "not set")
-_RULE_PARAMETERS = {
-    "threshold": ("entropy_threshold", "target_plan_length"),
-    "quantile": ("entropy_quantile",),
-    "growth": ("entropy_growth",),
-}
-
-
-def _check_rule_parameters(arguments: Mapping[str, Any]) -> None:
-    """A rule's parameter set (not at its "not set" value) under another ``execution_rule`` is an error."""
-    rule = arguments.get("execution_rule")
-    if rule is None:
-        return
-    for other, parameters in _RULE_PARAMETERS.items():
-        for name in parameters:
-            unset = EXECUTION_RULE_DEFAULTS[name]
-            if other != rule and name in arguments and arguments[name] != unset:
-                raise ValueError(
-                    f"{name} applies to execution_rule={other!r} only, got {name}={arguments[name]!r} with "
-                    f"execution_rule={rule!r} (leave {name} at {unset!r})"
-                )
 
 
 def normalize_discrete_dims(
@@ -315,44 +227,146 @@ def check_spaces(observation_space: spaces.Space | None, action_space: spaces.Sp
         raise ValueError("UA2C needs a bounded Box action space (finite low and high)")
 
 
-def hyperparameters(obj: Any, cls: type | None = None) -> dict[str, Any]:
-    """
-    The hyperparameters of ``cls`` (default ``type(obj)``) as ``obj`` holds them: every constructor
-    argument that :func:`check_arguments` knows, read from the attribute of the same name.
-    """
-    names = inspect.signature((cls or type(obj)).__init__).parameters
-    return {name: getattr(obj, name) for name in names if name in _CHECKS}
+def _model_arguments(model_class: type) -> set[str]:
+    """What a model passes to its policy itself: its constructor's arguments, and ``execution`` (the
+    :class:`ExecutionRule` it builds from its execution-rule arguments)."""
+    return set(inspect.signature(model_class.__init__).parameters) | {"execution"}
 
 
-def policy_arguments(policy_class: type) -> tuple[str, ...]:
-    """The hyperparameters of a policy class: its constructor's arguments without the spaces and the schedule."""
-    return tuple(p for p in inspect.signature(policy_class.__init__).parameters if p not in _POLICY_PLUMBING)
+def policy_kwargs_names(policy_class: type, model_class: type) -> tuple[str, ...]:
+    """
+    The arguments of ``policy_class`` that ``policy_kwargs`` may set: its constructor's arguments without
+    the spaces and the schedule, and without those the model passes itself (:func:`_model_arguments`).
+    """
+    model = _model_arguments(model_class)
+    names = inspect.signature(policy_class.__init__).parameters
+    return tuple(p for p in names if p not in _POLICY_PLUMBING and p not in model)
 
 
-def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: type) -> None:
+def check_policy_kwargs(policy_kwargs: Mapping[str, Any] | None, policy_class: type, model_class: type) -> None:
     """
-    Raise ``ValueError`` naming a key of ``policy_kwargs`` that is not an argument of ``policy_class``,
-    or that UA2C sets from its own argument (:data:`POLICY_CHUNKING_ARGUMENTS`).
+    Raise ``ValueError`` naming a key of ``policy_kwargs`` that the model sets from its own argument, or
+    that is not an argument of ``policy_class`` (:func:`policy_kwargs_names`).
     """
-    allowed = [p for p in policy_arguments(policy_class) if p not in POLICY_CHUNKING_ARGUMENTS]
+    allowed, model = policy_kwargs_names(policy_class, model_class), _model_arguments(model_class)
     for key in policy_kwargs or {}:
-        if key in POLICY_CHUNKING_ARGUMENTS:
+        if key in model:
             raise ValueError(f"policy_kwargs[{key!r}] is set by UA2C's own argument; pass it to UA2C(...) instead")
         if key not in allowed:
             raise ValueError(f"unknown policy_kwargs key {key!r}; allowed: {sorted(allowed)}")
 
 
+@dataclass(frozen=True)
+class ExecutionRule:
+    """
+    The execution rule: how the executed length ``L_t`` of a replanning follows from the per-position
+    entropies ``H_u`` of its candidates (docs/algorithm.md). It acts only when acting: the losses do not
+    read it. One frozen object, checked when it is built (a bad field raises a ``ValueError`` that names
+    it), held by the policy (:attr:`UA2CPolicy.execution <sb3_ua2c.policies.UA2CPolicy>`) and saved with
+    the model. :class:`~sb3_ua2c.ua2c.UA2C` builds it from its arguments ``execution_rule``,
+    ``entropy_threshold``, ``target_plan_length``, ``entropy_quantile`` and ``entropy_growth``; change it
+    with :meth:`UA2C.set_execution_rule <sb3_ua2c.ua2c.UA2C.set_execution_rule>` (e.g.
+    ``model.set_execution_rule(dataclasses.replace(model.execution, entropy_threshold=math.inf))``).
+
+    A parameter of one rule set to other than its default under another rule is an error.
+
+    :param rule: UA2C's ``execution_rule``: ``"threshold"`` (default, Eq. 7): the longest prefix with
+        every ``H_u <= entropy_threshold``; ``"quantile"`` (not in the paper): Eq. 7 with per-position
+        thresholds ``delta_u``, the ``entropy_quantile`` of ``H_u`` over histories of the data, calibrated
+        by :meth:`~sb3_ua2c.ua2c.UA2C.calibrate_execution` and saved with the model; ``"growth"`` (not in
+        the paper): the longest prefix with every ``H_u - H_1 <= entropy_growth``
+    :param entropy_threshold: ``delta`` of Eq. 7 in nats (``math.inf`` = the whole chunk: fixed chunk
+        execution), or ``"auto"``: δ set after each training replanning from the entropies of the last
+        ones, for a mean ``L_t`` of ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`)
+    :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in
+        ``[1, k]`` (``None`` = ``(k + 1) / 2``)
+    :param entropy_quantile: with ``rule="quantile"`` only: ``q`` in ``[0, 1]``, a fraction of states
+        (``None`` = :data:`DEFAULT_ENTROPY_QUANTILE`)
+    :param entropy_growth: with ``rule="growth"`` only: ``c`` in nats above ``H_1`` (``None`` =
+        :data:`DEFAULT_ENTROPY_GROWTH`)
+    """
+
+    rule: str = "threshold"
+    entropy_threshold: float | str = 0.0
+    target_plan_length: float | None = None
+    entropy_quantile: float | None = None
+    entropy_growth: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.rule, str) or self.rule not in EXECUTION_RULES:
+            raise ValueError(f"execution_rule (ExecutionRule.rule) must be one of {list(EXECUTION_RULES)}, "
+                             f"got {self.rule!r}")
+        delta = self.entropy_threshold
+        if not (delta == "auto" if isinstance(delta, str) else _is_number(delta)):
+            raise ValueError(f"entropy_threshold must be a number or 'auto', got {delta!r}")
+        if delta == -math.inf:
+            raise ValueError("entropy_threshold must not be -inf (it would execute one action per plan: "
+                             "use chunk_size=1)")
+        if self.target_plan_length is not None and not _is_number(self.target_plan_length):
+            raise ValueError(f"target_plan_length must be a number or None, got {self.target_plan_length!r}")
+        if self.entropy_quantile is not None:
+            _fraction("entropy_quantile", self.entropy_quantile)
+        if self.entropy_growth is not None:
+            _non_negative_number("entropy_growth", self.entropy_growth)
+        self._check_rule_parameters()
+        if self.target_plan_length is not None:
+            if delta != "auto":
+                raise ValueError(
+                    f"target_plan_length applies to entropy_threshold='auto' only, got it with "
+                    f"entropy_threshold={delta!r} (pass target_plan_length=None)"
+                )
+            self.check_chunk_size(math.inf)
+
+    def _check_rule_parameters(self) -> None:
+        """A rule's parameter set (not at its default) under another rule is an error."""
+        other_rules = (
+            ("threshold", "entropy_threshold", self.entropy_threshold, 0.0),
+            ("threshold", "target_plan_length", self.target_plan_length, None),
+            ("quantile", "entropy_quantile", self.entropy_quantile, None),
+            ("growth", "entropy_growth", self.entropy_growth, None),
+        )
+        for rule, name, value, unset in other_rules:
+            if rule != self.rule and value != unset:
+                raise ValueError(
+                    f"{name} applies to execution_rule={rule!r} only, got {name}={value!r} with "
+                    f"execution_rule={self.rule!r} (leave {name} at {unset!r})"
+                )
+
+    def check_chunk_size(self, chunk_size: float) -> None:
+        """
+        Raise ``ValueError`` unless ``target_plan_length`` (when set) lies in ``[1, chunk_size]``.
+
+        :param chunk_size: ``k`` of the policy that acts with this rule
+        """
+        target = self.target_plan_length
+        if target is not None and not 1 <= target <= chunk_size:
+            raise ValueError(f"target_plan_length must be a number in [1, chunk_size={chunk_size}], got {target!r}")
+
+    @property
+    def auto(self) -> bool:
+        """δ set from the recent entropies (``entropy_threshold="auto"`` under ``rule="threshold"``)."""
+        return self.rule == "threshold" and self.entropy_threshold == "auto"
+
+    @property
+    def quantile(self) -> float:
+        """``q`` of ``rule="quantile"`` (:data:`DEFAULT_ENTROPY_QUANTILE` when not given)."""
+        return DEFAULT_ENTROPY_QUANTILE if self.entropy_quantile is None else self.entropy_quantile
+
+    @property
+    def growth(self) -> float:
+        """``c`` of ``rule="growth"`` (:data:`DEFAULT_ENTROPY_GROWTH` when not given)."""
+        return DEFAULT_ENTROPY_GROWTH if self.entropy_growth is None else self.entropy_growth
+
+
 __all__ = [
     "DEFAULT_ENTROPY_GROWTH",
     "DEFAULT_ENTROPY_QUANTILE",
-    "EXECUTION_RULE_DEFAULTS",
     "EXECUTION_RULES",
     "ONLINE_TARGETS",
-    "POLICY_CHUNKING_ARGUMENTS",
+    "ExecutionRule",
     "check_arguments",
     "check_policy_kwargs",
     "check_spaces",
-    "hyperparameters",
     "normalize_discrete_dims",
-    "policy_arguments",
+    "policy_kwargs_names",
 ]

@@ -7,13 +7,29 @@ The maths it applies (entropies, ``L_t``, the auto δ) are the pure functions of
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.policies import BasePolicy
 
-from sb3_ua2c.chunking import auto_entropy_threshold
+from sb3_ua2c.chunking import (
+    auto_entropy_threshold,
+    default_target_plan_length,
+    entropy_growth_length,
+    executable_prefix_length,
+    quantile_entropy_thresholds,
+)
+from sb3_ua2c.config import ExecutionRule, check_arguments
+
+#: candidates per history when :meth:`ExecutionRuleState.calibrate_entropy_thresholds` measures ``H_u``: the
+#: estimator's SD (about 0.04 nats per action dim) is small next to the spread of ``H_u`` across states
+CALIBRATION_SAMPLES = 256
+
+#: state-dict keys of the execution rule (:meth:`ExecutionRuleState.load_state_dict`)
+_RULE_STATE = ("entropy_window.", "calibrated_thresholds")
 
 #: replannings (one row per env) whose entropies set δ under ``entropy_threshold="auto"``: short, because
 #: the entropies drift as the policy learns and δ lags them by about half the window (docs/algorithm.md)
@@ -267,3 +283,120 @@ def resume_and_act(
         executor.load_state(state)
     step = executor.act(observations, np.asarray(episode_start, dtype=bool).reshape(n_envs), planner)
     return step, executor.state
+
+
+class ExecutionRuleState(BasePolicy):
+    """
+    The execution rule's part of :class:`~sb3_ua2c.policies.UA2CPolicy` (not a policy of its own): the
+    :class:`~sb3_ua2c.config.ExecutionRule` in force (``execution``), the state it keeps (the
+    :class:`EntropyWindow` of ``entropy_threshold="auto"``, the calibrated thresholds ``delta_u`` of
+    ``"quantile"``; buffers, saved with the policy) and the executed length ``L_t`` it gives a replanning
+    (:meth:`plan_lengths`).
+    """
+
+    execution: ExecutionRule
+    chunk_size: int
+    entropy_window: EntropyWindow | None
+    calibrated_thresholds: th.Tensor | None
+
+    def set_execution_rule(self, execution: ExecutionRule) -> None:
+        """
+        Set the execution rule (execution only: the losses do not read it), e.g. to evaluate one checkpoint
+        under several rules. ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
+        ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
+
+        :param execution: the new rule (its ``target_plan_length`` must not exceed ``chunk_size``)
+        """
+        self._check_execution(execution)
+        self.execution = execution
+        self._follow_entropy_threshold()
+
+    def _check_execution(self, execution: Any) -> None:
+        if not isinstance(execution, ExecutionRule):
+            raise ValueError(f"execution must be an ExecutionRule, got {execution!r}")
+        execution.check_chunk_size(self.chunk_size)
+
+    def _follow_entropy_threshold(self) -> None:
+        """Keep ``entropy_window`` (or start an empty one) under ``"auto"``, and the calibrated
+        thresholds under ``"quantile"``; drop what the rule does not use."""
+        if not self.execution.auto:
+            self.entropy_window = None
+        elif self.entropy_window is None:
+            self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
+        if self.execution.rule != "quantile":
+            self.calibrated_thresholds = None
+        elif self.calibrated_thresholds is None:
+            self.calibrated_thresholds = th.full((self.chunk_size,), math.nan, device=self.device)
+
+    @property
+    def needs_calibration(self) -> bool:
+        """``execution_rule="quantile"`` without calibrated thresholds (:meth:`calibrate_entropy_thresholds`)."""
+        return self.calibrated_thresholds is not None and bool(th.isnan(self.calibrated_thresholds).any())
+
+    def calibrate_entropy_thresholds(
+        self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int = CALIBRATION_SAMPLES,
+        batch_size: int = 64,
+    ) -> th.Tensor:
+        """
+        Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
+        ``n_samples`` candidates each, and set ``calibrated_thresholds`` to their per-position
+        ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
+
+        :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``
+        :param action_history: their past actions, shape ``(n, ℓ, action_dim)``
+        :param n_samples: candidates per history (more than ``n_candidates``: less estimator noise)
+        :param batch_size: histories per sampling pass (memory only)
+        :return: the measured ``H_u``, shape ``(n, k)``
+        """
+        if self.execution.rule != "quantile":
+            raise ValueError(f"calibration applies to execution_rule='quantile', not {self.execution.rule!r}")
+        check_arguments(n_candidates=n_samples)
+        if obs_history.shape[0] < 2:
+            raise ValueError(f"calibration needs at least 2 histories, got {obs_history.shape[0]}")
+        with th.inference_mode():
+            batches = range(0, obs_history.shape[0], batch_size)
+            entropy = th.cat([self.sample_candidates(obs_history[i : i + batch_size],
+                                                     action_history[i : i + batch_size], n_samples)[1]
+                              for i in batches])  # (n, k)
+        assert self.calibrated_thresholds is not None
+        self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, self.execution.quantile))
+        return entropy
+
+    def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
+        """
+        δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
+        ``entropy_window`` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
+        While the window is empty, each row of the replanning's entropies ``entropy`` ``(m, k)`` gets its
+        own δ ``(m, 1)``, and without them the answer is ``nan``.
+        """
+        if self.entropy_window is None:
+            return float(self.execution.entropy_threshold)
+        if entropy is None and int(self.entropy_window.count) == 0:
+            return math.nan
+        target = self.execution.target_plan_length or default_target_plan_length(self.chunk_size)
+        return self.entropy_window.threshold(target, entropy)
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """``nn.Module.load_state_dict``; the execution rule's state (``entropy_window.*``,
+        ``calibrated_thresholds``) follows this policy's rule, which a load may override: a checkpoint
+        saved under another rule loads into an ``"auto"`` policy with an empty window and into a
+        ``"quantile"`` policy uncalibrated, and a rule ignores the state of another."""
+        own = {k: v for k, v in self.state_dict().items() if k.startswith(_RULE_STATE)}
+        state_dict = {k: v for k, v in state_dict.items() if not k.startswith(_RULE_STATE) or k in own}
+        return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)
+
+    def plan_lengths(self, entropy: th.Tensor) -> th.Tensor:
+        """
+        ``L_t`` of a replanning from its entropies ``H_u`` ``(m, k)`` by the execution rule: Eq. 7 with
+        δ (``"threshold"``) or with the calibrated ``delta_u`` (``"quantile"``), or the growth rule
+        (:func:`~sb3_ua2c.chunking.entropy_growth_length`). Returns a long tensor ``(m,)`` in ``[1, k]``.
+        """
+        if self.execution.rule == "growth":
+            return entropy_growth_length(entropy, self.execution.growth)
+        if self.execution.rule == "quantile":
+            if self.needs_calibration:
+                raise RuntimeError("execution_rule='quantile' acts once its thresholds are calibrated: call "
+                                   "UA2C.calibrate_execution() (learn() does it from the replay buffer)")
+            return executable_prefix_length(entropy, self.calibrated_thresholds)
+        return executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
+

@@ -30,6 +30,8 @@ class VelocityField(nn.Module):
     :param action_dim: action size
     :param net_arch: hidden layer sizes (at least one)
     :param activation_fn: activation class
+
+    The sizes and the activation have no defaults here: :class:`~sb3_ua2c.policies.UA2CPolicy` declares them.
     """
 
     def __init__(
@@ -38,7 +40,7 @@ class VelocityField(nn.Module):
         chunk_size: int,
         action_dim: int,
         net_arch: list[int],
-        activation_fn: type[nn.Module] = nn.SiLU,
+        activation_fn: type[nn.Module],
     ) -> None:
         super().__init__()
         if len(net_arch) == 0:
@@ -235,6 +237,8 @@ class ChunkCritics(nn.Module):
     :param n_heads: attention heads (must divide ``embed_dim``)
     :param ff_dim: hidden width of the feed-forward sublayer
     :param activation_fn: activation class
+
+    The widths have no defaults here: :class:`~sb3_ua2c.policies.UA2CPolicy` declares them (``critic_*``).
     """
 
     def __init__(
@@ -242,12 +246,12 @@ class ChunkCritics(nn.Module):
         obs_history_dim: int,
         chunk_size: int,
         action_dim: int,
-        n_critics: int = 2,
-        embed_dim: int = 64,
-        n_layers: int = 1,
-        n_heads: int = 1,
-        ff_dim: int = 128,
-        activation_fn: type[nn.Module] = nn.SiLU,
+        n_critics: int,
+        embed_dim: int,
+        n_layers: int,
+        n_heads: int,
+        ff_dim: int,
+        activation_fn: type[nn.Module],
     ) -> None:
         super().__init__()
         self.n_critics, self.embed_dim = n_critics, embed_dim
@@ -295,6 +299,8 @@ class MLPChunkCritics(nn.Module):
     :param net_arch: hidden layer sizes (at least one)
     :param layer_norm: a layer norm before each hidden activation (as RLPD's and Q-chunking's critics)
     :param activation_fn: activation class
+
+    The sizes have no defaults here: :class:`~sb3_ua2c.policies.UA2CPolicy` declares them (``critic_*``).
     """
 
     def __init__(
@@ -302,10 +308,10 @@ class MLPChunkCritics(nn.Module):
         obs_history_dim: int,
         chunk_size: int,
         action_dim: int,
-        n_critics: int = 2,
-        net_arch: Sequence[int] = (256, 256),
-        layer_norm: bool = True,
-        activation_fn: type[nn.Module] = nn.SiLU,
+        n_critics: int,
+        net_arch: Sequence[int],
+        layer_norm: bool,
+        activation_fn: type[nn.Module],
     ) -> None:
         super().__init__()
         if len(net_arch) == 0:

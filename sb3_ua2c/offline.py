@@ -19,7 +19,7 @@ import shutil
 import tempfile
 import uuid
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,13 +36,21 @@ class OfflineDatasetError(ValueError):
 
 @dataclass(frozen=True)
 class Episode:
-    """One logged episode, arrays in the environment's own units.
+    """One logged episode: what a dataset holds and what :meth:`UA2C.add_offline_episodes
+    <sb3_ua2c.ua2c.UA2C.add_offline_episodes>` takes (actions in the env's units, or in SB3's normalised
+    [-1, 1] with ``actions_normalized=True``; the replay buffer stores them normalised).
 
-    :param observations: ``(T + 1, *obs_shape)``: o_0 .. o_T (the last one is the final observation)
+    :param observations: ``(T + 1, *obs_shape)``: o_0 .. o_T (the last one is the final observation);
+        ``(T, *obs_shape)`` when ``next_observations`` is given
     :param actions: ``(T, *act_shape)``: a_0 .. a_{T-1} as actually executed
     :param rewards: ``(T,)``
     :param terminations: ``(T,)`` bool: the MDP ended at this step (no bootstrap after it)
     :param truncations: ``(T,)`` bool: the episode was cut at this step (time limit: bootstrap)
+    :param next_observations: ``(T, *obs_shape)``: o_1 .. o_T, or ``None`` (taken from ``observations``)
+    :param seed: the reset seed of the episode, if known
+    :param infos: per-step infos to store with the dataset
+    :raises OfflineDatasetError: (a ``ValueError``) on an empty episode, rows that do not fit ``T``, or
+        NaN or inf values, naming the field
     """
 
     observations: np.ndarray
@@ -50,26 +58,47 @@ class Episode:
     rewards: np.ndarray
     terminations: np.ndarray
     truncations: np.ndarray
+    next_observations: np.ndarray | None = None
     seed: int | None = None
     infos: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        n = len(self.rewards)
+        n = len(self.actions)
         if n == 0:
             raise OfflineDatasetError("an episode must contain at least one step")
-        if len(self.observations) != n + 1:
+        if self.next_observations is None and len(self.observations) != n + 1:
             raise OfflineDatasetError(
-                f"observations must have T+1={n + 1} rows for T={n} rewards, got {len(self.observations)}"
+                f"observations must have T+1={n + 1} rows for T={n} actions when next_observations is "
+                f"omitted, got {len(self.observations)}"
             )
-        for name in ("actions", "terminations", "truncations"):
+        rows = ("rewards", "terminations", "truncations")
+        if self.next_observations is not None:
+            rows = ("observations", "next_observations", *rows)
+        for name in rows:
             if len(getattr(self, name)) != n:
                 raise OfflineDatasetError(f"{name} must have T={n} rows, got {len(getattr(self, name))}")
-        for name in ("observations", "actions", "rewards"):
-            if not np.all(np.isfinite(getattr(self, name))):
+        for name in ("observations", "actions", "rewards", "next_observations"):
+            value = getattr(self, name)
+            if value is not None and not np.all(np.isfinite(value)):
                 raise OfflineDatasetError(f"episode {name} contain NaN or inf")
 
+    @classmethod
+    def coerce(cls, episode: Episode | Mapping[str, Any]) -> Episode:
+        """An :class:`Episode` as it is, or one built from a mapping with its field names (an unknown key
+        raises ``ValueError`` naming it)."""
+        if isinstance(episode, cls):
+            return episode
+        if not isinstance(episode, Mapping):
+            raise ValueError(f"an offline episode must be an Episode or a mapping, got {type(episode).__name__}")
+        unknown = sorted(set(episode) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(
+                f"unknown offline episode key(s) {unknown}; allowed: {sorted(cls.__dataclass_fields__)}"
+            )
+        return cls(**episode)
+
     def __len__(self) -> int:
-        return len(self.rewards)
+        return len(self.actions)
 
 
 @dataclass

@@ -8,47 +8,32 @@ Mixed Traffic", §2.3 and §3.
 from __future__ import annotations
 
 import hashlib
-import math
+import io
+import pathlib
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from stable_baselines3.common.utils import get_device
 from torch import nn
 
 from sb3_ua2c.chunking import (
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
-    default_target_plan_length,
-    entropy_growth_length,
-    executable_prefix_length,
     pessimistic_q,
-    quantile_entropy_thresholds,
     select_chunk,
 )
-from sb3_ua2c.config import (
-    DEFAULT_ENTROPY_GROWTH,
-    DEFAULT_ENTROPY_QUANTILE,
-    EXECUTION_RULE_DEFAULTS,
-    check_arguments,
-    check_spaces,
-    hyperparameters,
-    normalize_discrete_dims,
-    policy_arguments,
-)
-from sb3_ua2c.execution import EntropyWindow, PlanResult, resume_and_act
+from sb3_ua2c.compat import legacy_execution_rule
+from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
+from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
 from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, VelocityField
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
-
-#: candidates per history when :meth:`UA2CPolicy.calibrate_entropy_thresholds` measures ``H_u``: the
-#: estimator's SD (about 0.04 nats per action dim) is small next to the spread of ``H_u`` across states
-CALIBRATION_SAMPLES = 256
 
 
 def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: int, chunk_size: int) -> th.Tensor:
@@ -76,38 +61,31 @@ def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: 
     return noise.to(obs_history.device)
 
 
-#: state-dict keys of the execution rule (:meth:`UA2CPolicy.load_state_dict`)
-_RULE_STATE = ("entropy_window.", "calibrated_thresholds")
-
 #: Hidden sizes of the velocity field when ``net_arch`` is not given.
 DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
 #: Hidden sizes of the MLP critics (``critic_arch="mlp"``) when ``critic_net_arch`` is not given: SAC's.
 DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
 
-class UA2CPolicy(BasePolicy):
+class UA2CPolicy(ExecutionRuleState):
     """
     Policy of UA2C: flow-matching chunk actor, twin Transformer chunk critics (+ Polyak targets) and
     the adaptive-chunk planner (Eq. 7) used by ``predict``.
 
+    The execution rule and its state are a part of it in :class:`~sb3_ua2c.execution.ExecutionRuleState`.
+    The class stays over 300 lines for its 25 documented constructor arguments, each checked by name and
+    saved by name (:meth:`_get_constructor_parameters`): no table looks them up at run time.
+
     :param observation_space: Box observation space
     :param action_space: Box action space
     :param lr_schedule: learning rate schedule
-    :param chunk_size: ``k``
-    :param history_len: ``ℓ``
-    :param flow_steps: Euler steps ``N`` when acting
-    :param n_candidates: chunks ``S`` sampled per replanning
-    :param execution_rule: how ``L_t`` is set from the entropies ``H_u`` (see :class:`~sb3_ua2c.ua2c.UA2C`):
-        ``"threshold"`` (Eq. 7 with ``entropy_threshold``), ``"quantile"`` (Eq. 7 with calibrated
-        per-position thresholds, ``entropy_quantile``) or ``"growth"`` (``entropy_growth``)
-    :param entropy_threshold: ``delta`` of Eq. 7 in nats (``inf`` = fixed chunk execution), or ``"auto"``:
-        δ set from the entropies of the last replannings of training rollouts (:attr:`entropy_window`)
-    :param target_plan_length: with ``entropy_threshold="auto"``, the mean ``L_t`` over the window that δ
-        is set for, in ``[1, k]`` (``None`` = ``(k + 1) / 2``)
-    :param entropy_quantile: with ``execution_rule="quantile"``: ``q`` in ``[0, 1]``, unitless
-        (``None`` = :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_QUANTILE`)
-    :param entropy_growth: with ``execution_rule="growth"``: ``c`` in nats above ``H_1``
-        (``None`` = :data:`~sb3_ua2c.config.DEFAULT_ENTROPY_GROWTH`)
+    :param chunk_size: ``k`` (required: UA2C passes its own)
+    :param history_len: ``ℓ`` (required)
+    :param flow_steps: Euler steps ``N`` when acting (required)
+    :param n_candidates: chunks ``S`` sampled per replanning (required)
+    :param execution: how ``L_t`` is set from the entropies ``H_u`` (:class:`~sb3_ua2c.config.ExecutionRule`;
+        ``None`` = ``ExecutionRule()``, Eq. 7 with δ = 0); under ``entropy_threshold="auto"`` δ follows the
+        entropies of the last replannings of training rollouts (:attr:`entropy_window`)
     :param discrete_action_dims: ``{action index: category values}`` of categorical action dims
         (:func:`~sb3_ua2c.config.normalize_discrete_dims`)
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
@@ -142,15 +120,11 @@ class UA2CPolicy(BasePolicy):
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule,
-        chunk_size: int = 5,
-        history_len: int = 4,
-        flow_steps: int = 10,
-        n_candidates: int = 32,
-        execution_rule: str = "threshold",
-        entropy_threshold: float | str = 0.0,
-        target_plan_length: float | None = None,
-        entropy_quantile: float | None = None,
-        entropy_growth: float | None = None,
+        chunk_size: int,
+        history_len: int,
+        flow_steps: int,
+        n_candidates: int,
+        execution: ExecutionRule | None = None,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         discrete_entropy: bool = True,
         commit_discrete: bool = False,
@@ -186,11 +160,8 @@ class UA2CPolicy(BasePolicy):
         self.history_len = history_len
         self.flow_steps = flow_steps
         self.n_candidates = n_candidates
-        self.execution_rule = execution_rule
-        self.entropy_threshold = entropy_threshold
-        self.target_plan_length = target_plan_length
-        self.entropy_quantile = entropy_quantile
-        self.entropy_growth = entropy_growth
+        #: the execution rule (replaced only by :meth:`set_execution_rule`, which checks it)
+        self.execution = ExecutionRule() if execution is None else execution
         self.discrete_action_dims = discrete_action_dims
         self.discrete_entropy = discrete_entropy
         self.commit_discrete = commit_discrete
@@ -206,7 +177,16 @@ class UA2CPolicy(BasePolicy):
         self.n_critics = n_critics
         self.activation_fn = activation_fn
         self.torch_compile = torch_compile
-        check_arguments(**hyperparameters(self, UA2CPolicy))
+        check_arguments(
+            chunk_size=chunk_size, history_len=history_len, flow_steps=flow_steps, n_candidates=n_candidates,
+            discrete_action_dims=discrete_action_dims, discrete_entropy=discrete_entropy,
+            commit_discrete=commit_discrete, n_elite=n_elite, net_arch=net_arch, critic_arch=critic_arch,
+            critic_embed_dim=critic_embed_dim, critic_n_layers=critic_n_layers, critic_n_heads=critic_n_heads,
+            critic_ff_dim=critic_ff_dim, critic_net_arch=critic_net_arch, critic_layer_norm=critic_layer_norm,
+            n_critics=n_critics, activation_fn=activation_fn, optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs, normalize_images=normalize_images, torch_compile=torch_compile,
+        )
+        self._check_execution(self.execution)
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
         #: ``{action index: n_categories}`` of the categorical action dims, and the other (continuous) dims
@@ -258,9 +238,51 @@ class UA2CPolicy(BasePolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()  # spaces and normalize_images
-        # as SB3's policies: no learning rate to act with
-        arguments = {name: getattr(self, name) for name in policy_arguments(type(self))}
-        return {**data, **arguments, "lr_schedule": self._dummy_schedule}
+        return {
+            **data,
+            "lr_schedule": self._dummy_schedule,  # as SB3's policies: no learning rate to act with
+            "chunk_size": self.chunk_size,
+            "history_len": self.history_len,
+            "flow_steps": self.flow_steps,
+            "n_candidates": self.n_candidates,
+            "execution": self.execution,
+            "discrete_action_dims": self.discrete_action_dims,
+            "discrete_entropy": self.discrete_entropy,
+            "commit_discrete": self.commit_discrete,
+            "n_elite": self.n_elite,
+            "net_arch": self.net_arch,
+            "critic_arch": self.critic_arch,
+            "critic_embed_dim": self.critic_embed_dim,
+            "critic_n_layers": self.critic_n_layers,
+            "critic_n_heads": self.critic_n_heads,
+            "critic_ff_dim": self.critic_ff_dim,
+            "critic_net_arch": self.critic_net_arch,
+            "critic_layer_norm": self.critic_layer_norm,
+            "n_critics": self.n_critics,
+            "activation_fn": self.activation_fn,
+            "optimizer_class": self.optimizer_class,
+            "optimizer_kwargs": self.optimizer_kwargs,
+            "torch_compile": self.torch_compile,
+        }
+
+    @classmethod
+    def load(cls, path: str | io.BufferedIOBase | pathlib.Path, device: th.device | str = "auto") -> UA2CPolicy:
+        """
+        SB3's ``BasePolicy.load``; a policy saved before the execution rule became one
+        :class:`~sb3_ua2c.config.ExecutionRule` (its five arguments saved one by one) loads as well
+        (:func:`~sb3_ua2c.compat.legacy_execution_rule`).
+
+        :param path: the file :meth:`save` wrote
+        :param device: device to load the policy on
+        """
+        device = get_device(device)
+        saved = th.load(path, map_location=device, weights_only=False)
+        data = dict(saved["data"])
+        data["execution"] = legacy_execution_rule(data, data.get("execution"))
+        policy = cls(**data)
+        policy.load_state_dict(saved["state_dict"])
+        policy.to(device)
+        return policy
 
     def compile_networks(self) -> None:
         """
@@ -282,75 +304,6 @@ class UA2CPolicy(BasePolicy):
         check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
         self.n_elite = n_elite
 
-    def set_execution_rule(self, **rule: Any) -> None:
-        """
-        Validate and set the execution rule (execution only: the losses do not read it). Arguments as the
-        constructor's ``execution_rule``, ``entropy_threshold``, ``target_plan_length``,
-        ``entropy_quantile`` and ``entropy_growth``; those not given take their defaults (``"threshold"``,
-        ``0.0``, ``None``). ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
-        ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
-        """
-        unknown = sorted(set(rule) - set(EXECUTION_RULE_DEFAULTS))
-        if unknown:
-            raise ValueError(f"set_execution_rule takes {sorted(EXECUTION_RULE_DEFAULTS)}, got {unknown}")
-        rule = {**EXECUTION_RULE_DEFAULTS, **rule}
-        check_arguments(**rule, chunk_size=self.chunk_size)
-        for name, value in rule.items():
-            setattr(self, name, value)
-        self._follow_entropy_threshold()
-
-    def set_entropy_threshold(self, entropy_threshold: float | str, target_plan_length: float | None = None) -> None:
-        """:meth:`set_execution_rule` for Eq. 7 with one δ: ``execution_rule="threshold"``."""
-        self.set_execution_rule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length)
-
-    def _follow_entropy_threshold(self) -> None:
-        """Keep :attr:`entropy_window` (or start an empty one) under ``"auto"``, and the calibrated
-        thresholds under ``"quantile"``; drop what the rule does not use."""
-        auto = self.execution_rule == "threshold" and self.entropy_threshold == "auto"
-        if not auto:
-            self.entropy_window = None
-        elif self.entropy_window is None:
-            self.entropy_window = EntropyWindow(self.chunk_size).to(self.device)
-        if self.execution_rule != "quantile":
-            self.calibrated_thresholds = None
-        elif self.calibrated_thresholds is None:
-            self.calibrated_thresholds = th.full((self.chunk_size,), math.nan, device=self.device)
-
-    @property
-    def needs_calibration(self) -> bool:
-        """``execution_rule="quantile"`` without calibrated thresholds (:meth:`calibrate_entropy_thresholds`)."""
-        return self.calibrated_thresholds is not None and bool(th.isnan(self.calibrated_thresholds).any())
-
-    def calibrate_entropy_thresholds(
-        self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int = CALIBRATION_SAMPLES,
-        batch_size: int = 64,
-    ) -> th.Tensor:
-        """
-        Calibrate ``execution_rule="quantile"``: measure ``H_u`` on the given histories with fresh noise and
-        ``n_samples`` candidates each, and set ``calibrated_thresholds`` to their per-position
-        ``entropy_quantile`` (:func:`~sb3_ua2c.chunking.quantile_entropy_thresholds`).
-
-        :param obs_history: calibration histories, shape ``(n, ℓ, obs_dim)``
-        :param action_history: their past actions, shape ``(n, ℓ, action_dim)``
-        :param n_samples: candidates per history (more than ``n_candidates``: less estimator noise)
-        :param batch_size: histories per sampling pass (memory only)
-        :return: the measured ``H_u``, shape ``(n, k)``
-        """
-        if self.execution_rule != "quantile":
-            raise ValueError(f"calibration applies to execution_rule='quantile', not {self.execution_rule!r}")
-        check_arguments(n_candidates=n_samples)
-        if obs_history.shape[0] < 2:
-            raise ValueError(f"calibration needs at least 2 histories, got {obs_history.shape[0]}")
-        with th.inference_mode():
-            batches = range(0, obs_history.shape[0], batch_size)
-            entropy = th.cat([self.sample_candidates(obs_history[i : i + batch_size],
-                                                     action_history[i : i + batch_size], n_samples)[1]
-                              for i in batches])  # (n, k)
-        q = DEFAULT_ENTROPY_QUANTILE if self.entropy_quantile is None else self.entropy_quantile
-        assert self.calibrated_thresholds is not None
-        self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, q))
-        return entropy
-
     def sample_candidates(
         self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int,
         generator: th.Generator | None = None, x0: th.Tensor | None = None,
@@ -359,32 +312,9 @@ class UA2CPolicy(BasePolicy):
         clipped to the action bounds as they would be executed, and their entropies ``H_u``
         (:func:`~sb3_ua2c.chunking.chunk_entropy`): ``(m, ℓ, ·)`` histories -> ``(m, S, k, A)`` and
         ``(m, k)``."""
-        cond = self.actor.condition(self.flatten_history(obs_history, action_history))
-        clipped = self.sample_chunks(cond, n_samples, self.flow_steps, generator, x0).clamp(-1.0, 1.0)
+        chunks = self.sample_chunks(obs_history, action_history, n_samples, self.flow_steps, generator, x0)
+        clipped = chunks.clamp(-1.0, 1.0)
         return clipped, chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)
-
-    def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
-        """
-        δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
-        :attr:`entropy_window` is ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`).
-        While the window is empty, each row of the replanning's entropies ``entropy`` ``(m, k)`` gets its
-        own δ ``(m, 1)``, and without them the answer is ``nan``.
-        """
-        if self.entropy_window is None:
-            return float(self.entropy_threshold)
-        if entropy is None and int(self.entropy_window.count) == 0:
-            return math.nan
-        target = self.target_plan_length or default_target_plan_length(self.chunk_size)
-        return self.entropy_window.threshold(target, entropy)
-
-    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """``nn.Module.load_state_dict``; the execution rule's state (``entropy_window.*``,
-        ``calibrated_thresholds``) follows this policy's rule, which a load may override: a checkpoint
-        saved under another rule loads into an ``"auto"`` policy with an empty window and into a
-        ``"quantile"`` policy uncalibrated, and a rule ignores the state of another."""
-        own = {k: v for k, v in self.state_dict().items() if k.startswith(_RULE_STATE)}
-        state_dict = {k: v for k, v in state_dict.items() if not k.startswith(_RULE_STATE) or k in own}
-        return super().load_state_dict({**own, **state_dict}, strict=strict, assign=assign)
 
     def set_training_mode(self, mode: bool) -> None:
         self.actor.train(mode)
@@ -398,9 +328,21 @@ class UA2CPolicy(BasePolicy):
         b = obs_history.shape[0]
         return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
 
+    def condition(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+        """
+        The actor's features of histories: the one path from histories to the flow sampler (acting,
+        targets) and to the flow-matching loss.
+
+        :param obs_history: ``(B, ℓ, obs_dim)``
+        :param action_history: ``(B, ℓ, action_dim)``
+        :return: ``(B, hidden)``
+        """
+        return self.actor.condition(self.flatten_history(obs_history, action_history))
+
     def sample_chunks(
         self,
-        cond: th.Tensor,
+        obs_history: th.Tensor,
+        action_history: th.Tensor,
         n_samples: int,
         n_steps: int,
         generator: th.Generator | None = None,
@@ -409,7 +351,8 @@ class UA2CPolicy(BasePolicy):
         """
         Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
 
-        :param cond: history features of the actor, shape ``(B, hidden)``
+        :param obs_history: ``(B, ℓ, obs_dim)``
+        :param action_history: ``(B, ℓ, action_dim)``
         :param n_samples: candidates per history
         :param n_steps: Euler steps
         :param generator: optional random generator for the noise
@@ -417,6 +360,7 @@ class UA2CPolicy(BasePolicy):
             ``None``: independent Gaussian noise
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
+        cond = self.condition(obs_history, action_history)  # (B, hidden)
         if x0 is None:
             shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
             x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
@@ -463,22 +407,6 @@ class UA2CPolicy(BasePolicy):
         if self.commit_discrete:
             lengths = commit_through_switch(lengths, chunks, self.discrete_dims)
         return chunks, lengths, entropy
-
-    def plan_lengths(self, entropy: th.Tensor) -> th.Tensor:
-        """
-        ``L_t`` of a replanning from its entropies ``H_u`` ``(m, k)`` by the execution rule: Eq. 7 with
-        δ (``"threshold"``) or with the calibrated ``delta_u`` (``"quantile"``), or the growth rule
-        (:func:`~sb3_ua2c.chunking.entropy_growth_length`). Returns a long tensor ``(m,)`` in ``[1, k]``.
-        """
-        if self.execution_rule == "growth":
-            return entropy_growth_length(entropy, DEFAULT_ENTROPY_GROWTH if self.entropy_growth is None
-                                         else self.entropy_growth)
-        if self.execution_rule == "quantile":
-            if self.needs_calibration:
-                raise RuntimeError("execution_rule='quantile' acts once its thresholds are calibrated: call "
-                                   "UA2C.calibrate_execution() (learn() does it from the replay buffer)")
-            return executable_prefix_length(entropy, self.calibrated_thresholds)
-        return executable_prefix_length(entropy, self.current_entropy_threshold(entropy))
 
     def plan(
         self,

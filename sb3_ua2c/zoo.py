@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_ua2c.config import POLICY_CHUNKING_ARGUMENTS, check_arguments, policy_arguments
+from sb3_ua2c.config import ExecutionRule, check_arguments, policy_kwargs_names
 from sb3_ua2c.policies import UA2CPolicy
 
 if TYPE_CHECKING:
@@ -117,7 +117,7 @@ class UA2CSearchSpace:
     Ranges of the UA2C Optuna sampler (``--optimize``). Every field is named after the UA2C constructor
     argument it samples, or the :class:`~sb3_ua2c.policies.UA2CPolicy` argument (``net_arch``,
     ``critic_arch``, ``critic_embed_dim``, ``n_elite``, which go into ``policy_kwargs``), and every value is checked by
-    UA2C's own validator (:func:`~sb3_ua2c.config.check_arguments`). ``gamma`` is sampled as
+    UA2C's own validator (:func:`~sb3_ua2c.config.check_arguments`, :class:`~sb3_ua2c.config.ExecutionRule`). ``gamma`` is sampled as
     ``one_minus_gamma`` on a log scale (as rl-zoo3 does for SAC/TD3/TQC); the other intervals are
     :data:`LOG_INTERVALS` (log scale), :data:`INT_INTERVALS` (integers) and :data:`INTERVALS`, given as
     ``(low, high)``; every other field is a tuple of choices. ``net_arch`` holds names of
@@ -157,7 +157,7 @@ class UA2CSearchSpace:
                     raise ValueError(f"net_arch must be names among {sorted(NET_ARCHS)}, got {value!r}")
             else:
                 for choice in value:
-                    check_arguments(**{name: choice})
+                    _check_value(name, choice)
         check_arguments(n_elite=max(self.n_elite), n_candidates=min(self.n_candidates))
 
     @classmethod
@@ -194,8 +194,16 @@ def _check_interval(name: str, interval: Any) -> None:
     lower, upper = (0.0, 1.0) if name == "gamma" else (0.0 if name in LOG_INTERVALS else -math.inf, math.inf)
     if not lower < low < high < upper:
         raise ValueError(f"{name} must satisfy {lower} < low < high < {upper}, got {interval!r}")
-    check_arguments(**{name: low})
-    check_arguments(**{name: high})
+    _check_value(name, low)
+    _check_value(name, high)
+
+
+def _check_value(name: str, value: Any) -> None:
+    """UA2C's own check of one value of the constructor argument ``name`` (``ValueError`` naming it)."""
+    if name == "entropy_threshold":
+        ExecutionRule(entropy_threshold=value)
+    else:
+        check_arguments(**{name: value})
 
 
 def _suggest(trial: optuna.Trial, name: str, choices: tuple) -> Any:
@@ -259,8 +267,9 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
         if name not in NET_ARCHS:
             raise ValueError(f"net_arch must be one of {sorted(NET_ARCHS)}, got {name!r}")
         params["net_arch"] = list(NET_ARCHS[name])
-    policy_only = [p for p in policy_arguments(UA2CPolicy) if p not in POLICY_CHUNKING_ARGUMENTS]
-    policy_kwargs = {name: params.pop(name) for name in policy_only if name in params}
+    from sb3_ua2c.ua2c import UA2C
+
+    policy_kwargs = {name: params.pop(name) for name in policy_kwargs_names(UA2CPolicy, UA2C) if name in params}
     if policy_kwargs:
         params["policy_kwargs"] = policy_kwargs
     return params

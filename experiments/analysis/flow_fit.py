@@ -46,7 +46,7 @@ def fit(env, episodes, net_arch: list[int], chunk_size: int, steps: int, seed: i
         data = model.replay_buffer.sample(model.batch_size)
         x1 = data.chunks  # (B, k, A)
         x0, tau = th.randn_like(x1), th.rand(x1.shape[0])
-        cond = actor.condition(policy.flatten_history(data.observation_history, data.action_history))
+        cond = policy.condition(data.observation_history, data.action_history)
         loss = flow_matching_loss(actor(interpolate(x0, x1, tau), tau, cond), x0, x1)
         actor.optimizer.zero_grad()
         loss.backward()
@@ -79,11 +79,9 @@ def main() -> None:
             data_inside, data_first = step_changes(data.chunks[full][..., 0], previous)
             policy = model.policy
             with th.no_grad():
-                cond = policy.actor.condition(
-                    policy.flatten_history(data.observation_history[full], data.action_history[full])
-                )
+                obs_h, act_h = data.observation_history[full], data.action_history[full]
                 for n in args.flow_steps:
-                    chunks = policy.sample_chunks(cond, 32, n).clamp(-1.0, 1.0)[..., 0]  # (B, 32, k)
+                    chunks = policy.sample_chunks(obs_h, act_h, 32, n).clamp(-1.0, 1.0)[..., 0]  # (B, 32, k)
                     inside, first = step_changes(chunks, previous)
                     rows.append((arch, n, loss, seconds, inside, first, data_inside, data_first))
         print(f"{'net_arch':>14} {'N':>3} {'flow loss':>9} {'train s':>8} {'in-chunk':>9} {'data':>7} {'ratio':>6}"

@@ -12,8 +12,9 @@ import numpy as np
 import torch as th
 
 from sb3_ua2c import UA2C
+from sb3_ua2c.config import ExecutionRule
 
-#: The rules a screen compares, by arm name: ``UA2C.set_execution_rule`` arguments.
+#: The rules a screen compares, by arm name: UA2C's execution-rule arguments (``execution_rule`` and its parameters).
 RULES: dict[str, dict[str, Any]] = {
     "fixed": {"entropy_threshold": math.inf},
     "delta0": {"entropy_threshold": 0.0},
@@ -61,10 +62,11 @@ class FixedCut:
 
 def apply_rule(model: UA2C, rule: Mapping[str, Any], calibration_episodes: Sequence[Any] | None = None,
                n_histories: int = 1024) -> None:
-    """Act under ``rule`` (``set_execution_rule`` arguments); ``"quantile"`` is calibrated on
+    """Act under ``rule`` (UA2C's execution-rule arguments, as in :data:`RULES`); ``"quantile"`` is calibrated on
     ``calibration_episodes`` (offline episodes put in the model's replay buffer, which is emptied first)."""
     model.policy.__dict__.pop("plan_lengths", None)  # drop a control
-    model.set_execution_rule(**rule)
+    fields = dict(rule)
+    model.set_execution_rule(ExecutionRule(fields.pop("execution_rule", "threshold"), **fields))
     if model.policy.needs_calibration:
         if not calibration_episodes:
             raise ValueError("the quantile rule needs calibration episodes")

@@ -8,7 +8,8 @@ import torch as th
 from gymnasium import spaces
 from ua2c_helpers import ACT, OBS
 
-from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, OfflineEpisode, _StartIndex
+from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples, _StartIndex
+from sb3_ua2c.offline import Episode
 
 
 @pytest.fixture(autouse=True)
@@ -21,6 +22,13 @@ def make_buffer(size=32, n_envs=1, k=3, ell=2, ratio=0.5, targets="prefix"):
         size, OBS, ACT, "cpu", n_envs=n_envs, chunk_size=k, history_len=ell, offline_ratio=ratio,
         online_targets=targets,
     )
+
+
+def scanned_starts(buf):
+    """The valid starts found by ``reindex()``'s scan of the whole ring, on a copy of ``buf``."""
+    copy = pickle.loads(pickle.dumps(buf))
+    copy.reindex()
+    return copy.online_starts().tolist()
 
 
 def add_step(buf, t, plan=None, length=0, terminated=False, truncated=False, start=False, next_obs=None):
@@ -125,7 +133,7 @@ def test_ring_overwrite_invalidates_old_plans():
         add_step(buf, t, plan=[t / 10, t / 10, t / 10], length=1, start=(t == 0))
     # 5 slots hold t = 2..6; the action history a_{t-2:t-1} of t = 2 and t = 3 reaches the
     # overwritten a_0, a_1
-    starts = buf._online_starts()
+    starts = buf.online_starts()
     assert sorted(buf.online.obs[starts, 0, 0].tolist()) == [4.0, 5.0, 6.0]
     s = rows(buf.sample(64))
     assert set(s) == {0.4, 0.5, 0.6}
@@ -185,7 +193,7 @@ def test_online_windows_in_the_ring_and_several_envs():
     for t in range(7):
         add_step(buf, t, plan=[0.0, 0.0, 0.0], length=1, start=(t == 0))
     # slots hold t = 2..6; windows complete for t <= 4; t = 2, 3 lost a_0, a_1 to overwriting
-    assert sorted(buf.online.obs[buf._online_starts(), 0, 0].tolist()) == [4.0]
+    assert sorted(buf.online.obs[buf.online_starts(), 0, 0].tolist()) == [4.0]
     two = make_buffer(n_envs=2, targets="window")
     for t in range(3):  # env 1 terminates after its second step and starts again
         add_two_envs(two, t, terminated=[False, t == 1], start=[t == 0, t in (0, 2)])
@@ -202,7 +210,7 @@ def test_online_targets_is_validated():
 
 
 def offline_episode(offset=0.0, terminated=True):
-    return OfflineEpisode(
+    return Episode(
         observations=np.arange(5, dtype=np.float32).reshape(5, 1) + offset,
         actions=np.array([[0.1], [0.2], [0.3], [0.4]], np.float32),
         rewards=np.array([1.0, 2.0, 3.0, 4.0]),
@@ -305,10 +313,25 @@ def test_offline_ratio_mixes_batches():
     assert offline_rows == 2
 
 
+def test_one_episode_type_with_or_without_next_observations():
+    """An Episode with o_1..o_T given apart, or as a mapping, is stored as the one with T+1 observations."""
+    whole = offline_episode()
+    split = Episode(whole.observations[:-1], whole.actions, whole.rewards, whole.terminations, whole.truncations,
+                    next_observations=whole.observations[1:])
+    buffers = [make_buffer(), make_buffer(), make_buffer()]
+    for buf, episode in zip(buffers, [whole, split, vars(split)], strict=True):
+        assert buf.add_offline_episodes([episode]) == 4
+    same_samples(buffers[0], buffers[1])
+    same_samples(buffers[0], buffers[2])
+    with pytest.raises(ValueError, match="next_observations must have T=4 rows, got 3"):
+        Episode(whole.observations[:-1], whole.actions, whole.rewards, whole.terminations, whole.truncations,
+                next_observations=whole.observations[2:])
+
+
 def test_offline_episode_validation():
     buf = make_buffer()
     bad = offline_episode()
-    with pytest.raises(ValueError, match="rewards has shape"):
+    with pytest.raises(ValueError, match="rewards must have T=4 rows, got 3"):
         buf.add_offline_episodes([{**bad.__dict__, "rewards": np.zeros(3)}])
     with pytest.raises(ValueError, match="normalised"):
         buf.add_offline_episodes([{**bad.__dict__, "actions": np.full((4, 1), 2.0)}])
@@ -476,7 +499,7 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
     """
     buf = ChunkReplayBuffer(
         size, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=n_envs,
-        chunk_size=5, history_len=4, online_targets=targets,
+        chunk_size=5, history_len=4, offline_ratio=0.5, online_targets=targets,
     )
     driver = RingDriver(buf, seed=size + n_envs)
     n_checked = 0
@@ -484,7 +507,7 @@ def test_ring_samples_are_the_true_trajectory_after_wrapping(size, n_envs, targe
         driver.add()
         available = driver.available()
         want = sorted((g % size) * n_envs + e for g, e in available)
-        assert buf._online_starts().tolist() == want == buf._scan_online_starts().tolist()
+        assert buf.online_starts().tolist() == want == scanned_starts(buf)
         assert buf.n_samples() == (len(available), 0)
         if driver.g % 3 or not available:
             continue
@@ -537,7 +560,8 @@ def test_plan_lengths_are_validated(length):
 
 def wrapped_buffer(targets="prefix"):
     buf = ChunkReplayBuffer(
-        29, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=3, online_targets=targets
+        29, spaces.Box(-np.inf, np.inf, (3,), np.float32), ACT2, "cpu", n_envs=3, chunk_size=5, history_len=4,
+        offline_ratio=0.5, online_targets=targets,
     )
     driver = RingDriver(buf, seed=1)
     for _ in range(100):
@@ -547,10 +571,10 @@ def wrapped_buffer(targets="prefix"):
 
 def test_pickled_buffer_keeps_its_starts():
     buf = wrapped_buffer()
-    starts = buf._online_starts().tolist()
+    starts = buf.online_starts().tolist()
     assert len(starts) > 10
     copy = pickle.loads(pickle.dumps(buf))
-    assert copy._online_starts().tolist() == starts
+    assert copy.online_starts().tolist() == starts
     same_samples(buf, copy, batch=32, seed=3)
 
 

@@ -15,7 +15,7 @@ from sb3_ua2c.chunking import (
     chunk_entropy,
     executable_prefix_length,
 )
-from sb3_ua2c.config import check_arguments
+from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.execution import AUTO_THRESHOLD_WINDOW, AdaptiveChunkExecutor, EntropyWindow, PlanResult
 from sb3_ua2c.policies import UA2CPolicy
 
@@ -148,8 +148,12 @@ class _FirstActionCritic(nn.Module):
         return th.stack([q, q + 1.0])
 
 
-def fixed_policy(**kwargs):
-    policy = UA2CPolicy(OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, n_candidates=3, **kwargs)
+def fixed_policy(**rule):
+    """k = 3, S = 3 fixed candidates, acting under ``ExecutionRule(**rule)``."""
+    policy = UA2CPolicy(
+        OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, flow_steps=10, n_candidates=3,
+        execution=ExecutionRule(**rule),
+    )
     policy.sample_chunks = lambda *args, **kw: CANDIDATES.clone()
     policy.critic = _FirstActionCritic()
     return policy
@@ -197,7 +201,7 @@ def test_auto_threshold_reads_and_records_the_window():
 
 def test_target_plan_length_defaults_to_the_middle_of_1_and_k():
     policy = fixed_policy(entropy_threshold="auto")
-    assert policy.target_plan_length is None
+    assert policy.execution.target_plan_length is None
     policy.entropy_window.add(WINDOW)
     assert policy.current_entropy_threshold().item() == pytest.approx(0.35)  # target (3 + 1) / 2 = 2
 
@@ -227,7 +231,7 @@ def test_auto_threshold_in_training_and_save_load(tmp_path):
     np.testing.assert_array_equal(rollout_actions(model), before)
     model.save(tmp_path / "auto.zip")
     loaded = UA2C.load(tmp_path / "auto.zip")
-    assert (loaded.entropy_threshold, loaded.target_plan_length) == ("auto", 2.5)
+    assert loaded.execution == loaded.policy.execution == ExecutionRule(entropy_threshold="auto", target_plan_length=2.5)
     assert th.equal(loaded.policy.entropy_window.rows, window.rows)
     assert loaded.policy.current_entropy_threshold().item() == delta
     np.testing.assert_array_equal(rollout_actions(loaded), before)
@@ -265,10 +269,10 @@ def test_auto_override_of_a_numeric_checkpoint_starts_with_an_empty_window(tmp_p
 def test_set_entropy_threshold_to_auto_and_back():
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
     model.set_entropy_threshold("auto", target_plan_length=4)
-    assert (model.entropy_threshold, model.target_plan_length) == ("auto", 4.0)
+    assert model.execution == model.policy.execution == ExecutionRule(entropy_threshold="auto", target_plan_length=4)
     assert model.policy.entropy_window.rows.shape == (AUTO_THRESHOLD_WINDOW, 5)
     model.set_entropy_threshold(math.inf)
-    assert model.policy.entropy_window is None and model.policy.entropy_threshold == math.inf
+    assert model.policy.entropy_window is None and model.policy.execution.entropy_threshold == math.inf
     with pytest.raises(ValueError, match="target_plan_length"):
         model.set_entropy_threshold(0.0, target_plan_length=2)
 
@@ -290,15 +294,23 @@ def test_set_entropy_threshold_to_auto_and_back():
 )
 def test_bad_execution_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        check_arguments(chunk_size=5, **{"entropy_threshold": 0.0, **kwargs})
+        ExecutionRule(**kwargs).check_chunk_size(5)
     with pytest.raises(ValueError, match=match):
-        UA2C("MlpPolicy", "Pendulum-v1", **kwargs)
-    with pytest.raises(ValueError, match=match):
-        UA2CPolicy(OBS, ACT, lambda _: 1e-3, **kwargs)
+        UA2C("MlpPolicy", "Pendulum-v1", **kwargs)  # chunk_size 5
+
+
+def test_a_target_longer_than_the_chunk_is_refused_by_the_policy():
+    long = ExecutionRule(entropy_threshold="auto", target_plan_length=3.5)  # a number in [1, inf): valid alone
+    with pytest.raises(ValueError, match=r"target_plan_length must be a number in \[1, chunk_size=3\], got 3.5"):
+        fixed_policy(entropy_threshold="auto", target_plan_length=3.5)
+    policy = fixed_policy(entropy_threshold="auto", target_plan_length=3)
+    with pytest.raises(ValueError, match="chunk_size=3"):
+        policy.set_execution_rule(long)
+    assert policy.execution.target_plan_length == 3  # unchanged by the refused rule
 
 
 def test_execution_arguments_are_kept_as_given():
     model = UA2C("MlpPolicy", "Pendulum-v1", entropy_threshold="auto", target_plan_length=3, **FAST)
-    assert model.target_plan_length == model.policy.target_plan_length == 3
+    assert model.execution.target_plan_length == model.policy.execution.target_plan_length == 3
     assert model.policy.current_entropy_threshold(th.zeros(1, 5)).shape == (1, 1)
     assert UA2C("MlpPolicy", "Pendulum-v1", entropy_threshold=1, **FAST).policy.current_entropy_threshold() == 1.0

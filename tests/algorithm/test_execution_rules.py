@@ -19,6 +19,7 @@ from sb3_ua2c.chunking import (
     executable_prefix_length,
     quantile_entropy_thresholds,
 )
+from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.policies import history_noise
 
 
@@ -114,7 +115,7 @@ def test_learn_calibrates_the_quantile_rule_from_the_buffer_and_a_load_acts_with
     assert not model.policy.needs_calibration and thresholds.shape == (4,)
     model.save(tmp_path / "q.zip")
     loaded = UA2C.load(tmp_path / "q.zip")
-    assert loaded.execution_rule == "quantile" and loaded.entropy_quantile == 0.5
+    assert loaded.execution == loaded.policy.execution == ExecutionRule("quantile", entropy_quantile=0.5)
     assert th.equal(loaded.policy.calibrated_thresholds, thresholds)
     obs = np.array([[0.3, -0.9, 0.4], [1.0, 0.0, -2.0]], dtype=np.float32)
     state_a = state_b = None
@@ -165,7 +166,7 @@ def test_calibration_sets_the_quantile_of_the_measured_entropies():
 
 
 def test_execution_rules_refuse_bad_input_naming_the_parameter():
-    with pytest.raises(ValueError, match="execution_rule must be one of"):
+    with pytest.raises(ValueError, match=r"execution_rule \(ExecutionRule.rule\) must be one of"):
         UA2C("MlpPolicy", "Pendulum-v1", execution_rule="entropy")
     with pytest.raises(ValueError, match="entropy_quantile must be a number in \\[0, 1\\]"):
         quantile_model(entropy_quantile=1.5)
@@ -182,9 +183,9 @@ def test_execution_rules_refuse_bad_input_naming_the_parameter():
         model.calibrate_execution(n_histories=1)
     with pytest.raises(RuntimeError, match="calibrate_execution"):
         model.predict(np.zeros(3, dtype=np.float32))
-    with pytest.raises(ValueError, match="set_execution_rule takes"):
-        model.set_execution_rule(delta=0.0)
-    model.set_execution_rule(execution_rule="growth", entropy_growth=0.2)
-    assert (model.execution_rule, model.policy.entropy_growth, model.policy.calibrated_thresholds) == ("growth", 0.2, None)
+    with pytest.raises(ValueError, match="execution must be an ExecutionRule"):
+        model.set_execution_rule({"rule": "growth"})
+    model.set_execution_rule(ExecutionRule("growth", entropy_growth=0.2))
+    assert (model.execution.rule, model.policy.execution.growth, model.policy.calibrated_thresholds) == ("growth", 0.2, None)
     with pytest.raises(ValueError, match="calibration applies to execution_rule='quantile'"):
         model.policy.calibrate_entropy_thresholds(th.zeros(4, 3, 3), th.zeros(4, 3, 1))

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch as th
+from torch import nn
 
 from sb3_ua2c.flow import (
     actor_loss,
@@ -92,7 +93,7 @@ def test_velocity_field_sample_is_euler_over_forward():
     """The precomputed history/time terms of ``VelocityField.sample`` give exactly the Euler
     integration of ``forward`` (same float operations in the same order)."""
     th.manual_seed(0)
-    field = VelocityField(history_dim=6, chunk_size=3, action_dim=2, net_arch=[16, 16])
+    field = VelocityField(history_dim=6, chunk_size=3, action_dim=2, net_arch=[16, 16], activation_fn=nn.SiLU)
     cond = field.condition(th.randn(4, 6))  # (B=4, hidden)
     x0 = th.randn(4, 5, 3, 2)  # (B, S=5, k, A)
     with th.no_grad():

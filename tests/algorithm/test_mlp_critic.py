@@ -48,7 +48,7 @@ def test_layer_norm_by_hand():
 @pytest.mark.parametrize("layer_norm", [True, False])
 def test_each_member_is_an_ordinary_mlp_over_the_flattened_input(layer_norm):
     th.manual_seed(0)
-    critics = MLPChunkCritics(6, 3, 2, n_critics=3, net_arch=[16, 8], layer_norm=layer_norm)
+    critics = MLPChunkCritics(6, 3, 2, n_critics=3, net_arch=[16, 8], layer_norm=layer_norm, activation_fn=nn.SiLU)
     with th.no_grad():  # random norm gains and biases, so that a member mixing them up would show
         for p in critics.parameters():
             p.add_(0.1 * th.randn_like(p))
@@ -76,7 +76,7 @@ def test_each_member_is_an_ordinary_mlp_over_the_flattened_input(layer_norm):
 
 def test_candidates_share_their_history():
     th.manual_seed(1)
-    critics = MLPChunkCritics(4, 2, 3)
+    critics = MLPChunkCritics(4, 2, 3, n_critics=2, net_arch=[256, 256], layer_norm=True, activation_fn=nn.SiLU)
     history, chunks = th.randn(3, 4), th.randn(3, 7, 2, 3)
     together = critics(history, chunks)  # (2, 3, 7)
     one_by_one = critics(history.repeat_interleave(7, 0), chunks.reshape(21, 1, 2, 3)).reshape(2, 3, 7)

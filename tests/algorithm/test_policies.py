@@ -11,6 +11,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from ua2c_helpers import FAST, tiny_policy
 
 from sb3_ua2c import UA2C
+from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.policies import UA2CPolicy
 
 
@@ -20,8 +21,7 @@ def make_policy(**kwargs) -> UA2CPolicy:
 
 def candidates_and_values(policy: UA2CPolicy, obs_h: th.Tensor, act_h: th.Tensor, seed: int):
     """The replanning's S candidates (clipped) and their ``min_j Q_j``, recomputed by hand."""
-    cond = policy.actor.condition(policy.flatten_history(obs_h, act_h))
-    samples = policy.sample_chunks(cond, 6, 2, th.Generator().manual_seed(seed)).clamp(-1.0, 1.0)
+    samples = policy.sample_chunks(obs_h, act_h, 6, 2, th.Generator().manual_seed(seed)).clamp(-1.0, 1.0)
     return samples, policy.critic(obs_h.reshape(obs_h.shape[0], -1), samples).min(dim=0).values  # (m, S)
 
 
@@ -63,8 +63,7 @@ def test_discrete_entropy_flag_changes_only_the_prefix_length():
     chunks_a, _, h_a = with_cat.plan_tensors(obs_h, act_h, g())
     chunks_b, _, h_b = without.plan_tensors(obs_h, act_h, g())
     assert th.equal(chunks_a, chunks_b)
-    cond = with_cat.actor.condition(with_cat.flatten_history(obs_h, act_h))
-    samples = with_cat.sample_chunks(cond, 6, 2, g())  # (m, S, k, A)
+    samples = with_cat.sample_chunks(obs_h, act_h, 6, 2, g())  # (m, S, k, A)
     from sb3_ua2c.chunking import categorical_entropy, categorize
 
     assert th.allclose(h_a - h_b, categorical_entropy(categorize(samples[..., 1], 3), 3).float(), atol=1e-6)
@@ -82,8 +81,9 @@ def test_commit_discrete_extends_only_the_prefix_length():
     from sb3_ua2c.chunking import commit_through_switch
 
     th.manual_seed(0)
-    plain = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, entropy_threshold=-10.0)  # Eq. 7 alone gives L_t = 1
-    commit = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, entropy_threshold=-10.0, commit_discrete=True)
+    plain = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, execution=ExecutionRule(entropy_threshold=-10.0))  # Eq. 7 alone gives L_t = 1
+    commit = make_policy(discrete_action_dims={1: [-1.0, 0.0, 1.0]}, execution=ExecutionRule(entropy_threshold=-10.0),
+                         commit_discrete=True)
     commit.load_state_dict(plain.state_dict())
     obs_h, act_h = th.randn(16, 2, 3), th.zeros(16, 2, 2)
     g = lambda: th.Generator().manual_seed(3)  # noqa: E731
@@ -119,7 +119,7 @@ def batch_policy(chunk_size: int) -> UA2CPolicy:
         history_len=2,
         n_candidates=6,
         flow_steps=2,
-        entropy_threshold=2.41,
+        execution=ExecutionRule(entropy_threshold=2.41),
         net_arch=[16],
         critic_embed_dim=8,
         critic_ff_dim=16,

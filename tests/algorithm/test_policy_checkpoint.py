@@ -14,6 +14,7 @@ from torch import nn
 from ua2c_helpers import FAST, TINY
 
 from sb3_ua2c import UA2C
+from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 
 TESTS_DIR = pathlib.Path(__file__).resolve().parent
@@ -74,7 +75,7 @@ def lane_change_policy() -> UA2CPolicy:
         history_len=2,
         flow_steps=2,
         n_candidates=6,
-        entropy_threshold=1.3,
+        execution=ExecutionRule(entropy_threshold=1.3),
         discrete_action_dims={1: [-1.0, 0.0, 1.0]},
         discrete_entropy=False,
         n_elite=3,
@@ -124,7 +125,7 @@ def test_policy_checkpoint_keeps_the_acting_rule(tmp_path):
     loaded = UA2CPolicy.load(tmp_path / "policy.pt")
     got = {name: getattr(loaded, name) for name in ("chunk_size", "history_len", "flow_steps", "n_candidates")}
     assert got == {"chunk_size": 3, "history_len": 2, "flow_steps": 5, "n_candidates": 6}
-    assert (loaded.entropy_threshold, loaded.n_elite, loaded.discrete_dims) == (1.3, 3, {1: 3})
+    assert (loaded.execution, loaded.n_elite, loaded.discrete_dims) == (ExecutionRule(entropy_threshold=1.3), 3, {1: 3})
     assert (loaded.discrete_entropy, loaded.commit_discrete, loaded.net_arch) == (False, True, [16, 8])
     critic = ("n_critics", "critic_embed_dim", "critic_n_layers", "critic_n_heads", "critic_ff_dim", "activation_fn")
     assert [getattr(loaded, name) for name in critic] == [3, 8, 1, 2, 16, nn.Tanh]
@@ -139,13 +140,13 @@ def test_policy_checkpoint_of_fixed_chunks(tmp_path):
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=3, entropy_threshold=float("inf"), **FAST)
     model.policy.save(tmp_path / "policy.pt")
     loaded = UA2CPolicy.load(tmp_path / "policy.pt")
-    assert loaded.entropy_threshold == float("inf")
+    assert loaded.execution.entropy_threshold == float("inf")
     assert acting_record(loaded) == acting_record(model.policy)
 
 
 def test_normalize_images_must_be_false():
     box = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
     with pytest.raises(ValueError, match="normalize_images"):
-        UA2CPolicy(box, box, lambda _: 1e-3, normalize_images=True, **TINY)
+        UA2CPolicy(box, box, lambda _: 1e-3, 3, 2, 2, 4, normalize_images=True, **TINY)
     with pytest.raises(ValueError, match="normalize_images"):
         UA2C("MlpPolicy", "Pendulum-v1", policy_kwargs=dict(TINY, normalize_images=True))

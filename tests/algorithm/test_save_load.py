@@ -28,7 +28,7 @@ def test_save_load_same_actions_and_hyperparameters(tmp_path):
     before = rollout_actions(model)
     model.save(tmp_path / "ua2c.zip")
     loaded = UA2C.load(tmp_path / "ua2c.zip")
-    assert (loaded.chunk_size, loaded.history_len, loaded.entropy_threshold) == (4, 3, -0.5)
+    assert (loaded.chunk_size, loaded.history_len, loaded.execution.entropy_threshold) == (4, 3, -0.5)
     assert loaded.smooth_weight == 2.5
     assert loaded.policy.critic_embed_dim == 16
     for k, v in params(model).items():
@@ -267,7 +267,7 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
         got = policy._predict(obs, deterministic=True)  # (1, action_dim), first action of the plan
         # by hand: one Euler step x1 = x0 + v(x0, 0 | h), then best-of-S by min_j Q_j
         history = obs.reshape(1, 1, -1).expand(-1, policy.history_len, -1)
-        cond = policy.actor.condition(policy.flatten_history(history, th.zeros(1, policy.history_len, 1)))
+        cond = policy.condition(history, th.zeros(1, policy.history_len, 1))
         x0 = history_noise(history, th.zeros(1, policy.history_len, 1), 4, policy.chunk_size)  # (1, S, k, 1)
         x1 = (x0 + policy.actor(x0, th.zeros(()), cond)).clamp(-1.0, 1.0)
         q = policy.critic(history.reshape(1, -1), x1).min(dim=0).values  # (1, S)

@@ -567,7 +567,7 @@ def test_register_installs_the_sampler_in_rl_zoo():
 def test_search_space_fields_are_constructor_arguments():
     """The sampler's names are UA2C's (or, into ``policy_kwargs``, UA2CPolicy's): none is declared anew."""
     from sb3_ua2c import UA2C, UA2CPolicy
-    from sb3_ua2c.config import policy_arguments
+    from sb3_ua2c.config import policy_kwargs_names
 
-    known = set(inspect.signature(UA2C.__init__).parameters) | set(policy_arguments(UA2CPolicy))
+    known = set(inspect.signature(UA2C.__init__).parameters) | set(policy_kwargs_names(UA2CPolicy, UA2C))
     assert {f.name for f in dataclasses.fields(zoo.UA2CSearchSpace)} <= known

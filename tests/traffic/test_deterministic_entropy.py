@@ -41,8 +41,8 @@ def histories():
 def _entropy(policy, obs_h, act_h, x0):
     """``H_u`` ``(m, k)`` of the clipped candidates sampled from noise ``x0`` ``(1 or m, S, k, A)``."""
     with th.inference_mode():
-        cond = policy.actor.condition(policy.flatten_history(obs_h, act_h))
-        samples = policy.actor.sample(x0.expand(obs_h.shape[0], -1, -1, -1), cond, policy.flow_steps)
+        x0 = x0.expand(obs_h.shape[0], -1, -1, -1)
+        samples = policy.sample_chunks(obs_h, act_h, x0.shape[1], policy.flow_steps, x0=x0)
         return chunk_entropy(samples.clamp(-1.0, 1.0), policy.discrete_dims, discrete=policy.discrete_entropy)
 
 

@@ -1,0 +1,112 @@
+"""UA2C's checkpoints: what a saved model holds, SB3's ``load`` with the overrides UA2C adds, and clear
+errors for checkpoints that do not fit (the conversion of earlier layouts is :mod:`sb3_ua2c.compat`).
+"""
+
+from __future__ import annotations
+
+import io
+import pathlib
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.type_aliases import GymEnv
+
+from sb3_ua2c.buffers import ChunkReplayBuffer
+
+
+class Checkpoints(OffPolicyAlgorithm):
+    """
+    Saving and loading of :class:`~sb3_ua2c.ua2c.UA2C` (a part of it, not an algorithm of its own).
+    """
+
+    def _excluded_save_params(self) -> list[str]:
+        return [
+            *super()._excluded_save_params(),
+            "actor",
+            "critic",
+            "critic_target",
+            "_executor",
+            "_plan_lengths",
+            "_plan_entropy",
+        ]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "actor.optimizer", "critic.optimizer"], []
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> Any:
+        """
+        SB3's ``load``; keyword arguments override the saved attributes as in SB3
+        (``UA2C.load(path, flow_steps=2)``), and ``n_elite=m`` sets the elite mean of the loaded
+        policy (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`). Without that, SB3 would store ``n_elite`` as an unused
+        attribute and the policy would go on acting with its saved ``m``.
+        """
+        n_elite = kwargs.pop("n_elite", None)
+        model = super().load(
+            path,
+            env=env,
+            device=device,
+            custom_objects=custom_objects,
+            print_system_info=print_system_info,
+            force_reset=force_reset,
+            **kwargs,
+        )
+        if n_elite is not None:
+            model.set_n_elite(n_elite)
+        return model
+
+    def set_parameters(
+        self,
+        load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """
+        SB3's ``set_parameters``; a checkpoint whose networks do not fit this model (other sizes,
+        or the layer-norm critics of early development versions, whose ``norm*.bias`` entries the
+        RMS-norm critics no longer have) raises a ``ValueError`` that says so.
+        """
+        try:
+            super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
+        except RuntimeError as error:
+            if "state_dict" not in str(error):
+                raise
+            hint = ""
+            if ".norm" in str(error) and ".bias" in str(error):
+                hint = (
+                    " The checkpoint has layer-norm biases in its critics: it was saved by an early"
+                    " development version (the critics now use RMS norms); retrain it."
+                )
+            raise ValueError(
+                f"the checkpoint's networks do not match this UA2C model (chunk_size, history_len, "
+                f"policy_kwargs and the spaces must be those it was trained with).{hint}\n{error}"
+            ) from error
+
+    def load_replay_buffer(
+        self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
+    ) -> None:
+        """
+        Load a :class:`ChunkReplayBuffer` saved with :meth:`save_replay_buffer`.
+
+        :param path: path to the pickled replay buffer
+        :param truncate_last_traj: unused (kept for SB3 compatibility)
+        """
+        buffer = load_from_pkl(path, self.verbose)
+        if not isinstance(buffer, ChunkReplayBuffer):
+            raise ValueError(f"expected a ChunkReplayBuffer, got {type(buffer).__name__}")
+        buffer.device = self.device
+        self.replay_buffer = buffer
+
+
+__all__ = ["Checkpoints"]
