@@ -765,14 +765,18 @@ class UA2C(OffPolicyAlgorithm):
         )
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
+        # the critic values x̂1 clipped to the action bounds, as the candidates it ranks and the targets'
+        # (FQL and Q-chunking clip alike, ``jnp.clip(actions, -1, 1)``): a plain clamp, zero gradient outside
+        x_clip = x_hat.clamp(-1.0, 1.0)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
         try:
-            q_pi = self.critic(obs_flat, x_hat.unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
+            q_pi = self.critic(obs_flat, x_clip.unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
         finally:
             self.critic.requires_grad_(True)
         q = pessimistic_q(q_pi)  # (n, B) -> (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight)
+        # flow matching on the valid chunk positions only (not the padding after an episode's end)
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, data.chunk_mask)
 
     def learn(
         self: SelfUA2C,
