@@ -49,7 +49,6 @@ from sb3_ua2c.config import (
     hyperparameters,
     policy_arguments,
 )
-from sb3_ua2c.diagnostics import DIAGNOSTICS_INTERVAL, critic_fit, training_diagnostics
 from sb3_ua2c.execution import AdaptiveChunkExecutor, ExecutorStep, PlanResult
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.policies import CALIBRATION_SAMPLES, MlpPolicy, UA2CPolicy
@@ -729,15 +728,17 @@ class UA2C(OffPolicyAlgorithm):
         loss.backward()
         self.actor.optimizer.step()
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        from sb3_ua2c import diagnostics  # here: ``python -m sb3_ua2c.diagnostics`` runs it as __main__
+
         stats = {
             "critic_loss": critic_loss.item(),
             "actor_loss": loss.item(),
             "q_mean": q.mean().item(),
             **info,
-            **critic_fit(q, target),  # td_rmse, twin_gap: from values the critic update has
+            **diagnostics.critic_fit(q, target),  # td_rmse, twin_gap: from values the critic update has
         }
-        if self._n_updates % DIAGNOSTICS_INTERVAL == 0:  # q_grad_ratio, candidate_q_std, twin_agreement
-            stats.update(training_diagnostics(self, data))
+        if self._n_updates % diagnostics.DIAGNOSTICS_INTERVAL == 0:  # q_grad_ratio, candidate_q_std, twin_agreement
+            stats.update(diagnostics.training_diagnostics(self, data))
         return stats
 
     def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:

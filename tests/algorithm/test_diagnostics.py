@@ -160,10 +160,8 @@ def test_policy_gap_is_zero_when_the_targets_sample_as_the_policy_acts():
 
 
 def test_training_logs_the_diagnostics_without_moving_the_random_streams(monkeypatch):
-    import sb3_ua2c.ua2c as ua2c_module
-
     def run(interval):
-        monkeypatch.setattr(ua2c_module, "DIAGNOSTICS_INTERVAL", interval)
+        monkeypatch.setattr(diag, "DIAGNOSTICS_INTERVAL", interval)
         model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
         model.learn(90)
         return model
