@@ -337,6 +337,20 @@ def training_diagnostics(model: UA2C, data: ChunkReplaySamples) -> dict[str, flo
     return {"q_grad_ratio": strength["q_grad_ratio"], **ranking}
 
 
+def training_stats(model: UA2C, data: ChunkReplaySamples, q: th.Tensor, target: th.Tensor) -> dict[str, float]:
+    """
+    What ``UA2C`` logs at an update: :func:`critic_fit` of the critic update's values, and every
+    :data:`DIAGNOSTICS_INTERVAL` updates :func:`training_diagnostics` as well.
+
+    :param q: the critics' values on the batch, ``(n_critics, B)``
+    :param target: their target, ``(B,)``
+    """
+    stats = critic_fit(q, target)
+    if model._n_updates % DIAGNOSTICS_INTERVAL == 0:
+        stats.update(training_diagnostics(model, data))
+    return stats
+
+
 def diagnose(model: UA2C, data: ChunkReplaySamples, seed: int = 0) -> dict[str, float]:
     """
     Every metric of :data:`METRICS` on one batch of histories (each metric's function says what it

@@ -728,18 +728,14 @@ class UA2C(OffPolicyAlgorithm):
         loss.backward()
         self.actor.optimizer.step()
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-        from sb3_ua2c import diagnostics  # here: ``python -m sb3_ua2c.diagnostics`` runs it as __main__
-
-        stats = {
+        from sb3_ua2c.diagnostics import training_stats  # lazily: ``-m sb3_ua2c.diagnostics`` is __main__
+        return {
             "critic_loss": critic_loss.item(),
             "actor_loss": loss.item(),
             "q_mean": q.mean().item(),
             **info,
-            **diagnostics.critic_fit(q, target),  # td_rmse, twin_gap: from values the critic update has
+            **training_stats(self, data, q, target),  # td_rmse, twin_gap (+ more every DIAGNOSTICS_INTERVAL)
         }
-        if self._n_updates % diagnostics.DIAGNOSTICS_INTERVAL == 0:  # q_grad_ratio, candidate_q_std, twin_agreement
-            stats.update(diagnostics.training_diagnostics(self, data))
-        return stats
 
     def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
         """
@@ -771,18 +767,15 @@ class UA2C(OffPolicyAlgorithm):
         )
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
-        # the critic values x̂1 clipped to the action bounds, as the candidates it ranks and the targets'
-        # (FQL and Q-chunking clip alike, ``jnp.clip(actions, -1, 1)``): a plain clamp, zero gradient outside
-        x_clip = x_hat.clamp(-1.0, 1.0)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
-        try:
-            q_pi = self.critic(obs_flat, x_clip.unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
+        try:  # x̂1 clipped to the bounds as FQL / Q-chunking clip before Q: a plain clamp, no gradient outside
+            q_pi = self.critic(obs_flat, x_hat.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
         finally:
             self.critic.requires_grad_(True)
         q = pessimistic_q(q_pi)  # (n, B) -> (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        # flow matching on the valid chunk positions only (not the padding after an episode's end)
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, data.chunk_mask)
+        mask = data.chunk_mask  # the flow term skips the zeros that pad a window after an episode end
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, mask)
 
     def learn(
         self: SelfUA2C,
