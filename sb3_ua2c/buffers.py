@@ -50,6 +50,10 @@ class ChunkReplaySamples(NamedTuple):
     next_observation_history: th.Tensor
     #: ``a_{t+L-ℓ:t+L-1}``, shape ``(B, ℓ, action_dim)``
     next_action_history: th.Tensor
+    #: 1 where ``chunks`` holds an action, 0 on the zero padding after an episode's end, shape ``(B, k)``:
+    #: ``u < L`` for windows (offline, ``online_targets="window"``); every ``u`` for plans (Eq. 8), whose
+    #: unexecuted tail is the selected plan, the chunk the critic is trained on (``None`` = all valid)
+    chunk_mask: th.Tensor | None = None
 
 
 def episode_arrays(ep: Episode, index: int, obs_dim: int, action_dim: int) -> dict[str, np.ndarray]:
@@ -199,9 +203,11 @@ class _Steps:
         out.rewards[sl] *= inside
         if s.plans is not None:  # the executed actions, then the plan's unexecuted tail (see ChunkReplayBuffer._write_chunks)
             s.plans.reshape(-1, k, a_dim).take(rows, axis=0, out=out.chunks[sl])
+            out.chunk_mask[sl] = 1.0  # no padding: the tail is the plan's own
         else:  # the next k executed actions, zeros after the episode end
             actions.take(chunk_rows, axis=0, out=out.chunks[sl], mode="wrap")
             np.copyto(out.chunks[sl], 0.0, where=~inside[..., None])
+            out.chunk_mask[sl] = inside
 
 
 class _StartIndex:
@@ -575,6 +581,7 @@ class ChunkReplayBuffer(BaseBuffer):
             np.empty(batch_size, dtype=np.float32),
             obs_groups[1],
             action_groups[1],
+            np.empty((batch_size, k), dtype=np.float32),
         )
         if n_off > 0:
             rows = np.random.randint(0, n_off_avail, size=n_off)  # noqa: NPY002 - global RNG seeded by SB3

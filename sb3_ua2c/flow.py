@@ -61,19 +61,30 @@ def estimate_terminal(x_tau: th.Tensor, tau: th.Tensor, velocity: th.Tensor) -> 
     return x_tau + (1.0 - _expand_tau(tau, x_tau)) * velocity
 
 
-def flow_matching_loss(velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor) -> th.Tensor:
+def flow_matching_loss(
+    velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor, mask: th.Tensor | None = None
+) -> th.Tensor:
     """
     First term of Eq. 2, ``E ||v_theta(x_tau, tau | h_t) - (x1 - x0)||^2``.
 
     The squared norm is averaged over the ``k * action_dim`` chunk entries (instead of summed) so
-    that the weight ``lambda`` of the value term does not change meaning with the chunk size.
+    that the weight ``lambda`` of the value term does not change meaning with the chunk size. With a
+    ``mask``, the average runs over the valid chunk positions only: the zero padding after an
+    episode's end in a logged window is not an action, and regressing on it would teach the actor
+    "zero action" near episode ends (Q-chunking masks it too, with its ``valid`` flags, though it
+    divides by all entries).
 
     :param velocity: predicted velocities, shape ``(batch, k, action_dim)``
     :param x0: noise chunks, same shape
     :param x1: data chunks, same shape
-    :return: scalar loss
+    :param mask: 1 at the valid chunk positions, 0 at padding, shape ``(batch, k)``; ``None`` = all valid
+    :return: scalar loss (0 if no position is valid)
     """
-    return (velocity - target_velocity(x0, x1)).pow(2).mean()  # mean over (batch, k, action_dim)
+    error = (velocity - target_velocity(x0, x1)).pow(2)  # (batch, k, action_dim)
+    if mask is None:
+        return error.mean()
+    weights = mask.to(error.dtype).unsqueeze(-1).expand_as(error)  # (batch, k) -> (batch, k, action_dim)
+    return (error * weights).sum() / weights.sum().clamp_min(1.0)
 
 
 def euler_times(n_steps: int, dtype: th.dtype = th.float32, device: th.device | str = "cpu") -> th.Tensor:
@@ -136,6 +147,7 @@ def actor_loss(
     q_weight: float,
     roughness: th.Tensor | None = None,
     smooth_weight: float = 0.0,
+    mask: th.Tensor | None = None,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
     Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``,
@@ -153,10 +165,12 @@ def actor_loss(
     :param q_weight: ``lambda`` (>= 0)
     :param roughness: :func:`chunk_roughness` of ``x̂1`` (scalar), needed when ``smooth_weight > 0``
     :param smooth_weight: ``mu`` (>= 0)
+    :param mask: valid chunk positions of ``x1``, shape ``(batch, k)`` (:func:`flow_matching_loss`);
+        ``None`` = all valid
     :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``, and
         ``roughness`` when ``mu > 0``)
     """
-    flow = flow_matching_loss(velocity, x0, x1)
+    flow = flow_matching_loss(velocity, x0, x1, mask)
     q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
     q_term = -q_values.mean() / q_scale
     loss = flow + q_weight * q_term

@@ -378,11 +378,13 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         loss.backward()
         self.actor.optimizer.step()
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        from sb3_ua2c.diagnostics import training_stats  # lazily: ``-m sb3_ua2c.diagnostics`` is __main__
         return {
             "critic_loss": critic_loss.item(),
             "actor_loss": loss.item(),
             "q_mean": q.mean().item(),
             **info,
+            **training_stats(self, data, q, target),  # td_rmse, twin_gap (+ more every DIAGNOSTICS_INTERVAL)
         }
 
     def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
@@ -415,13 +417,14 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         velocity = self.actor(x_tau, tau, cond)
         x_hat = estimate_terminal(x_tau, tau, velocity)
         self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
-        try:
-            q_pi = self.critic(obs_flat, x_hat.unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
+        try:  # x̂1 clipped to the bounds as FQL / Q-chunking clip before Q: a plain clamp, no gradient outside
+            q_pi = self.critic(obs_flat, x_hat.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
         finally:
             self.critic.requires_grad_(True)
         q = pessimistic_q(q_pi)  # (n, B) -> (B,)
         roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight)
+        mask = data.chunk_mask  # the flow term skips the zeros that pad a window after an episode end
+        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, mask)
 
     def learn(
         self: SelfUA2C,

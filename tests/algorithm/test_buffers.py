@@ -96,6 +96,7 @@ def test_online_plans_with_prefix_and_terminal_inside():
     assert a["chunks"] == pytest.approx([0.1, 0.2, 0.7])
     assert a["rewards"] == pytest.approx([1.0, 2.0, 0.0])
     assert a["horizons"] == [2.0] and a["bootstrap"] == [1.0]
+    assert a["chunk_mask"] == [1.0, 1.0, 1.0]  # the tail is the plan's, not padding: the actor learns it
     assert a["observation_history"] == [0.0, 0.0] and a["action_history"] == [0.0, 0.0]
     assert a["next_observation_history"] == [1.0, 2.0]
     assert a["next_action_history"] == pytest.approx([0.1, 0.2])
@@ -103,6 +104,7 @@ def test_online_plans_with_prefix_and_terminal_inside():
     assert b["chunks"] == pytest.approx([0.3, 0.4, 1.0])
     assert b["rewards"] == pytest.approx([3.0, 4.0, 0.0])
     assert b["horizons"] == [2.0] and b["bootstrap"] == [0.0]
+    assert b["chunk_mask"] == [1.0, 1.0, 1.0]  # even past the terminal step: the planned action
     assert b["observation_history"] == [1.0, 2.0]
     assert b["action_history"] == pytest.approx([0.1, 0.2])
     assert b["next_observation_history"] == [3.0, 4.0]
@@ -283,6 +285,7 @@ def test_offline_windows_from_any_start():
     # t=0: full window, bootstraps from h_3
     assert s.chunks[i0].flatten().tolist() == pytest.approx([0.1, 0.2, 0.3])
     assert s.horizons[i0].item() == 3 and s.bootstrap[i0].item() == 1
+    assert s.chunk_mask[i0].tolist() == [1.0, 1.0, 1.0]
     assert s.next_observation_history[i0].flatten().tolist() == [2.0, 3.0]
     assert s.next_action_history[i0].flatten().tolist() == pytest.approx([0.2, 0.3])
     assert s.observation_history[i0].flatten().tolist() == [0.0, 0.0]
@@ -292,9 +295,11 @@ def test_offline_windows_from_any_start():
     assert s.chunks[i2].flatten().tolist() == pytest.approx([0.3, 0.4, 0.0])
     assert s.rewards[i2].tolist() == pytest.approx([3.0, 4.0, 0.0])
     assert s.horizons[i2].item() == 2 and s.bootstrap[i2].item() == 0
+    assert s.chunk_mask[i2].tolist() == [1.0, 1.0, 0.0]  # the padding is masked out of the flow loss
     assert s.action_history[i2].flatten().tolist() == pytest.approx([0.1, 0.2])
     assert s.next_observation_history[i2].flatten().tolist() == [3.0, 4.0]
     assert s.horizons[i3].item() == 1
+    assert s.chunk_mask[i3].tolist() == [1.0, 0.0, 0.0]
 
 
 def test_offline_time_limit_bootstraps():
@@ -479,6 +484,7 @@ def expected_batch(driver, identities):
         out["chunks"].append([a(t + u) if u < horizon else tail[u] for u in range(k)])
         out["rewards"].append([true_reward(e, j, t + u) if u < horizon else 0.0 for u in range(k)])
         out["horizons"].append(horizon)
+        out["chunk_mask"].append([float(u < horizon or not driver.window) for u in range(k)])
         out["bootstrap"].append(float(bootstrap))
         end = t + horizon
         history = [o(end - ell + 1 + i) for i in range(ell)]

@@ -153,3 +153,31 @@ def test_actor_loss_value_gradient_only_through_q():
     # d/dq_i of -2 * mean(q) / 4 = -2 / (2 * 4) = -0.25 (the scale is detached)
     assert th.allclose(q.grad, th.tensor([-0.25, -0.25]))
     assert math.isclose(v.grad.item(), 0.0)
+
+
+def test_flow_matching_loss_masks_the_padding():
+    # sample 0: errors (0, 1, 16) with the last position padding; sample 1: errors (4, 0, 0), all valid
+    v = th.tensor([[1.0, 2.0, 5.0], [3.0, 1.0, 1.0]]).unsqueeze(-1)  # (B=2, k=3, A=1)
+    x0, x1 = th.zeros_like(v), th.ones_like(v)
+    mask = th.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 1.0]])
+    # (0 + 1 + 4 + 0 + 0) / 5 valid entries; unmasked (0 + 1 + 16 + 4 + 0 + 0) / 6
+    assert flow_matching_loss(v, x0, x1, mask).item() == pytest.approx(1.0)
+    assert flow_matching_loss(v, x0, x1).item() == pytest.approx(3.5)
+    assert flow_matching_loss(v, x0, x1, th.ones(2, 3)).item() == pytest.approx(3.5)
+    # two action dims: the mask covers both dims of a position: errors 1 and 9 at u = 0, 100 padded
+    v2 = th.tensor([[[1.0, 3.0], [10.0, 10.0]]])  # (1, k=2, A=2), targets 0
+    assert flow_matching_loss(v2, th.zeros_like(v2), th.zeros_like(v2), th.tensor([[1.0, 0.0]])).item() == 5.0
+    # no valid position: 0, not nan
+    assert flow_matching_loss(v, x0, x1, th.zeros(2, 3)).item() == 0.0
+
+
+def test_actor_loss_mask_leaves_the_padding_without_gradient():
+    v = chunk(1.0, 2.0, 5.0).requires_grad_(True)
+    loss, info = actor_loss(v, chunk(0.0, 0.0, 0.0), chunk(1.0, 1.0, 1.0), th.tensor([-2.0, -4.0]), 0.5,
+                            mask=th.tensor([[1.0, 1.0, 0.0]]))
+    # flow (0 + 1) / 2 = 0.5 ; the value term as in test_actor_loss_hand_computed: 0.5 * 1
+    assert info["flow_loss"] == pytest.approx(0.5)
+    assert loss.item() == pytest.approx(1.0)
+    loss.backward()
+    # d/dv_u of (v_u - 1)^2 / 2 = v_u - 1 on the valid positions, 0 on the padding
+    assert th.allclose(v.grad, chunk(0.0, 1.0, 0.0))
