@@ -30,6 +30,7 @@ from sb3_ua2c.chunking import (
 )
 from sb3_ua2c.compat import legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_policy_kwargs, check_spaces
+from sb3_ua2c.diagnostics import training_stats
 from sb3_ua2c.execution import AdaptiveChunkExecutor
 from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.offline_training import OfflineTraining
@@ -378,7 +379,6 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         loss.backward()
         self.actor.optimizer.step()
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-        from sb3_ua2c.diagnostics import training_stats  # lazily: ``-m sb3_ua2c.diagnostics`` is __main__
         return {
             "critic_loss": critic_loss.item(),
             "actor_loss": loss.item(),

@@ -14,6 +14,7 @@ from ua2c_helpers import FAST, tiny_policy
 from sb3_ua2c import UA2C
 from sb3_ua2c import diagnostics as diag
 from sb3_ua2c.buffers import ChunkReplaySamples
+from sb3_ua2c.diagnostics.__main__ import main as diagnostics_main
 from sb3_ua2c.offline import Episode, write_dataset
 
 
@@ -200,7 +201,7 @@ def saved(tmp_path_factory):
 
 def test_command_reports_every_metric(saved, capsys):
     out = saved / "report.json"
-    code = diag.main([str(saved / "model.zip"), str(saved / "data"), "--n-histories", "32", "--json", str(out)])
+    code = diagnostics_main([str(saved / "model.zip"), str(saved / "data"), "--n-histories", "32", "--json", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
     record = json.loads(out.read_text())
@@ -211,7 +212,7 @@ def test_command_reports_every_metric(saved, capsys):
     assert 0.0 <= record["metrics"]["twin_agreement"] <= 1.0
     # the same seed gives the same numbers
     again = saved / "again.json"
-    diag.main([str(saved / "model.zip"), str(saved / "data"), "--n-histories", "32", "--json", str(again)])
+    diagnostics_main([str(saved / "model.zip"), str(saved / "data"), "--n-histories", "32", "--json", str(again)])
     assert json.loads(again.read_text())["metrics"] == pytest.approx(record["metrics"], nan_ok=True)
 
 
@@ -223,7 +224,7 @@ def test_command_reports_every_metric(saved, capsys):
 ])
 def test_command_rejects_bad_input(saved, capsys, args, message):
     paths = [str(saved / a) if i < 2 else a for i, a in enumerate(args)]
-    assert diag.main(paths) == 2
+    assert diagnostics_main(paths) == 2
     err = capsys.readouterr().err
     assert message in err
     if "observation_space" in message:
