@@ -412,7 +412,7 @@ def test_finetune_takes_a_float_or_auto_entropy_threshold(tmp_path: Path) -> Non
     pre = pretrain(ds, tmp_path / "pre.zip", 1, algo_kwargs=TINY)
     for delta in ("auto", 0.5, None):
         fine = finetune(pre, tmp_path / "fine.zip", 4, dataset=ds, entropy_threshold=delta)
-        assert UA2C.load(fine, device="cpu").entropy_threshold == (0.0 if delta is None else delta)
+        assert UA2C.load(fine, device="cpu").execution.entropy_threshold == (0.0 if delta is None else delta)
 
 
 def test_the_behaviour_policy_is_evaluated_on_the_scenarios_it_collects():

@@ -352,7 +352,7 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     assert "d_modle" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("module_args", [["sb3_ua2c", "style"], ["envs.style"]])
+@pytest.mark.parametrize("module_args", [["envs", "style"], ["envs.style"]])
 def test_cli_entry_points(module_args):
     """Both spellings of the command line reach the same parser."""
     done = subprocess.run(
