@@ -111,11 +111,11 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
     from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
-    from experiments.peers.common import run_behaviour
+    from experiments.peers.common import ArmInputs, run_behaviour
     from experiments.peers.ua2c_arms import run_ua2c_arm
 
-    common = {"out_dir": str(paths.seed_work(seed) / arm), "dataset": str(paths.seed_work(seed) / "dataset"),
-              "seed": seed, "online_steps": budget.online_steps, **eval_protocol(seed, budget)}
+    inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
+                       seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
     fn: Callable[..., Any]
     if arm in UA2C_ARMS:
         record = pretrained[f"seed{seed}/pretrain_k{budget.chunk_length(arm)}"]
@@ -138,7 +138,7 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
                                   "config_kwargs": budget.peer_kwargs.get(arm, {})}
     else:
         raise ValueError(f"arms: unknown arm {arm!r}")
-    return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))
+    return Unit(f"seed{seed}/{arm}", fn, {"inputs": inputs, **kwargs}, paths.record(seed, arm))
 
 
 def run_peers(
