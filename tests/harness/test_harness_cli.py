@@ -47,56 +47,29 @@ def _no_unit_may_run(*args, **kwargs):
     raise AssertionError("a unit ran before the extras were checked")
 
 
-def test_peers_checks_its_extras_before_any_unit(monkeypatch, tmp_path, capsys) -> None:
-    from experiments.peers import cli
+@pytest.mark.parametrize(("command", "units", "missing", "argv", "install"), [
+    ("experiments.peers.cli", "experiments.peers.cli:run_peers", "rliable", ["--seeds", "0", "--arms", "sac"],
+     'pip install "sb3-ua2c[peers]"'),
+    ("experiments.peers.tuning", "experiments.peers.tuning:run_peers", "d3rlpy", ["--arms", "iql"],
+     'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1'),
+    ("experiments.ogbench.cli", "experiments.ogbench.runner:run_benchmark", "ogbench", [],
+     'pip install "sb3-ua2c[ogbench]"'),
+    ("experiments.execution.cli", "experiments.common.runner:run_units", "ogbench", ["--env", "ogbench"],
+     'pip install "sb3-ua2c[ogbench]"'),
+    ("experiments.fig2.cli", "experiments.fig2.cli:run_all", "ray", ["--ray-address", "auto"],
+     'pip install "sb3-ua2c[peers]"'),
+])
+def test_each_harness_checks_its_extras_before_any_unit(command, units, missing, argv, install, monkeypatch,
+                                                        tmp_path, capsys) -> None:
+    import importlib
 
-    monkeypatch.setattr(cli, "run_peers", _no_unit_may_run)
-    _without(monkeypatch, "rliable")
-    with pytest.raises(SystemExit) as exc:
-        cli.main(["--quick", "--seeds", "0", "--arms", "sac", "--out", str(tmp_path)])
-    assert exc.value.code == 2
-    assert 'pip install "sb3-ua2c[peers]"' in capsys.readouterr().err
-    assert not any(tmp_path.iterdir())  # nothing written either
-
-
-def test_peers_tuning_checks_its_extras_before_any_unit(monkeypatch, tmp_path, capsys) -> None:
-    from experiments.peers import tuning
-
-    monkeypatch.setattr(tuning, "run_peers", _no_unit_may_run)
-    _without(monkeypatch, "d3rlpy")
-    with pytest.raises(SystemExit) as exc:
-        tuning.main(["--quick", "--arms", "iql", "--out", str(tmp_path)])
-    assert exc.value.code == 2
-    assert "pip install --no-deps d3rlpy==2.8.1" in capsys.readouterr().err
-
-
-def test_ogbench_checks_its_extras_before_any_unit(monkeypatch, tmp_path, capsys) -> None:
-    from experiments.ogbench import cli, runner
-
-    monkeypatch.setattr(runner, "run_benchmark", _no_unit_may_run)
-    _without(monkeypatch, "ogbench")
-    assert cli.main(["--quick", "--out", str(tmp_path)]) == 2
-    assert 'pip install "sb3-ua2c[ogbench]"' in capsys.readouterr().err
-
-
-def test_execution_checks_its_extras_before_any_unit(monkeypatch, tmp_path, capsys) -> None:
-    from experiments.common import runner
-    from experiments.execution import cli
-
-    monkeypatch.setattr(runner, "run_units", _no_unit_may_run)
-    _without(monkeypatch, "ogbench")
-    with pytest.raises(SystemExit) as exc:
-        cli.main(["--quick", "--env", "ogbench", "--out", str(tmp_path)])
-    assert exc.value.code == 2
-    assert 'pip install "sb3-ua2c[ogbench]"' in capsys.readouterr().err
-
-
-def test_fig2_on_ray_checks_for_ray_before_any_unit(monkeypatch, tmp_path, capsys) -> None:
-    from experiments.fig2 import cli
-
-    monkeypatch.setattr(cli, "run_all", _no_unit_may_run)
-    _without(monkeypatch, "ray")
-    with pytest.raises(SystemExit) as exc:
-        cli.main(["--quick", "--ray-address", "auto", "--out", str(tmp_path)])
-    assert exc.value.code == 2
-    assert 'pip install "sb3-ua2c[peers]"' in capsys.readouterr().err
+    module, name = units.split(":")
+    monkeypatch.setattr(importlib.import_module(module), name, _no_unit_may_run)
+    _without(monkeypatch, missing)
+    try:
+        code = importlib.import_module(command).main(["--quick", *argv, "--out", str(tmp_path / "out")])
+    except SystemExit as exc:  # argparse's error: usage and message on stderr
+        code = exc.code
+    assert code == 2
+    assert install in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing written either
