@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from experiments.common.cli import D3RLPY_INSTALL
 from experiments.peers.common import (
     ArmInputs,
     PhaseClock,
@@ -56,7 +57,7 @@ RLPD_DIFFERENCES = (
     "and no offline pre-training; unlike RLPD: 2 critics, both in every target (RLPD: an ensemble of 10, 2 drawn "
     "per target), and the update-to-data ratio of the budget (RLPD: 20)"
 )
-INSTALL = 'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2'
+INSTALL = f'pip install "sb3-ua2c[peers]" && {D3RLPY_INSTALL}'
 
 
 def import_d3rlpy() -> Any:
