@@ -42,9 +42,10 @@ def demo_units(dataset: str, out: str) -> list:
     two SUMO episodes and a tiny SAC peer unit on ``dataset`` (written under ``out``)."""
     from experiments.common.runner import Unit
     from experiments.peers import run_sb3_online
+    from experiments.peers.common import ArmInputs
 
-    sac = {"out_dir": f"{out}/sac", "dataset": dataset, "seed": 1, "online_steps": 20, "eval_seeds": (2001,),
-           "eval_episodes": 1, "hyperparams": {"learning_starts": 5, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}}}
+    sac = {"inputs": ArmInputs(f"{out}/sac", dataset, seed=1, online_steps=20, eval_seeds=(2001,), eval_episodes=1),
+           "hyperparams": {"learning_starts": 5, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}}}
     return [Unit("sq3", square, {"x": 3}), Unit("sumo0", sumo_episode, {"seed": 0}),
             Unit("sumo1", sumo_episode, {"seed": 1, "accel": -1.0}), Unit("sac", run_sb3_online, sac)]
 

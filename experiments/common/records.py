@@ -1,5 +1,6 @@
 """What every experiment report records: its command and date, paths relative to the working
-directory, and JSON that strict parsers accept."""
+directory, JSON that strict parsers accept, and the budget a run directory was made with
+(:func:`check_budget_record`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 import os
 import shlex
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,4 +55,43 @@ def command_line(prog: str, argv: Sequence[str]) -> str:
     return " ".join([prog, *map(shlex.quote, argv)])
 
 
-__all__ = ["command_line", "recorded_path", "run_header", "strict_json"]
+def check_budget_record(
+    path: str | os.PathLike,
+    budget: Mapping[str, Any],
+    what: str,
+    fields: Sequence[str] | None = None,
+    read: Callable[[Any], Mapping[str, Any]] | None = None,
+    write: bool = True,
+) -> None:
+    """Refuse to resume a run under another budget: its stored units would be silently reused.
+
+    ``path`` holds the budget a run was made with (JSON). When it exists, the stored budget must agree with
+    ``budget`` on ``fields``; then, with ``write``, ``budget`` is recorded there (the first call of a run
+    writes the record).
+
+    :param path: the budget record (a manifest, or a stored unit's record with ``read``)
+    :param budget: the budget of this call, as a plain dict (``Budget.to_dict()``)
+    :param what: what the error names, e.g. ``"the run in results/peers_work"``
+    :param fields: the keys that must agree (``None``: every key); others may change between calls
+    :param read: the stored JSON -> the budget dict (e.g. through the budget class, so that a key added
+        since the record holds its default)
+    :param write: record ``budget`` at ``path`` once it agrees
+    :raises ValueError: naming the keys that differ, with both values
+    """
+    from sb3_ua2c.pipeline import write_json
+
+    path, now = Path(path), strict_json(budget)
+    if path.is_file():
+        stored = json.loads(path.read_text())
+        stored = strict_json(read(stored) if read is not None else stored)
+        keys = fields if fields is not None else sorted(set(stored) | set(now))
+        differ = [k for k in keys if stored.get(k) != now.get(k)]
+        if differ:
+            details = "; ".join(f"{k}: recorded {stored.get(k)!r}, now {now.get(k)!r}" for k in differ)
+            raise ValueError(f"{what} was made with another budget (differs in {differ}: {details}); pass the same "
+                             "budget to resume it, or another --out/--work to start a new run")
+    if write:
+        write_json(path, now)
+
+
+__all__ = ["check_budget_record", "command_line", "recorded_path", "run_header", "strict_json"]

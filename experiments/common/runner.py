@@ -27,12 +27,14 @@ name a filesystem every node shares. Result files are written by the calling pro
 
 from __future__ import annotations
 
+import heapq
 import json
 import os
 import sys
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -202,6 +204,28 @@ class RayExecutor:
 Executor = SerialExecutor | ProcessExecutor | RayExecutor
 
 
+@contextmanager
+def ray_session(address: str | None) -> Iterator[None]:
+    """One connection to the Ray cluster at ``address`` for several :func:`run_units` calls (a
+    :class:`RayExecutor` connects once per call otherwise); nothing when ``address`` is ``None``.
+
+    :raises ValueError: when ray is not installed (``pip install "sb3-ua2c[peers]"``)
+    """
+    if address is None:
+        yield
+        return
+    try:
+        import ray
+    except ImportError as exc:
+        raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    ray.init(address=address, log_to_driver=False)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
 def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool = False) -> Executor:
     """The executor a command line asks for: Ray when ``ray_address`` is given, else local processes.
 
@@ -215,6 +239,22 @@ def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool
             raise ValueError("serial=True runs units in this process: it cannot be combined with ray_address")
         return RayExecutor(ray_address)
     return SerialExecutor() if serial else ProcessExecutor(workers)
+
+
+def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
+    """Wall time of units run in the given order on ``workers`` workers, each unit starting on the first
+    worker that is free (how :class:`ProcessExecutor`, or Ray on ``workers`` CPUs, takes them; submit the
+    longest first, ``sorted(durations, reverse=True)``, and the workers stay busy to the end).
+
+    :param durations: the units' seconds, in submission order
+    :param workers: workers at once (>= 1)
+    :return: the time at which the last unit ends (0 without units)
+    """
+    check_int("workers", workers)
+    free = [0.0] * min(workers, max(len(durations), 1))
+    for seconds in durations:
+        heapq.heappush(free, heapq.heappop(free) + seconds)
+    return max(free)
 
 
 def run_units(
@@ -270,5 +310,5 @@ def run_units(
 
 __all__ = [
     "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
-    "call_unit", "make_executor", "run_units",
+    "call_unit", "list_schedule_seconds", "make_executor", "ray_session", "run_units",
 ]

@@ -22,8 +22,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from experiments.common.cli import check_extras, harness_parent, run_command, select_seeds
 from experiments.common.names import SCENARIO_BASES
 from experiments.execution.controls import RULES
+from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments.execution"
 #: the scenarios of each role (:data:`~experiments.common.names.SCENARIO_BASES`)
@@ -37,10 +39,13 @@ TRAINING_SECONDS = {"traffic": {"data_and_phase1": 70.0, "phase2": 55.0},
 ENVS = ("traffic", "ogbench")
 
 
+PARENT = harness_parent(seeds="0 1 2; --quick: 0 1", work="<out>/execution_work")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description="Execution rules against fixed chunks and matched-length "
-                                     "controls on MixedTraffic-v0 (make main's pipeline) or an OGBench task (the "
-                                     "OGBench harness's budget), one run per seed.")
+    parser = argparse.ArgumentParser(prog=PROG, parents=[PARENT], description="Execution rules against fixed chunks "
+                                     "and matched-length controls on MixedTraffic-v0 (make main's pipeline) or an "
+                                     "OGBench task (the OGBench harness's budget), one run per seed.")
     parser.add_argument("--env", choices=ENVS, default="traffic",
                         help="traffic: MixedTraffic-v0 (default); ogbench: the OGBench task of --task")
     parser.add_argument("--task", default=None,
@@ -48,7 +53,6 @@ def build_parser() -> argparse.ArgumentParser:
                              "pointmaze-medium-navigate-singletask-task1-v0)")
     parser.add_argument("--role", choices=sorted(ROLES), default="development",
                         help="development: validation scenarios; confirmation: test scenarios (default: development)")
-    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="run seeds (default: 0 1 2; --quick: 0 1)")
     parser.add_argument("--online", nargs="+", default=["fixed", "delta0"],
                         help=f"rules of the Phase-2 checkpoints among {list(RULES)} (default: fixed delta0)")
     parser.add_argument("--rules", nargs="+", default=list(RULES),
@@ -58,12 +62,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help="evaluate each fine-tuned checkpoint with fixed chunks and its own rule only")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per checkpoint, arm and mode (default: 20; --quick: 1)")
-    parser.add_argument("--out", default="results", help="report directory (execution_<role>.md / .json)")
-    parser.add_argument("--work", default=None, help="datasets, checkpoints, unit records (default: <out>/execution_work)")
-    parser.add_argument("--workers", type=int, default=2, help="local processes at once (default: 2)")
-    parser.add_argument("--ray-address", default=None, help="run the seeds on this Ray cluster")
-    parser.add_argument("--quick", action="store_true", help="a tiny budget: a smoke test")
-    parser.add_argument("--report-only", action="store_true", help="rebuild the report from the stored runs")
     return parser
 
 
@@ -73,6 +71,9 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"unknown rules {unknown}; known: {list(RULES)}")
     if "fixed" not in args.rules:
         raise ValueError("--rules must include 'fixed' (the reference every rule is paired with)")
+    check_int("--workers", args.workers)
+    if not args.report_only:
+        check_extras([*(["ogbench"] if args.env == "ogbench" else []), *(["ray"] if args.ray_address else [])])
 
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
@@ -95,7 +96,7 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
 
         if args.task is not None:
             raise ValueError("--task is for --env ogbench")
-        return {"run_seed": unit.run_seed, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
+        return {"run_seed": unit.run_traffic_study, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
                 "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
                 "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role, "secondary": None}
     from experiments.execution import ogbench_unit
@@ -103,7 +104,7 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
     from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
 
     task = args.task or DEFAULT_TASK
-    return {"run_seed": ogbench_unit.run_seed, "budget": ogbench_unit.study_budget(task, args.quick).to_dict(),
+    return {"run_seed": ogbench_unit.run_ogbench_study, "budget": ogbench_unit.study_budget(task, args.quick).to_dict(),
             "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,
             "extra": {"task": task}, "task": task, "metric": "success", "digits": 2,
             "name": f"execution_ogbench_{role}", "work": f"ogbench_{role}",
@@ -112,26 +113,29 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from experiments.common.records import command_line, run_header
-    from experiments.common.runner import Unit, make_executor, run_units
-    from experiments.execution import report
-    from sb3_ua2c.checks import check_int
-
+    """Entry point; returns the exit code (2 on a bad argument, a missing extra or missing runs, 1 when runs
+    failed)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         _check(args)
-    except ValueError as exc:
-        parser.error(str(exc))
-    seeds = args.seeds or ([0, 1] if args.quick else [0, 1, 2])
-    try:
+        seeds = select_seeds(args.seeds, [0, 1] if args.quick else [0, 1, 2])
         setup = _setup(args)
+        if args.episodes is not None:
+            check_int("--episodes", args.episodes)
+            setup["budget"]["eval_episodes"] = args.episodes
     except ValueError as exc:
         parser.error(str(exc))
-    if args.episodes is not None:
-        check_int("--episodes", args.episodes)
-        setup["budget"]["eval_episodes"] = args.episodes
+    return run_command(lambda: _run(args, argv, seeds, setup))
+
+
+def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup: dict[str, Any]) -> int:
+    """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
+    from experiments.common.records import command_line, run_header
+    from experiments.common.runner import Unit, make_executor, run_units
+    from experiments.execution import report
+
     out = Path(args.out)
     work = (Path(args.work) if args.work else out / "execution_work") / setup["work"]
     units = [Unit(f"seed{s}", setup["run_seed"],
@@ -142,8 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.report_only:
         missing = [u.name for u in units if not u.result_file.is_file()]
         if missing:
-            print(f"error: no stored runs for {missing} under {work}", file=sys.stderr)
-            return 2
+            raise ValueError(f"no stored runs for {missing} under {work}")
     else:
         todo = sum(not u.result_file.is_file() for u in units)  # stored runs are not run again
         minutes = estimate_minutes(todo, len(args.online), len(args.rules), setup["budget"]["eval_episodes"],

@@ -1,4 +1,4 @@
-"""One run of the execution-rule study on an OGBench task (:func:`run_seed`), the second task next to
+"""One run of the execution-rule study on an OGBench task (:func:`run_ogbench_study`), the second task next to
 ``MixedTraffic-v0``: the OGBench harness's data, Phase 1 of the chunk policy (k = 5) at its budget, one Phase-2
 checkpoint per online rule, and every checkpoint evaluated under the screened rules and their controls
 (:func:`~experiments.execution.unit.evaluate_rules`), deterministic and with fresh noise. The score is the
@@ -43,10 +43,10 @@ def ogbench_episodes(env: OGBenchSingleTask, n_episodes: int, seed: int, scenari
     return run
 
 
-def run_seed(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
+def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
              screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run (see the module docstring); the arguments are those of
-    :func:`experiments.execution.unit.run_seed`, with ``budget`` an :class:`OGBenchBudget` as a dict and the
+    :func:`experiments.execution.unit.run_traffic_study`, with ``budget`` an :class:`OGBenchBudget` as a dict and the
     OGBench ``task``."""
     th.set_num_threads(1)
     b = OGBenchBudget.from_dict(budget)

@@ -1,4 +1,4 @@
-"""One run of the execution-rule study on ``MixedTraffic-v0`` (:func:`run_seed`): collect the seed's data,
+"""One run of the execution-rule study on ``MixedTraffic-v0`` (:func:`run_traffic_study`): collect the seed's data,
 pre-train (Phase 1), fine-tune one checkpoint per online rule (Phase 2), and evaluate every checkpoint
 under every screened rule and under its controls (:func:`evaluate_rules`), deterministic and with fresh
 noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, one seed per unit."""
@@ -80,7 +80,7 @@ def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bo
     return list(screened_rules)
 
 
-def run_seed(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
+def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
              screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
     the pre-trained checkpoint under ``screened_rules`` and their controls, and of every fine-tuned one

@@ -33,10 +33,10 @@ The headline figures apply it to the means over seeds; the table also gives the 
 mean and 95% confidence interval. Confidence intervals are Student-t intervals over seeds
 (:func:`t_confidence_interval`), ``mean ± t_{0.975, n−1} · sd / √n``.
 
-The package, by role (public names are re-exported here, ``from experiments.fig2 import X``):
+The package, by role (import each name from the module that defines it):
 
 * :mod:`~experiments.common.names`: method names and labels, seed ranges, the paper's numbers
-* :mod:`~experiments.common.budget`: :class:`Fig2Budget`, ``FULL_BUDGET``, ``QUICK_BUDGET``, :class:`CostModel`
+* :mod:`~experiments.fig2.budget`: :class:`Fig2Budget`, ``FULL_BUDGET``, ``QUICK_BUDGET``, :class:`CostModel`
 * :mod:`~experiments.common.stats`: Student-t intervals and relative changes over seeds
 * :mod:`~experiments.fig2.manifest`: the run's directories and the budget manifest of a resumed run
 * :mod:`~experiments.fig2.units`: the units of work, their scheduler and lock
@@ -44,133 +44,3 @@ The package, by role (public names are re-exported here, ``from experiments.fig2
 * :mod:`~experiments.fig2.report` and :mod:`~experiments.fig2.plots`: ``fig2.md`` and the panels
 * :mod:`~experiments.fig2.cli`: the command line
 """
-
-from experiments.common.budget import (
-    FULL_BUDGET,
-    QUICK_BUDGET,
-    CostModel,
-    Fig2Budget,
-    estimate_seconds,
-    estimate_wall_seconds,
-    extra_kweights,
-    finetune_overrides,
-    list_schedule_seconds,
-    velocity_field_weights,
-)
-from experiments.common.names import (
-    CLAIM_COMPARISONS,
-    DATASET_SEED_BASE,
-    EVAL_SEED_BASE,
-    MAIN_METHODS,
-    MAX_SEED,
-    METHOD_LABELS,
-    METRICS,
-    ONLINE_ARMS,
-    PAPER,
-    SAMPLED_METHODS,
-    STYLE_SEED_BASE,
-    acting_name,
-    delta_name,
-    replicate_name,
-    sampled_name,
-)
-from experiments.common.stats import (
-    compare,
-    relative_change_pct,
-    student_t_quantile,
-    student_t_two_sided_cdf,
-    t_confidence_interval,
-)
-from experiments.fig2.aggregation import (
-    aggregate,
-    load_raw,
-    online_curve,
-    online_phase_stats,
-)
-from experiments.fig2.cli import (
-    build_parser,
-    command_line,
-    main,
-    recorded_budget,
-)
-from experiments.fig2.manifest import (
-    MANIFEST,
-    UNIT_FIELDS,
-    RunPaths,
-    check_manifest,
-    read_manifest,
-    strict_json,
-    write_manifest,
-)
-from experiments.fig2.report import (
-    format_markdown,
-    paper_verdict,
-    write_report,
-)
-from experiments.fig2.units import (
-    SEED_PARTS,
-    SeedBusyError,
-    UnitLog,
-    measured_seconds,
-    run_all,
-    run_seed,
-    seed_lock,
-)
-
-__all__ = [
-    "CLAIM_COMPARISONS",
-    "CostModel",
-    "DATASET_SEED_BASE",
-    "EVAL_SEED_BASE",
-    "FULL_BUDGET",
-    "Fig2Budget",
-    "MAIN_METHODS",
-    "MANIFEST",
-    "MAX_SEED",
-    "METHOD_LABELS",
-    "METRICS",
-    "ONLINE_ARMS",
-    "PAPER",
-    "QUICK_BUDGET",
-    "RunPaths",
-    "SAMPLED_METHODS",
-    "SEED_PARTS",
-    "STYLE_SEED_BASE",
-    "SeedBusyError",
-    "UNIT_FIELDS",
-    "UnitLog",
-    "acting_name",
-    "aggregate",
-    "build_parser",
-    "check_manifest",
-    "command_line",
-    "compare",
-    "delta_name",
-    "estimate_seconds",
-    "estimate_wall_seconds",
-    "extra_kweights",
-    "finetune_overrides",
-    "format_markdown",
-    "list_schedule_seconds",
-    "load_raw",
-    "main",
-    "measured_seconds",
-    "online_curve",
-    "online_phase_stats",
-    "paper_verdict",
-    "read_manifest",
-    "recorded_budget",
-    "relative_change_pct",
-    "replicate_name",
-    "run_all",
-    "run_seed",
-    "sampled_name",
-    "seed_lock",
-    "strict_json",
-    "student_t_quantile",
-    "student_t_two_sided_cdf",
-    "t_confidence_interval",
-    "velocity_field_weights",
-    "write_manifest",
-    "write_report",
-]

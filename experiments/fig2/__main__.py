@@ -2,7 +2,7 @@
 
 import sys
 
-from experiments.fig2 import main
+from experiments.fig2.cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

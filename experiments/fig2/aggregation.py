@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.budget import Fig2Budget
 from experiments.common.names import (
     CLAIM_COMPARISONS,
     MAIN_METHODS,
@@ -22,6 +21,7 @@ from experiments.common.names import (
     sampled_name,
 )
 from experiments.common.stats import compare, t_confidence_interval
+from experiments.fig2.budget import Fig2Budget
 from experiments.fig2.manifest import RunPaths
 
 

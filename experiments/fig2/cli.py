@@ -1,4 +1,4 @@
-"""Command line of the Figure-2 runner (``python -m experiments.fig2``, ``python -m experiments.fig2``)."""
+"""Command line of the Figure-2 runner (``python -m experiments.fig2``)."""
 
 from __future__ import annotations
 
@@ -11,17 +11,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from experiments.common.budget import (
+from experiments.common.cli import check_extras, harness_parent, select_seeds
+from experiments.common.names import PAPER
+from experiments.common.records import command_line, run_header
+from experiments.common.runner import UnitsFailedError
+from experiments.fig2.aggregation import aggregate, load_raw
+from experiments.fig2.budget import (
     FULL_BUDGET,
     QUICK_BUDGET,
     Fig2Budget,
     estimate_seconds,
     estimate_wall_seconds,
 )
-from experiments.common.names import MAX_SEED, PAPER
-from experiments.common.records import command_line, run_header
-from experiments.common.runner import UnitsFailedError
-from experiments.fig2.aggregation import aggregate, load_raw
 from experiments.fig2.manifest import RunPaths, read_manifest
 from experiments.fig2.report import format_pct, write_report
 from experiments.fig2.units import SEED_PARTS, SeedBusyError, measured_seconds, run_all
@@ -47,50 +48,31 @@ def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
     return Fig2Budget.from_dict(recorded)
 
 
-def build_parser(prog: str = "python -m experiments.fig2") -> argparse.ArgumentParser:
+PROG = "python -m experiments.fig2"
+PARENT = harness_parent(
+    seeds="0 1 2 3 4", work="<out>/fig2_work",
+    workers_help="units run in parallel processes, two per seed: its main and style parts (default: 2)",
+    quick="tiny budget (4-s episodes, a few updates): a smoke test")
+
+
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=prog,
+        prog=prog, parents=[PARENT],
         description="Reproduce the UA2C paper's Figure 2 (a)-(d) on MixedTraffic-v0 over several seeds, with the "
         "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
     )
-    parser.add_argument("--seeds", type=int, default=5, help="number of seeds 0..N-1 (default: 5)")
-    parser.add_argument(
-        "--seed-list", type=int, nargs="+", default=None, help="explicit seeds (overrides --seeds)"
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="tiny budget (4-s episodes, a few updates): a smoke test"
-    )
-    parser.add_argument(
-        "--budget",
-        type=json_object_arg,
-        default={},
-        help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'",
-    )
-    parser.add_argument(
-        "--budget-of",
-        default=None,
-        metavar="REPORT",
-        help="start from the budget a report ran with (its fig2.json, or the directory holding it) instead of "
-        "the default; --budget applies on top. Reruns a report made under another default exactly",
-    )
-    parser.add_argument("--out", default="results", help="report directory (default: results)")
+    parser.add_argument("--seed-list", dest="seeds", type=int, nargs="+", help="the same as --seeds")
+    parser.add_argument("--budget", type=json_object_arg, default={},
+                        help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'")
+    parser.add_argument("--budget-of", default=None, metavar="REPORT",
+                        help="start from the budget a report ran with (its fig2.json, or the directory holding it) "
+                        "instead of the default; --budget applies on top. Reruns a report made under another default "
+                        "exactly")
     parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
-    parser.add_argument("--work", default=None, help="datasets and checkpoints (default: <out>/fig2_work)")
-    parser.add_argument("--workers", type=int, default=2, help="units run in parallel processes, two per seed: its main and style parts (default: 2)")
-    parser.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDRESS",
-        help="run the seeds as tasks on a Ray cluster (e.g. 127.0.0.1:6379 of `ray start --head`); the "
-        "directories must be on a filesystem every node shares",
-    )
-    parser.add_argument(
-        "--report-only", action="store_true", help="only rebuild the report from the raw results"
-    )
     return parser
 
 
-def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments.fig2") -> int:
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit code (2 on a bad argument or missing results).
 
     :param argv: arguments (default ``sys.argv[1:]``)
@@ -103,14 +85,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments.f
             raise ValueError("--budget-of and --quick both choose the base budget: pass one of them")
         base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
         budget = base.replace(**args.budget) if args.budget else base
-        if args.seed_list is not None:
-            seeds = list(dict.fromkeys(args.seed_list))
-        else:
-            check_int("Fig2Budget.seeds", args.seeds)
-            seeds = list(range(args.seeds))
-        if any(not 0 <= s < MAX_SEED for s in seeds):
-            raise ValueError(f"seeds must be in [0, {MAX_SEED}), got {seeds}")
-        check_int("Fig2Budget.workers", args.workers)
+        seeds = select_seeds(args.seeds, range(5))
+        check_int("--workers", args.workers)
+        check_extras(["ray"] if args.ray_address is not None and not args.report_only else [])
     except ValueError as exc:
         parser.error(str(exc))
     paths = RunPaths.under(args.out, args.raw, args.work)

@@ -1,5 +1,5 @@
-"""Where a run keeps its files (:class:`RunPaths`), the budget manifest that refuses to resume a run
-under another budget, and the strict JSON both are written in."""
+"""Where a run keeps its files (:class:`RunPaths`) and the budget manifest that refuses to resume a run
+under another budget."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from experiments.common.budget import Fig2Budget
-from experiments.common.records import strict_json
+from experiments.common.records import check_budget_record
+from experiments.fig2.budget import Fig2Budget
 
 
 @dataclass(frozen=True)
@@ -64,29 +64,17 @@ UNIT_FIELDS = (
 MANIFEST = "fig2_budget.json"
 
 
-def check_manifest(paths: RunPaths, budget: Fig2Budget) -> Fig2Budget | None:
-    """Refuse to resume a run made with another budget (its units would be silently reused).
+def check_manifest(paths: RunPaths, budget: Fig2Budget) -> None:
+    """Refuse to resume a run made with another budget (its units would be silently reused), then record
+    ``budget`` in ``<work>/fig2_budget.json`` (:func:`~experiments.common.records.check_budget_record`).
 
-    The first call records the budget in ``<work>/fig2_budget.json``; later calls must agree on
-    :data:`UNIT_FIELDS` (the δ and k sweeps and the style ablation may change: they only add
-    units).
+    Later calls must agree on :data:`UNIT_FIELDS` (the δ and k sweeps and the style ablation may change:
+    they only add units).
 
-    :return: the recorded budget, or ``None`` on the first call
     :raises ValueError: naming the fields that differ
     """
-    recorded = read_manifest(paths)
-    if recorded is None:
-        return None
-    differ = [name for name in UNIT_FIELDS if getattr(recorded, name) != getattr(budget, name)]
-    if differ:
-        details = ", ".join(
-            f"{n}: recorded {getattr(recorded, n)!r}, now {getattr(budget, n)!r}" for n in differ
-        )
-        raise ValueError(
-            f"the run in {paths.work} was made with another budget ({details}); "
-            "pass the same budget to resume it, or another --out/--work to start a new run"
-        )
-    return recorded
+    check_budget_record(paths.work / MANIFEST, budget.to_dict(), f"the run in {paths.work}", fields=UNIT_FIELDS,
+                        read=lambda stored: Fig2Budget.from_dict(stored).to_dict())
 
 
 def read_manifest(paths: RunPaths) -> Fig2Budget | None:
@@ -98,9 +86,3 @@ def read_manifest(paths: RunPaths) -> Fig2Budget | None:
         return Fig2Budget.from_dict(json.loads(path.read_text()))
     except (json.JSONDecodeError, TypeError, ValueError) as exc:
         raise ValueError(f"{path} is not a Fig2Budget record: {exc}") from exc
-
-
-def write_manifest(paths: RunPaths, budget: Fig2Budget) -> None:
-    from sb3_ua2c.pipeline import write_json
-
-    write_json(paths.work / MANIFEST, strict_json(budget.to_dict()))

@@ -13,7 +13,7 @@ For every ``net_arch`` it times, on ``MixedTraffic-v0`` with one torch thread:
 - the peer: one SB3 SAC gradient step (``SAC.train``, batch 256) with the same ``net_arch``.
 
 It prints the times, the ratios UA2C / SAC and measured / estimated, where "estimated" is what
-:class:`experiments.fig2.CostModel` predicts (the numbers behind ``python -m experiments.fig2``'s
+:class:`experiments.fig2.budget.CostModel` predicts (the numbers behind ``python -m experiments.fig2``'s
 printed estimate), and the least-squares slopes of the k = 5 step and of the replanning over the
 velocity field's extra weights: the values of ``update_ms_per_kweight`` and ``plan_ms_per_kweight``
 on this machine. Times are medians of the calling thread's CPU time, so a second process sharing
@@ -31,7 +31,7 @@ from bench_ua2c import cpu_ms  # benchmarks/ is on sys.path when run as a script
 from stable_baselines3 import SAC
 
 from envs.collection import TRAFFIC_DEFAULTS, collect_episodes, make_traffic_env
-from experiments.fig2 import CostModel, extra_kweights, velocity_field_weights
+from experiments.fig2.budget import CostModel, extra_kweights, velocity_field_weights
 from sb3_ua2c import UA2C
 
 

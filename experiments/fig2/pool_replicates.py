@@ -22,14 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.fig2 import (
-    PAPER,
-    RunPaths,
-    load_raw,
-    relative_change_pct,
-    replicate_name,
-    t_confidence_interval,
-)
+from experiments.common.names import PAPER, replicate_name
+from experiments.common.stats import relative_change_pct, t_confidence_interval
+from experiments.fig2.aggregation import load_raw
+from experiments.fig2.manifest import RunPaths
 
 
 def arm_rewards(report: Path, suffix: str = "") -> dict[tuple[int, int], tuple[float, float]]:

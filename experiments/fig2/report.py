@@ -4,7 +4,7 @@ and the PNG panels (:func:`write_report`)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -257,39 +257,25 @@ def _style_section(summary: Mapping[str, Any]) -> Lines:
     return lines
 
 
-def _delta_sweep_table(summary: Mapping[str, Any]) -> Lines:
-    if not summary["delta_sweep"]:
+def _sweep_table(title: str, columns: str, rows: Sequence[str]) -> Lines:
+    """A section with one table: ``columns`` (``"| a | b |"``) over ``rows`` (none: no section)."""
+    if not rows:
         return []
-    lines = [
-        "",
-        "## δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
-        "",
-        "| δ | mean L_t | reward | cum. jerk |",
-        "|---|---|---|---|",
-    ]
-    for row in summary["delta_sweep"]:
-        lines.append(
-            f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
-            f"| {_fmt(row['cumulative_jerk'], 1)} |"
-        )
-    return lines
+    return ["", f"## {title}", "", columns, "|" + "---|" * columns.count(" | ") + "---|", *rows]
+
+
+def _delta_sweep_table(summary: Mapping[str, Any]) -> Lines:
+    rows = [f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
+            f"| {_fmt(row['cumulative_jerk'], 1)} |" for row in summary["delta_sweep"]]
+    return _sweep_table("δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
+                        "| δ | mean L_t | reward | cum. jerk |", rows)
 
 
 def _k_sweep_table(summary: Mapping[str, Any]) -> Lines:
-    if not summary["k_sweep"]:
-        return []
-    lines = [
-        "",
-        "## k sweep (offline, same data and gradient budget, full chunks)",
-        "",
-        "| k | reward | cum. jerk | collision rate |",
-        "|---|---|---|---|",
-    ]
-    for row in summary["k_sweep"]:
-        lines.append(
-            f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} | {_fmt(row['collision'])} |"
-        )
-    return lines
+    rows = [f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} | {_fmt(row['collision'])} |"
+            for row in summary["k_sweep"]]
+    return _sweep_table("k sweep (offline, same data and gradient budget, full chunks)",
+                        "| k | reward | cum. jerk | collision rate |", rows)
 
 
 def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:

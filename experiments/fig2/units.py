@@ -1,5 +1,5 @@
 """Units of work of a Figure-2 run, one file each and skipped when it exists: the per-seed stages,
-their scheduler (:func:`run_seed`, :func:`run_all`), the seed lock and the measured unit times."""
+their scheduler (:func:`run_fig2_seed`, :func:`run_all`), the seed lock and the measured unit times."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
-from experiments.common.budget import Fig2Budget, finetune_overrides
 from experiments.common.names import (
     DATASET_SEED_BASE,
     EVAL_SEED_BASE,
@@ -26,7 +25,8 @@ from experiments.common.names import (
     replicate_name,
     sampled_name,
 )
-from experiments.fig2.manifest import RunPaths, check_manifest, write_manifest
+from experiments.fig2.budget import Fig2Budget, finetune_overrides
+from experiments.fig2.manifest import RunPaths, check_manifest
 from sb3_ua2c.checks import check_int
 
 
@@ -179,7 +179,7 @@ dataset, Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"
 style classifier of (d) and the style-context ablation, which has its own dataset and arms)."""
 
 
-def run_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
+def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
     """Run (or resume) the units of one seed; return the names of the units actually executed.
 
     The wall-clock seconds of every unit run are merged into ``<work>/seed<s>/unit_seconds.json``
@@ -441,9 +441,9 @@ def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
     return out
 
 
-def run_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part: str = "all") -> list[str]:
-    """:func:`run_seed` as an executor unit (plain arguments: it may run in another process or on a Ray node)."""
-    return run_seed(seed, Fig2Budget.from_dict(budget), paths, part)
+def run_fig2_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part: str = "all") -> list[str]:
+    """:func:`run_fig2_seed` as an executor unit (plain arguments: it may run in another process or on a Ray node)."""
+    return run_fig2_seed(seed, Fig2Budget.from_dict(budget), paths, part)
 
 
 def run_all(
@@ -468,12 +468,11 @@ def run_all(
 
     check_int("Fig2Budget.workers", workers)
     check_manifest(paths, budget)
-    write_manifest(paths, budget)
     parts = [(s, part) for part in SEED_PARTS for s in seeds]
     serial = ray_address is None and workers == 1
     executor = make_executor(min(workers, len(parts)), ray_address, serial=serial)
     units = [
-        Unit(f"seed{s}/{part}", run_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths, "part": part})
+        Unit(f"seed{s}/{part}", run_fig2_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths, "part": part})
         for s, part in parts
     ]
     executed: list[str] = []

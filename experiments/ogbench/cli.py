@@ -15,53 +15,47 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from experiments.common.cli import harness_parent, run_command
+from experiments.common.records import command_line
 from experiments.ogbench.unit import ARMS
 
+PROG = "python -m experiments.ogbench"
+PARENT = harness_parent(seeds="0 1 2 3 4; 0 1 with --quick", work="<out>/ogbench_work", workers=1,
+                        workers_help="local processes at once (default: 1)",
+                        quick="a tiny budget and 2 seeds, end to end in seconds (CI)")
 
-def build_parser(prog: str = "python -m experiments.ogbench") -> argparse.ArgumentParser:
+
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     from experiments.ogbench.runner import DEFAULT_TASK
 
     parser = argparse.ArgumentParser(
-        prog=prog, description="OGBench single-task benchmark: offline pre-training on locally generated data, then "
-        "online fine-tuning, per arm and seed; success rates with rliable statistics. Resumable.")
+        prog=prog, parents=[PARENT], description="OGBench single-task benchmark: offline pre-training on locally "
+        "generated data, then online fine-tuning, per arm and seed; success rates with rliable statistics. Resumable.")
     parser.add_argument("--task", default=DEFAULT_TASK, help=f"OGBench single-task name (default: {DEFAULT_TASK})")
-    parser.add_argument("--seeds", type=int, nargs="+", default=None,
-                        help="run seeds (default: 0 1 2 3 4; 0 1 with --quick)")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per checkpoint (default: the task's budget, 50; episode i of "
                              "seed s resets with seed 10,000,000 + 1000 s + i, the test scenarios)")
     parser.add_argument("--arms", nargs="+", default=list(ARMS), help=f"arms among {list(ARMS)} (default: all)")
-    parser.add_argument("--out", default="results", help="report directory: ogbench.md, ogbench.json, PNGs")
-    parser.add_argument("--work", default=None,
-                        help="datasets, checkpoints and unit records (default: <out>/ogbench_work; a shared "
-                             "filesystem on a Ray cluster)")
-    parser.add_argument("--workers", type=int, default=1, help="local processes at once (default: 1)")
-    parser.add_argument("--ray-address", default=None, help="run the units on this Ray cluster ('auto', 'HOST:PORT')")
     parser.add_argument("--serial", action="store_true",
                         help="run the units in this process (the default with --quick and one worker)")
-    parser.add_argument("--quick", action="store_true", help="a tiny budget and 2 seeds, end to end in seconds (CI)")
-    parser.add_argument("--report-only", action="store_true", help="only rebuild the report from stored units")
     return parser
 
 
-def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments.ogbench") -> int:
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit code (2 on a bad argument or a missing extra, 1 when units failed)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
-    try:
-        return _run(args, " ".join([prog, *map(shlex.quote, argv)]))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return run_command(lambda: _run(args, command_line(prog, argv)))
 
 
 def _run(args: argparse.Namespace, command: str) -> int:
     import warnings
 
+    from experiments.common.cli import check_extras
     from experiments.common.records import run_header
     from experiments.common.runner import make_executor
     from experiments.ogbench import report, runner
@@ -72,6 +66,8 @@ def _run(args: argparse.Namespace, command: str) -> int:
     arms = runner.check_arms(args.arms)
     seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
+    # ogbench: the environments (also the estimate's episode limits); rliable: the report's statistics
+    check_extras(["ogbench", "rliable", *(["ray"] if args.ray_address is not None and not args.report_only else [])])
     budget = runner.default_budget(args.task, quick=args.quick)
     if args.episodes is not None:
         check_int("--episodes", args.episodes)

@@ -21,6 +21,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from experiments.common.cli import select_seeds
+from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, run_units
 from experiments.ogbench.data import TaskName
 from experiments.ogbench.unit import ARMS, OGBenchBudget, dataset_file, ensure_dataset, run_ogbench_unit
@@ -165,14 +167,12 @@ def build_units(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OG
 
 
 def check_stored_budget(units: Sequence[Unit], budget: OGBenchBudget) -> None:
-    """Refuse a work directory whose stored units ran under another budget (``--work``)."""
-    expected = json.loads(json.dumps(budget.to_dict()))
+    """Refuse a work directory whose stored units ran under another budget (``--work``;
+    :func:`~experiments.common.records.check_budget_record` on each unit's record)."""
     for unit in units:
-        if unit.result_file is not None and unit.result_file.is_file():
-            stored = json.loads(unit.result_file.read_text()).get("budget")
-            if stored != expected:
-                raise ValueError(f"--work: {unit.result_file} was run with another budget ({stored}); use a new "
-                                 f"--work directory or delete it")
+        if unit.result_file is not None:
+            check_budget_record(unit.result_file, budget.to_dict(), f"--work: {unit.result_file}",
+                                read=lambda record: record.get("budget") or {}, write=False)
 
 
 def run_benchmark(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget, work: str | Path,
@@ -202,10 +202,7 @@ def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: s
 def seeds_arg(values: Iterable[int]) -> list[int]:
     """``--seeds S [S ...]`` -> the distinct seeds in increasing order; each an integer in ``[0, 1000)``
     (episode ``i`` of seed ``s`` resets with ``base + 1000 * s + i``, so larger seeds would meet the next base)."""
-    seeds = list(values)
-    if not seeds or any(isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < 1000 for s in seeds):
-        raise ValueError(f"--seeds must be one or more integers in [0, 1000), got {seeds!r}")
-    return sorted(set(seeds))
+    return sorted(select_seeds(list(values), [], high=1000))
 
 
 __all__ = [

@@ -6,25 +6,25 @@ arms are Figure 2's: pre-trained offline (one-step k = 1, chunk k), then fine-tu
 checkpoint, acting with adaptive chunks (δ of the budget), fixed chunks (δ = inf) or one step.
 
 The estimate (:func:`estimate_units`) prices every unit in CPU seconds on one core: the UA2C units
-with Figure 2's :class:`~experiments.common.budget.CostModel`, the peer units with
+with Figure 2's :class:`~experiments.fig2.budget.CostModel`, the peer units with
 :class:`PeerCostModel`, calibrated on ``experiments/peers/measure_costs.py`` (CPU seconds of one unit at 10,000
 online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
 389, Cal-QL 2,190; measured side by side with SAC or IQL on 2026-12-04 and scaled to them: CrossQ's
 update at 1.22x SAC's, ReBRAC's offline and online steps at 1.21x and 1.14x IQL's, BC's offline step
 at 0.27x IQL's, RLPD's env step with one update at 1.19x IQL's). The wall time is the sum over the stages (datasets, pre-training, arms) of the
-longest-first schedule of their units on the workers (:func:`stage_wall_seconds`).
+longest-first schedule of their units on the workers (:func:`~experiments.common.runner.list_schedule_seconds`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import heapq
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from experiments.common.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, extra_kweights
 from experiments.common.names import SCENARIO_BASES
+from experiments.common.runner import list_schedule_seconds
+from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, extra_kweights
 from sb3_ua2c.checks import check_int
 
 #: UA2C arms (Figure 2's), by name: chunk length ("k" = the budget's ``chunk_size``) and δ ("delta" = the
@@ -271,16 +271,6 @@ def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> d
     return out
 
 
-def stage_wall_seconds(costs: Sequence[float], workers: int) -> float:
-    """Wall seconds of units with CPU ``costs`` on ``workers`` cores, longest first, each on the first
-    free worker (what a process pool does with units submitted in that order)."""
-    check_int("workers", workers)
-    free = [0.0] * min(workers, max(len(costs), 1))
-    for cost in sorted(costs, reverse=True):
-        heapq.heapreplace(free, free[0] + cost)
-    return max(free)
-
-
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int) -> dict[str, Any]:
     """CPU seconds per unit of each stage and arm (one seed), for :func:`format_estimate`.
 
@@ -301,7 +291,8 @@ def estimate_wall(estimate: Mapping[str, Any], workers: int) -> dict[str, float]
     n = estimate["seeds"]
     stages = [[estimate["dataset"]] * n, list(estimate["pretrain"].values()) * n, list(estimate["arms"].values()) * n]
     cpu = sum(sum(s) for s in stages)
-    return {"cpu": cpu, "wall": sum(stage_wall_seconds(s, workers) for s in stages if s)}
+    # each stage's units longest first (run_peers submits them so)
+    return {"cpu": cpu, "wall": sum(list_schedule_seconds(sorted(s, reverse=True), workers) for s in stages if s)}
 
 
 def format_estimate(estimate: Mapping[str, Any], workers: int) -> str:

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from experiments.common.names import MAX_SEED, SCENARIO_BASES
+from experiments.common.cli import check_extras, harness_parent, run_command, select_seeds
+from experiments.common.names import SCENARIO_BASES
 from experiments.common.records import command_line, run_header
-from experiments.common.runner import UnitsFailedError, make_executor
+from experiments.common.runner import make_executor, ray_session
 from experiments.peers.budget import (
     ARMS,
     D3RLPY_ARMS,
@@ -31,22 +30,23 @@ from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg
 
 PROG = "python -m experiments.peers"
+PARENT = harness_parent(
+    seeds="0 1 2 3 4; with --quick: 0 1", work="<out>/peers_work", workers=None,
+    workers_help="local processes at once, each unit in a fresh process (default: 2; with --quick: 1); 1 runs the "
+    "units one after the other in this process",
+    quick="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=prog,
+        prog=prog, parents=[PARENT],
         description="Head-to-head on MixedTraffic-v0: UA2C (Figure 2's adaptive, fixed and one-step arms) against "
         "SB3 SAC, sb3-contrib TQC and CrossQ, SAC with the offline data, d3rlpy IQL, Cal-QL and ReBRAC, and a "
         "d3rlpy BC reference row, on the Figure-2 protocol. "
         "Resumable: every (arm, seed) is a unit with its own result file; stored units are skipped.",
     )
-    parser.add_argument("--seeds", type=int, nargs="+", default=None,
-                        help="seeds to run (default: 0 1 2 3 4; with --quick: 0 1)")
     parser.add_argument("--arms", nargs="+", default=list(ARMS), metavar="ARM",
                         help=f"arms to run (default: all): {' '.join(ARMS)}")
-    parser.add_argument("--quick", action="store_true",
-                        help="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
     parser.add_argument("--budget", type=budget_arg, default={},
@@ -57,18 +57,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
                         help="evaluation scenarios: validation (choices, tuning), test (reported numbers; default), "
                         "figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
-    parser.add_argument("--out", default="results", help="report directory (default: results)")
     parser.add_argument("--raw", default=None, help="per-unit records (default: <out>/peers_raw)")
-    parser.add_argument("--work", default=None, help="datasets, checkpoints, models (default: <out>/peers_work)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="local processes at once, each unit in a fresh process (default: 2; with --quick: 1); "
-                        "1 runs the units one after the other in this process")
-    parser.add_argument("--ray-address", default=None, metavar="ADDRESS",
-                        help="run the units on a Ray cluster (e.g. 127.0.0.1:6379 of `ray start --head`), one CPU "
-                        "and a fresh process per unit")
     parser.add_argument("--rerun", action="store_true",
                         help="delete the stored records of the selected arms and seeds first, so they run again")
-    parser.add_argument("--report-only", action="store_true", help="only rebuild the report from the stored records")
     return parser
 
 
@@ -84,14 +75,19 @@ def budget_arg(text: str) -> dict[str, Any]:
 
 def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> tuple[list[int], list[str]]:
     """Validated, de-duplicated seeds and arms (a ``ValueError`` names the bad parameter)."""
-    for s in seeds:
-        if not isinstance(s, int) or isinstance(s, bool) or not 0 <= s < MAX_SEED:
-            raise ValueError(f"--seeds must be integers in [0, {MAX_SEED}), got {s!r}")
     unknown = [a for a in arms if a not in ARMS]
     if unknown:
         raise ValueError(f"--arms: unknown arm(s) {unknown}; choose from {list(ARMS)}")
     check_int("--workers", workers)
-    return list(dict.fromkeys(seeds)), [a for a in ARMS if a in arms]
+    return select_seeds(seeds, []), [a for a in ARMS if a in arms]
+
+
+def needed_extras(arms: Sequence[str], ray_address: str | None, report_only: bool) -> list[str]:
+    """The optional modules a run needs (:func:`~experiments.common.cli.check_extras`): rliable for the
+    report, d3rlpy for its arms, ray for a cluster."""
+    units = [] if report_only else [*(["d3rlpy", "structlog"] if any(a in D3RLPY_ARMS for a in arms) else []),
+                                    *(["ray"] if ray_address is not None else [])]
+    return ["rliable", *units]
 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
@@ -108,16 +104,6 @@ def scenario_text(records: dict[str, list[dict[str, Any]]]) -> str:
     names = {base: name for name, base in SCENARIO_BASES.items()}
     bases = sorted({r["eval_seeds"][0] - r["seed"] for rs in records.values() for r in rs})
     return ", ".join(f"{names.get(b, 'unknown')} scenarios (SUMO seeds 1000 · ({b} + seed) + i)" for b in bases)
-
-
-def _check_d3rlpy(arms: Sequence[str]) -> None:
-    if any(a in D3RLPY_ARMS for a in arms):
-        from experiments.peers.d3rlpy_arms import import_d3rlpy
-
-        try:
-            import_d3rlpy()
-        except ImportError as exc:
-            raise ValueError(f"--arms: {exc} (or leave out {list(D3RLPY_ARMS)})") from exc
 
 
 def observation_text(records: dict[str, list[dict[str, Any]]]) -> str:
@@ -140,24 +126,6 @@ def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command:
             "observation": observation_text(records), "scenarios": scenario_text(records), **summary}
 
 
-@contextmanager
-def _ray_session(address: str | None) -> Iterator[None]:
-    """One connection to the Ray cluster for the three stages (the executor connects per stage otherwise)."""
-    if address is None:
-        yield
-        return
-    try:
-        import ray
-    except ImportError as exc:
-        raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    ray.init(address=address, log_to_driver=False)
-    try:
-        yield
-    finally:
-        ray.shutdown()
-
-
 def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: PeersBudget, paths: PeersPaths) -> None:
     estimate = estimate_units(budget, arms, len(seeds))
     print(f"peers: seeds {seeds}, arms {arms}, {budget.online_steps} online env steps per arm", flush=True)
@@ -168,14 +136,14 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
                 paths.record(s, a).unlink(missing_ok=True)
     executor = make_executor(args.workers, args.ray_address, serial=args.workers == 1 and args.ray_address is None)
     t0 = time.perf_counter()
-    with _ray_session(args.ray_address):
+    with ray_session(args.ray_address):
         results = run_peers(seeds, arms, budget, paths, executor)
     print(f"{sum(not r.skipped for r in results)} arm unit(s) run, {sum(r.skipped for r in results)} stored; "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
 
 
 def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument, 1 when units failed)."""
+    """Entry point; returns the exit code (2 on a bad argument or a missing extra, 1 when units failed)."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
@@ -183,8 +151,7 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             args.workers = 1 if args.quick else 2
         seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
         budget = _budget(args)
-        if not args.report_only:
-            _check_d3rlpy(arms)
+        check_extras(needed_extras(arms, args.ray_address, args.report_only))
     except ValueError as exc:
         parser.error(str(exc))
     paths = PeersPaths.under(args.out, args.raw, args.work)
@@ -192,20 +159,18 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
         command_line(prog, sys.argv[1:] if argv is None else argv),
         paths.out / "peers.json" if args.report_only else None,
     )
-    try:
+
+    def run() -> int:
+        nonlocal budget
         if args.report_only:
             budget = read_manifest(paths) or budget
         else:
             _run(args, seeds, arms, budget, paths)
         summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000)
-    except UnitsFailedError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    files = write_report(summary, paths.out)
-    for line in verdicts(summary):
-        print(line)
-    print("wrote " + ", ".join(str(f) for f in files))
-    return 0
+        files = write_report(summary, paths.out)
+        for line in verdicts(summary):
+            print(line)
+        print("wrote " + ", ".join(str(f) for f in files))
+        return 0
+
+    return run_command(run)

@@ -56,6 +56,34 @@ class EvalProtocol:
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
 
 
+@dataclass(frozen=True)
+class ArmInputs:
+    """What every arm unit of a seed gets (the arguments its unit function shares with the others).
+
+    :param out_dir: the unit's directory (models, logs, ``online.monitor.csv``)
+    :param dataset: the seed's dataset directory (or a loaded dataset); it defines the environment
+    :param seed: seed of the networks, the minibatches and the online env
+    :param online_steps: online environment steps
+    :param eval_seeds: evaluation seeds (see :class:`EvalProtocol`)
+    :param eval_episodes: episodes per evaluation seed
+    """
+
+    out_dir: str | os.PathLike
+    dataset: str | os.PathLike | OfflineDataset
+    seed: int
+    online_steps: int
+    eval_seeds: Sequence[int]
+    eval_episodes: int
+
+    def __post_init__(self) -> None:
+        _ = self.protocol  # a bad evaluation protocol raises here, before any training
+
+    @property
+    def protocol(self) -> EvalProtocol:
+        """The evaluation scenarios (a ``ValueError`` names ``eval_seeds`` or ``eval_episodes``)."""
+        return EvalProtocol(self.eval_seeds, self.eval_episodes)
+
+
 def repo_zoo_config(algo: str) -> Path:
     """``zoo_configs/<algo>.yml`` of the source checkout this package runs from."""
     return Path(__file__).resolve().parents[2] / "zoo_configs" / f"{algo}.yml"
@@ -176,26 +204,19 @@ def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
     return {"summary": summarize(list(episodes)), "episodes": rows}
 
 
-def run_behaviour(
-    out_dir: str | os.PathLike,
-    dataset: str | os.PathLike | OfflineDataset,
-    seed: int,
-    online_steps: int,
-    eval_seeds: Sequence[int],
-    eval_episodes: int,
-) -> dict[str, Any]:
+def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
     """One unit, the reference row of the data: the dataset's behaviour policy (its ``behaviour_config``,
     :func:`envs.evaluation.evaluate_behaviour`) on the protocol's scenarios. Nothing is trained; the record
     has no online phase, and its one evaluation stands as the offline and the final one.
 
-    Parameters as the other units' (``out_dir`` and ``online_steps`` are not used).
+    :param inputs: the unit's inputs (``out_dir`` and ``online_steps`` are not used)
     """
     from envs.collection import BehaviourConfig
     from envs.evaluation import evaluate_behaviour
     from sb3_ua2c.pipeline import env_settings
 
-    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
-    ds = read_dataset(dataset)
+    protocol, seed = inputs.protocol, inputs.seed
+    ds = read_dataset(inputs.dataset)
     config = ds.metadata.get("behaviour_config")
     if config is None:
         raise ValueError(f"dataset {ds.path} records no behaviour_config: it was not collected by envs.collection")

@@ -29,7 +29,6 @@ Online, d3rlpy drops the last transition of each truncated episode (its own buff
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -37,8 +36,9 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from experiments.common.cli import D3RLPY_INSTALL
 from experiments.peers.common import (
-    EvalProtocol,
+    ArmInputs,
     PhaseClock,
     evaluation_record,
     learning_curve,
@@ -57,7 +57,7 @@ RLPD_DIFFERENCES = (
     "and no offline pre-training; unlike RLPD: 2 critics, both in every target (RLPD: an ensemble of 10, 2 drawn "
     "per target), and the update-to-data ratio of the budget (RLPD: 20)"
 )
-INSTALL = 'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1 gym==0.26.2'
+INSTALL = f'pip install "sb3-ua2c[peers]" && {D3RLPY_INSTALL}'
 
 
 def import_d3rlpy() -> Any:
@@ -216,12 +216,7 @@ def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: in
 
 
 def run_d3rlpy(
-    out_dir: str | os.PathLike,
-    dataset: str | os.PathLike | OfflineDataset,
-    seed: int,
-    online_steps: int,
-    eval_seeds: Sequence[int],
-    eval_episodes: int,
+    inputs: ArmInputs,
     algo: str = "iql",
     offline_steps: int = 6000,
     offline_ratio: float = 0.5,
@@ -235,12 +230,8 @@ def run_d3rlpy(
     (:data:`OFFLINE_ONLY`) stops after the offline evaluation: its record has no online phase. With
     ``offline_steps=0`` (RLPD) there is no offline phase and no offline evaluation.
 
-    :param out_dir: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``)
-    :param dataset: the seed's dataset directory (or a loaded dataset)
-    :param seed: seed of d3rlpy (networks, minibatches) and of the online env
-    :param online_steps: online environment steps
-    :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
-    :param eval_episodes: episodes per evaluation seed
+    :param inputs: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``), dataset, seed (of
+        d3rlpy and the online env), online steps and evaluation scenarios (:class:`~experiments.peers.common.ArmInputs`)
     :param algo: one of :data:`ALGOS`
     :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``; 0: none)
     :param offline_ratio: fraction of each online minibatch drawn from the offline data
@@ -256,6 +247,7 @@ def run_d3rlpy(
 
     from sb3_ua2c.pipeline import env_settings
 
+    seed, online_steps = inputs.seed, inputs.online_steps
     for name, value in (("online_steps", online_steps), ("batch_size", batch_size),
                         ("updates_per_step", updates_per_step)):
         check_int(name, value)
@@ -265,12 +257,12 @@ def run_d3rlpy(
         raise ValueError(f"offline_ratio must be a number in [0, 1], got {offline_ratio!r}")
     if algo in OFFLINE_ONLY and offline_steps == 0:
         raise ValueError(f"offline_steps must be >= 1 for {algo!r}, which has no online phase")
-    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
-    ds = read_dataset(dataset)
+    protocol = inputs.protocol
+    ds = read_dataset(inputs.dataset)
     d3rlpy = import_d3rlpy()
     th.set_num_threads(1)
     d3rlpy.seed(seed)
-    out = Path(out_dir)
+    out = Path(inputs.out_dir)
     logs = d3rlpy.logging.FileAdapterFactory(root_dir=str(out / "d3rlpy"))
     settings = env_settings(ds)
     learner = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {}).create(device="cpu:0")

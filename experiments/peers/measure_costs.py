@@ -2,13 +2,14 @@
 
 Usage::
 
-    python -m experiments.peers.measure_costs --work DIR [--online-steps 2000] [--offline-steps 500]
-        [--dataset-episodes 200] [--eval-episodes 20] [--full-online-steps 10000]
+    python -m experiments.peers.measure_costs --work DIR [--arms sac iql ...] [--online-steps 2000]
+        [--offline-steps 500] [--dataset-episodes 200] [--eval-episodes 20] [--full-online-steps 10000]
         [--full-offline-steps 6000] [--seeds 5] [--workers 2]
 
-Collects one Figure-2-sized dataset (seed 0, like ``fig2``'s), runs one unit of each peer arm
-(SAC, TQC, SAC + offline data, IQL, Cal-QL) at a small budget, each in a fresh process through
-:mod:`experiments.common.runner`, and prints per unit the wall and CPU seconds of each phase. From the CPU
+Collects seed 0's Figure-2-sized dataset, runs one unit of each peer arm (:data:`MEASURED_ARMS`, the arms of
+:mod:`experiments.peers.budget` that :class:`~experiments.peers.budget.PeerCostModel` prices) at a small
+budget, each in a fresh process, through the head-to-head's own units (:func:`experiments.peers.runner.arm_unit`
+on Figure 2's evaluation scenarios), and prints per unit the wall and CPU seconds of each phase. From the CPU
 seconds per online step, per offline gradient step and per evaluation episode it extrapolates a unit
 at the full budget and the peers' share of the full table (``--seeds`` seeds on ``--workers``
 cores). CPU seconds are used because they do not grow when other processes share the cores.
@@ -19,25 +20,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from experiments.common.runner import ProcessExecutor, Unit, run_units
+from experiments.common.runner import ProcessExecutor, run_units
+from experiments.peers.budget import ARMS, FULL_PEERS_BUDGET, UA2C_ARMS, PeersBudget
 
-ARMS = ("sac", "tqc", "sac_offline_mix", "iql", "calql")
+#: The arms priced by :class:`~experiments.peers.budget.PeerCostModel`: every arm but UA2C's (Figure 2's
+#: cost model) and the behaviour policy (nothing trained)
+MEASURED_ARMS = tuple(a for a in ARMS if a not in UA2C_ARMS and a != "behaviour")
 
 
-def peer_units(work: Path, dataset: Path, online: int, offline: int, eval_episodes: int) -> list[Unit]:
-    from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
-
-    common = {"dataset": str(dataset), "seed": 0, "online_steps": online, "eval_seeds": (2000,),
-              "eval_episodes": eval_episodes}
-    return [
-        Unit("sac", run_sb3_online, {**common, "out_dir": str(work / "sac"), "algo": "sac"}, work / "sac.json"),
-        Unit("tqc", run_sb3_online, {**common, "out_dir": str(work / "tqc"), "algo": "tqc"}, work / "tqc.json"),
-        Unit("sac_offline_mix", run_sb3_offline_mix, {**common, "out_dir": str(work / "mix")}, work / "mix.json"),
-        Unit("iql", run_d3rlpy, {**common, "out_dir": str(work / "iql"), "algo": "iql", "offline_steps": offline},
-             work / "iql.json"),
-        Unit("calql", run_d3rlpy, {**common, "out_dir": str(work / "calql"), "algo": "calql",
-                                   "offline_steps": offline}, work / "calql.json"),
-    ]
+def measured_budget(online: int, offline: int, dataset_episodes: int, eval_episodes: int) -> PeersBudget:
+    """The head-to-head's default budget cut to the measured units' size, on Figure 2's evaluation scenarios."""
+    ua2c = {"dataset_episodes": dataset_episodes, "pretrain_steps": offline, "eval_episodes": eval_episodes}
+    return FULL_PEERS_BUDGET.with_overrides({"ua2c": ua2c, "scenarios": "figure2"}).with_online_steps(online)
 
 
 def online_updates(record: dict, online: int) -> int:
@@ -63,6 +57,7 @@ def full_unit_seconds(record: dict, online: int, offline: int, eval_episodes: in
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", type=Path, required=True, help="directory of the dataset and the units")
+    parser.add_argument("--arms", nargs="+", choices=MEASURED_ARMS, default=list(MEASURED_ARMS))
     parser.add_argument("--online-steps", type=int, default=2000)
     parser.add_argument("--offline-steps", type=int, default=500)
     parser.add_argument("--dataset-episodes", type=int, default=200)
@@ -73,19 +68,18 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
 
-    from envs.collection import collect_dataset
-    from sb3_ua2c.offline import load_dataset
+    from experiments.peers.runner import PeersPaths, arm_unit, dataset_units
 
-    dataset = args.work / "dataset"
-    if not (dataset / "data").is_dir():
-        collect_dataset(dataset, args.dataset_episodes, seed=1_000_000, overwrite=True)  # fig2's seed 0
-    print(f"dataset: {load_dataset(dataset).total_steps} transitions")
-    units = peer_units(args.work, dataset, args.online_steps, args.offline_steps, args.eval_episodes)
-    records = {r.name: r.value for r in run_units(units, ProcessExecutor(1))}
+    budget = measured_budget(args.online_steps, args.offline_steps, args.dataset_episodes, args.eval_episodes)
+    paths = PeersPaths.under(args.work)
+    paths.seed_work(0).mkdir(parents=True, exist_ok=True)
+    run_units(dataset_units([0], budget, paths), ProcessExecutor(1))
+    units = [arm_unit(arm, 0, budget, paths, {}) for arm in args.arms]
+    records = {arm: r.value for arm, r in zip(args.arms, run_units(units, ProcessExecutor(1)), strict=True)}
     print(f"\nper unit at {args.online_steps} online steps, {args.offline_steps} offline steps, "
           f"{args.eval_episodes} evaluation episodes (wall s / CPU s per phase):")
     full = {}
-    for arm in ARMS:
+    for arm in args.arms:
         rec = records[arm]
         phases = ", ".join(f"{k} {rec['wall_seconds'][k]:.1f}/{rec['cpu_seconds'][k]:.1f}"
                            for k in rec["cpu_seconds"] if k != "total")
@@ -94,7 +88,7 @@ def main() -> None:
               f"  reward {rec['evaluation']['summary']['reward']:.2f}")
     print(f"\nestimate at {args.full_online_steps} online steps and {args.full_offline_steps} offline steps "
           f"(CPU seconds per unit, one core each):")
-    for arm in ARMS:
+    for arm in args.arms:
         print(f"  {arm:16s} {full[arm]:8.0f} s")
     table = sum(full.values()) * args.seeds / args.workers
     print(f"peer arms x {args.seeds} seeds on {args.workers} cores: {table / 60:.0f} min wall "

@@ -21,9 +21,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from experiments.common.budget import finetune_overrides
 from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
+from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
+from experiments.fig2.budget import finetune_overrides
 from experiments.peers.budget import (
     D3RLPY_ARMS,
     ONLINE_SB3_ARMS,
@@ -63,19 +64,9 @@ class PeersPaths:
 
 def check_manifest(paths: PeersPaths, budget: PeersBudget) -> None:
     """Record the budget on the first call; later calls must pass the same one (a stored unit of another
-    budget would be silently reused)."""
-    from experiments.common.records import strict_json
-    from sb3_ua2c.pipeline import write_json
-
-    path, now = paths.work / MANIFEST, strict_json(budget.to_dict())
-    if path.is_file():  # read back through PeersBudget: a key added since the record holds its default
-        recorded = strict_json(_manifest_budget(json.loads(path.read_text())).to_dict())
-        if recorded != now:
-            differ = sorted(k for k in set(recorded) | set(now) if recorded.get(k) != now.get(k))
-            raise ValueError(f"the run in {paths.work} was made with another budget (differs in {differ}); pass the "
-                             "same budget (--quick, --online-steps) to resume it, or another --out/--work")
-        return
-    write_json(path, now)
+    budget would be silently reused; :func:`~experiments.common.records.check_budget_record`)."""
+    check_budget_record(paths.work / MANIFEST, budget.to_dict(), f"the run in {paths.work}",
+                        read=lambda stored: _manifest_budget(stored).to_dict())
 
 
 def _manifest_budget(values: dict[str, Any]) -> PeersBudget:
@@ -120,11 +111,11 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
     from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
-    from experiments.peers.common import run_behaviour
+    from experiments.peers.common import ArmInputs, run_behaviour
     from experiments.peers.ua2c_arms import run_ua2c_arm
 
-    common = {"out_dir": str(paths.seed_work(seed) / arm), "dataset": str(paths.seed_work(seed) / "dataset"),
-              "seed": seed, "online_steps": budget.online_steps, **eval_protocol(seed, budget)}
+    inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
+                       seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
     fn: Callable[..., Any]
     if arm in UA2C_ARMS:
         record = pretrained[f"seed{seed}/pretrain_k{budget.chunk_length(arm)}"]
@@ -147,7 +138,7 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
                                   "config_kwargs": budget.peer_kwargs.get(arm, {})}
     else:
         raise ValueError(f"arms: unknown arm {arm!r}")
-    return Unit(f"seed{seed}/{arm}", fn, {**common, **kwargs}, paths.record(seed, arm))
+    return Unit(f"seed{seed}/{arm}", fn, {"inputs": inputs, **kwargs}, paths.record(seed, arm))
 
 
 def run_peers(

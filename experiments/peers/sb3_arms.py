@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,7 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from experiments.peers.budget import ONLINE_SB3_ARMS
 from experiments.peers.common import (
-    EvalProtocol,
+    ArmInputs,
     PhaseClock,
     episode_transitions,
     evaluation_record,
@@ -128,11 +128,8 @@ def _algorithm(algo: str) -> type:
 def _train_and_evaluate(
     arm: str,
     algo: str,
-    out_dir: str | os.PathLike,
+    inputs: ArmInputs,
     ds: OfflineDataset,
-    seed: int,
-    online_steps: int,
-    protocol: EvalProtocol,
     params: dict[str, Any],
     offline_ratio: float | None,
     notes: str,
@@ -141,7 +138,8 @@ def _train_and_evaluate(
     from sb3_ua2c.pipeline import env_settings
 
     th.set_num_threads(1)
-    out = Path(out_dir)
+    seed, online_steps, protocol = inputs.seed, inputs.online_steps, inputs.protocol
+    out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     settings = env_settings(ds)
     clock = PhaseClock()
@@ -169,12 +167,7 @@ def _train_and_evaluate(
 
 
 def run_sb3_online(
-    out_dir: str | os.PathLike,
-    dataset: str | os.PathLike | OfflineDataset,
-    seed: int,
-    online_steps: int,
-    eval_seeds: Sequence[int],
-    eval_episodes: int,
+    inputs: ArmInputs,
     algo: str = "sac",
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
@@ -184,32 +177,22 @@ def run_sb3_online(
 
     The dataset only defines the environment (and is recorded); its transitions are not used.
 
-    :param out_dir: the unit's directory (``model.zip``, ``online.monitor.csv``)
-    :param dataset: the seed's dataset directory (or a loaded dataset)
-    :param seed: seed of the networks, the replay sampling and the online env
-    :param online_steps: online environment steps
-    :param eval_seeds: evaluation seeds (see :class:`~experiments.peers.common.EvalProtocol`)
-    :param eval_episodes: episodes per evaluation seed
+    :param inputs: the unit's directory (``model.zip``, ``online.monitor.csv``), dataset, seed, online steps
+        and evaluation scenarios (:class:`~experiments.peers.common.ArmInputs`)
     :param algo: ``"sac"``, ``"tqc"`` or ``"crossq"``
     :param hyperparams: constructor arguments that replace the zoo file's, key by key
     :param conf_file: zoo YAML file (default ``zoo_configs/<algo>.yml``)
     :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
     """
-    check_int("online_steps", online_steps)
-    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
-    ds = read_dataset(dataset)
+    check_int("online_steps", inputs.online_steps)
+    ds = read_dataset(inputs.dataset)
     params = {**zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
     notes = f"{algo.upper()} online from scratch, hyperparameters from zoo_configs/{algo}.yml"
-    return _train_and_evaluate(algo, algo, out_dir, ds, seed, online_steps, protocol, params, None, notes)
+    return _train_and_evaluate(algo, algo, inputs, ds, params, None, notes)
 
 
 def run_sb3_offline_mix(
-    out_dir: str | os.PathLike,
-    dataset: str | os.PathLike | OfflineDataset,
-    seed: int,
-    online_steps: int,
-    eval_seeds: Sequence[int],
-    eval_episodes: int,
+    inputs: ArmInputs,
     offline_ratio: float = 0.5,
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
@@ -223,9 +206,7 @@ def run_sb3_offline_mix(
 
     :param offline_ratio: fraction of each batch drawn from the offline data (RLPD: 0.5)
     """
-    check_int("online_steps", online_steps)
-    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
-    ds = read_dataset(dataset)
+    check_int("online_steps", inputs.online_steps)
+    ds = read_dataset(inputs.dataset)
     params = {**zoo_hyperparams("sac", ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
-    return _train_and_evaluate("sac_offline_mix", "sac", out_dir, ds, seed, online_steps, protocol, params,
-                               offline_ratio, RLPD_DIFFERENCES)
+    return _train_and_evaluate("sac_offline_mix", "sac", inputs, ds, params, offline_ratio, RLPD_DIFFERENCES)

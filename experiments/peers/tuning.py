@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common.cli import check_extras
 from experiments.common.names import SCENARIO_BASES
 from experiments.common.records import command_line, run_header
 from experiments.common.runner import UnitsFailedError, make_executor
@@ -45,7 +46,7 @@ from experiments.peers.budget import (
     estimate_units,
     estimate_wall,
 )
-from experiments.peers.cli import check_selection
+from experiments.peers.cli import check_selection, needed_extras
 from experiments.peers.runner import PeersPaths, load_records, run_peers
 
 PROG = "python -m experiments.peers.tuning"
@@ -201,6 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check(args: argparse.Namespace) -> None:
     check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
+    check_extras(needed_extras(args.arms, args.ray_address, args.report_only))
     unknown = [a for a in args.arms if a not in GRID]
     if unknown:
         raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")

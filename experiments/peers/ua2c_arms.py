@@ -12,13 +12,14 @@ this online budget.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from experiments.peers.common import (
+    ArmInputs,
     EvalProtocol,
     PhaseClock,
     learning_curve,
@@ -75,14 +76,9 @@ def ua2c_evaluation_record(checkpoint: str | os.PathLike, settings: Mapping[str,
 
 
 def run_ua2c_arm(
+    inputs: ArmInputs,
     arm: str,
-    out_dir: str | os.PathLike,
-    dataset: str | os.PathLike,
     checkpoint: str | os.PathLike,
-    seed: int,
-    online_steps: int,
-    eval_seeds: Sequence[int],
-    eval_episodes: int,
     delta: float | None,
     finetune_overrides: Mapping[str, Any],
     pretrain_record: Mapping[str, Any],
@@ -95,17 +91,18 @@ def run_ua2c_arm(
     :param delta: δ the arm acts and fine-tunes with (``inf``: fixed chunks; ``None``: the checkpoint's)
     :param finetune_overrides: Phase-2 attributes (Figure 2's :func:`finetune_overrides`)
     :param pretrain_record: the record of :func:`build_checkpoint` (its time is counted in this arm's)
-    (the other parameters are :func:`~experiments.peers.sb3_arms.run_sb3_online`'s)
+    :param inputs: the unit's directory, dataset, seed, online steps and evaluation scenarios
+        (:class:`~experiments.peers.common.ArmInputs`)
     """
     import torch as th
 
     from sb3_ua2c.pipeline import env_settings, finetune
 
     th.set_num_threads(1)
-    protocol = EvalProtocol(tuple(eval_seeds), eval_episodes)
-    ds = read_dataset(dataset)
+    protocol, seed, online_steps = inputs.protocol, inputs.seed, inputs.online_steps
+    ds = read_dataset(inputs.dataset)
     settings = env_settings(ds)
-    out = Path(out_dir)
+    out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     clock = PhaseClock()
     with clock.phase("evaluate_offline"):

@@ -10,24 +10,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import fig2 as experiments
-from experiments.fig2 import (
-    FULL_BUDGET,
-    QUICK_BUDGET,
-    CostModel,
-    Fig2Budget,
-    aggregate,
+from experiments.common import names
+from experiments.common.names import delta_name
+from experiments.common.records import command_line, strict_json
+from experiments.common.runner import list_schedule_seconds
+from experiments.common.stats import (
     compare,
-    delta_name,
-    estimate_seconds,
-    online_curve,
-    online_phase_stats,
     relative_change_pct,
-    strict_json,
     student_t_quantile,
     student_t_two_sided_cdf,
     t_confidence_interval,
 )
+from experiments.fig2 import budget as fig2_budget
+from experiments.fig2 import cli as fig2_cli
+from experiments.fig2 import manifest, units
+from experiments.fig2.aggregation import aggregate, online_curve, online_phase_stats
+from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, estimate_seconds
+from experiments.fig2.report import format_markdown
 
 
 # ---------------------------------------------------------------------------------------------
@@ -125,7 +124,7 @@ def test_budget_validation_names_the_key() -> None:
     for bad in (1, "yes", np.bool_(True)):  # written to JSON: Python bools only
         with pytest.raises(ValueError, match="Fig2Budget.sampled_eval must be a bool"):
             Fig2Budget(sampled_eval=bad)
-    assert "sampled_eval" not in experiments.UNIT_FIELDS  # it only adds evaluation units
+    assert "sampled_eval" not in manifest.UNIT_FIELDS  # it only adds evaluation units
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.flow_sweep"):
             Fig2Budget(flow_sweep=(bad,))
@@ -140,10 +139,10 @@ def test_budget_validation_names_the_key() -> None:
     budget = Fig2Budget().replace(algo_kwargs=elite8, elite_sweep=[4, 8], flow_sweep=[2])
     assert budget.default_elite == 8 and Fig2Budget().default_elite == 1
     assert budget.acting_variants == ((None, 1), (None, 4), (2, 8), (2, 1), (2, 4))
-    assert [experiments.acting_name("chunk", n, m, 8) for n, m in budget.acting_variants] == [
+    assert [names.acting_name("chunk", n, m, 8) for n, m in budget.acting_variants] == [
         "chunk_elite1", "chunk_elite4", "chunk_flow2", "chunk_flow2_elite1", "chunk_flow2_elite4"
     ]
-    assert experiments.acting_name("onestep", None, 8) == "onestep_elite8"  # default_elite = 1: the old names
+    assert names.acting_name("onestep", None, 8) == "onestep_elite8"  # default_elite = 1: the old names
     assert Fig2Budget(algo_kwargs=elite8).arm_kwargs(1)["policy_kwargs"] == elite8["policy_kwargs"]  # inherited
     with pytest.raises(ValueError, match="one-step baseline acts with n_elite=1 and the chunk policy with n_elite=8"):
         Fig2Budget(algo_kwargs=elite8, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}})
@@ -157,15 +156,15 @@ def test_budget_validation_names_the_key() -> None:
 
 def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> None:
     budget = FULL_BUDGET.replace(finetune_kwargs={"smooth_weight": 100.0})
-    assert experiments.finetune_overrides(budget) == {"smooth_weight": 100.0, "train_freq": 5, "gradient_steps": 1}
-    assert experiments.finetune_overrides(FULL_BUDGET) == {"train_freq": 5, "gradient_steps": 1}
+    assert fig2_budget.finetune_overrides(budget) == {"smooth_weight": 100.0, "train_freq": 5, "gradient_steps": 1}
+    assert fig2_budget.finetune_overrides(FULL_BUDGET) == {"train_freq": 5, "gradient_steps": 1}
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
     assert Fig2Budget.from_dict({k: v for k, v in Fig2Budget().to_dict().items() if k != "finetune_kwargs"}) == Fig2Budget()
     with pytest.raises(ValueError, match=r"finetune_kwargs must not set \['gradient_steps'\]"):
         Fig2Budget(finetune_kwargs={"gradient_steps": 4})
     with pytest.raises(ValueError, match="finetune_kwargs must be a mapping"):
         Fig2Budget(finetune_kwargs=[("smooth_weight", 1.0)])
-    assert "finetune_kwargs" in experiments.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
+    assert "finetune_kwargs" in manifest.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
 
 
 def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
@@ -214,8 +213,8 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert phases["finetune"] == pytest.approx(3 * est["finetune"])
     assert phases["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 2) * 2 * steps * 1e-3)
     # a larger velocity field for the chunk policy alone: its gradient steps and replannings cost more
-    assert experiments.velocity_field_weights({}) == 128 * 128
-    assert experiments.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
+    assert fig2_budget.velocity_field_weights({}) == 128 * 128
+    assert fig2_budget.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
     wide = budget.replace(
         algo_kwargs={"policy_kwargs": {"net_arch": [512, 512, 512]}}, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}
     )
@@ -226,21 +225,21 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert est_wide["finetune"] - est["finetune"] == pytest.approx(2 * 50 * (2 * extra / 1 + extra / 2 + 2 * extra / 2 + extra / 2) * 1e-3)
     assert est_wide["evaluate"] - est["evaluate"] == pytest.approx(2 * 8 * 2 * steps * 2 * (extra / 2) * 1e-3)
     # the per-unit costs behind it (experiments/fig2/measure_costs.py compares them with measured times)
-    assert experiments.extra_kweights({"policy_kwargs": {"net_arch": [64, 64]}}) == 0.0  # smaller: no saving
-    assert experiments.extra_kweights(wide.arm_kwargs(2)) == pytest.approx(extra)
+    assert fig2_budget.extra_kweights({"policy_kwargs": {"net_arch": [64, 64]}}) == 0.0  # smaller: no saving
+    assert fig2_budget.extra_kweights(wide.arm_kwargs(2)) == pytest.approx(extra)
     unit = CostModel()
     assert unit.pretrain_step_ms(5, 100.0) == pytest.approx(14.0 + 5 * 2.8 + 100 * 0.032)  # 31.2 ms
     assert unit.pretrain_step_ms(1) == pytest.approx(16.8)
     assert unit.replan_ms(100.0) == pytest.approx(4.0 + 100 * 0.008)  # 4.8 ms
     full = estimate_seconds(FULL_BUDGET, 5)
-    wall = experiments.estimate_wall_seconds(full, 5, 2)
+    wall = fig2_budget.estimate_wall_seconds(full, 5, 2)
     assert 30 * 60 <= wall <= 2.25 * 60 * 60
     # the two parts of a seed fill the workers: shorter than whole seeds (one worker runs 3 of 5)
     assert full["total"] / 2 <= wall < full["total"] / 5 * math.ceil(5 / 2)
 
 
 def test_list_schedule_and_wall_estimate_by_hand() -> None:
-    schedule = experiments.list_schedule_seconds
+    schedule = list_schedule_seconds
     # 2 workers take 4, 3 at t = 0; the third unit (2) goes to the worker free at 3, the fourth (2)
     # to the one free at 4: the workers end at 5 and 6
     assert schedule([4.0, 3.0, 2.0, 2.0], 2) == pytest.approx(6.0)
@@ -253,9 +252,9 @@ def test_list_schedule_and_wall_estimate_by_hand() -> None:
     # workers: mains end at 10, 10, 20 on the two workers; styles start at 10 (-> 14), 14 (-> 18), 18
     # (-> 22) on the worker free at 10, so the last one ends at 22
     stages = {"pretrain": 24.0, "evaluate": 6.0, "style": 3.0, "style_ablation": 9.0, "total": 42.0}
-    assert experiments.estimate_wall_seconds(stages, 3, 2) == pytest.approx(22.0)
-    assert experiments.estimate_wall_seconds(stages, 3, 1) == pytest.approx(42.0)
-    assert experiments.estimate_wall_seconds(stages, 3, 6) == pytest.approx(10.0)
+    assert fig2_budget.estimate_wall_seconds(stages, 3, 2) == pytest.approx(22.0)
+    assert fig2_budget.estimate_wall_seconds(stages, 3, 1) == pytest.approx(42.0)
+    assert fig2_budget.estimate_wall_seconds(stages, 3, 6) == pytest.approx(10.0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -314,11 +313,11 @@ def test_aggregate_sampled_rows_by_hand() -> None:
     assert c["online_reward_sampled"]["change_pct"] == pytest.approx(25.0)  # (20 - 16) / 16
     assert c["offline_jerk_per_step_sampled"]["change_pct"] == pytest.approx(-50.0)  # (2 - 4) / 4
     assert "online_execution_rule_sampled" not in c  # fixed_adaptive_sampled was not evaluated
-    assert set(experiments.CLAIM_COMPARISONS) == set(experiments.PAPER)
+    assert set(names.CLAIM_COMPARISONS) == set(names.PAPER)
     assert out["sampled"] == pytest.approx(
         {"offline_reward_gain_pct": 25.0, "offline_jerk_change_pct": -25.0, "online_reward_gain_pct": 25.0}
     )
-    md = experiments.format_markdown(out, "cmd", "today")
+    md = format_markdown(out, "cmd", "today")
     assert "| (b) cumulative jerk, chunk vs one-step — sampled | -25.00% |" in md
     assert "| (c) online reward, adaptive vs fixed — sampled | +25.00% |" in md and "at or beyond" in md
     assert "| chunk policy (offline, full chunks), sampled | 10.00 |" in md
@@ -359,7 +358,7 @@ def test_aggregate_pools_online_phases_by_hand(tmp_path: Path) -> None:
     # (c'): training-episode returns, pooled the same way: adaptive 20, 20, 10, 30; fixed 10, 10, 10, 30
     assert c["online_phase_reward"]["change_pct"] == pytest.approx(100 * (20 - 15) / 15)
     assert out["methods"]["adaptive"]["reward"]["mean"] == 145.0  # the methods table: first phase
-    md = experiments.format_markdown(out, "cmd", "today")
+    md = format_markdown(out, "cmd", "today")
     assert "| (c) online reward, adaptive vs fixed (2 seeds × 2 online phases, pooled) | +8.00% |" in md
     assert "| 1 | 100.00 ± 635.31 | 125.00 ± 317.66 | +25.00% |  |" in md
     # t intervals over the 4 runs: 3.182 · sd / 2, sd = 64.55 (fixed) and 36.97 (adaptive)
@@ -368,12 +367,12 @@ def test_aggregate_pools_online_phases_by_hand(tmp_path: Path) -> None:
     # one phase (the default): the report is that of the first phase alone, as before
     single = aggregate(raw, [0, 1], budget.replace(online_replicates=1))
     assert single["online_reward_gain_pct"] == pytest.approx(100 * (145 - 150) / 150)
-    assert "online phases" not in experiments.format_markdown(single, "cmd", "today")
+    assert "online phases" not in format_markdown(single, "cmd", "today")
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.online_replicates"):
             QUICK_BUDGET.replace(online_replicates=bad)
-    assert "online_replicates" not in experiments.UNIT_FIELDS  # more phases only add units
-    assert experiments.replicate_name("fixed", 0) == "fixed" and experiments.replicate_name("fixed", 2) == "fixed_r2"
+    assert "online_replicates" not in manifest.UNIT_FIELDS  # more phases only add units
+    assert names.replicate_name("fixed", 0) == "fixed" and names.replicate_name("fixed", 2) == "fixed_r2"
 
 
 def test_online_phase_stats_and_curve_by_hand() -> None:
@@ -426,7 +425,7 @@ def test_aggregate_online_phase_and_jerk_per_step_by_hand() -> None:
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("fig2")
-    assert experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(out)]) == 0
+    assert fig2_cli.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(out)]) == 0
     return out
 
 
@@ -501,11 +500,11 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     # (c) pools both online phases: 2 seeds x 2 phases
     assert summary["online_phases"]["phases"] == [0, 1] and summary["online_phases"]["runs"] == 4
     assert len(summary["comparisons"]["online_reward"]["per_seed_pct"]) == 4
-    for method in experiments.SAMPLED_METHODS:  # fresh candidate noise, recorded as such
+    for method in names.SAMPLED_METHODS:  # fresh candidate noise, recorded as such
         raw = json.loads((quick_run / "fig2_raw" / "seed0" / f"{method}_sampled.json").read_text())
         assert raw["deterministic"] is False and f"seed0/evaluate/{method}_sampled" in units
     assert json.loads((quick_run / "fig2_raw" / "seed0" / "chunk.json").read_text())["deterministic"] is True
-    assert set(summary["sampled"]) == set(experiments.PAPER)
+    assert set(summary["sampled"]) == set(names.PAPER)
     assert (quick_run / "fig2_b_offline_jerk_sampled.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
     # (N, m): the checkpoints' N = 10 with m = 2, then N = 2 with m = 1 and 2
@@ -517,7 +516,7 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
 
 
 def test_paper_verdict_by_hand() -> None:
-    from experiments.fig2 import paper_verdict
+    from experiments.fig2.report import paper_verdict
 
     assert paper_verdict("offline_reward_gain_pct", 6.70) == "at or beyond"  # paper: +6.70 %
     assert paper_verdict("offline_reward_gain_pct", 6.69) == "short"
@@ -592,17 +591,17 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
         monkeypatch.setattr(module, name, forbidden)
     before = json.loads((quick_run / "fig2.json").read_text())
     assert (
-        experiments.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]) == 0
+        fig2_cli.main(["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]) == 0
     )
     assert "0 unit(s) run" in capsys.readouterr().out
     after = json.loads((quick_run / "fig2.json").read_text())
     assert after["online_reward_gain_pct"] == before["online_reward_gain_pct"]
     # another budget must not reuse these units; the report alone uses the recorded budget
     args = ["--quick", "--seed-list", "0", "1", "--workers", "1", "--out", str(quick_run)]
-    assert experiments.main([*args, "--budget", '{"pretrain_steps": 9}']) == 2
+    assert fig2_cli.main([*args, "--budget", '{"pretrain_steps": 9}']) == 2
     assert "pretrain_steps: recorded 8, now 9" in capsys.readouterr().err
     run_record = json.loads((quick_run / "fig2.json").read_text())
-    assert experiments.main(["--report-only", "--seed-list", "0", "1", "--out", str(quick_run)]) == 0
+    assert fig2_cli.main(["--report-only", "--seed-list", "0", "1", "--out", str(quick_run)]) == 0
     rebuilt = json.loads((quick_run / "fig2.json").read_text())
     assert rebuilt["budget"]["pretrain_steps"] == 8
     # the rebuilt report keeps the command and date of the run that produced the results
@@ -612,7 +611,7 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     # timings come from fig2.json, so the compute table survives
     empty = quick_run / "no_work"
     args = ["--report-only", "--seed-list", "0", "1", "--out", str(quick_run), "--work", str(empty)]
-    assert experiments.main(args) == 0
+    assert fig2_cli.main(args) == 0
     again = json.loads((quick_run / "fig2.json").read_text())
     assert again["seconds"]["measured"] == run_record["seconds"]["measured"] != {}
     assert again["budget"] == run_record["budget"]
@@ -624,25 +623,25 @@ def test_a_seed_in_use_is_refused(quick_run: Path, tmp_path: Path, capsys) -> No
 
     work = tmp_path / "seed3"
     work.mkdir()
-    with experiments.seed_lock(work):
+    with units.seed_lock(work):
         assert (work / ".lock").read_text() == str(os.getpid())
-        with pytest.raises(experiments.SeedBusyError, match=f"{work} is in use .*pid {os.getpid()}"):
-            with experiments.seed_lock(work):
+        with pytest.raises(units.SeedBusyError, match=f"{work} is in use .*pid {os.getpid()}"):
+            with units.seed_lock(work):
                 pass
         # a second fig2 process on the same work directory stops at the locked seed, with exit code 2
         held = quick_run / "fig2_work" / "seed1"
-        with experiments.seed_lock(held):
+        with units.seed_lock(held):
             args = ["--quick", "--seed-list", "1", "--workers", "1", "--out", str(quick_run)]
-            assert experiments.main(args) == 2
+            assert fig2_cli.main(args) == 2
             assert f"{held} is in use by another fig2 process" in capsys.readouterr().err
-    with experiments.seed_lock(work):  # released on exit
+    with units.seed_lock(work):  # released on exit
         pass
     # each part of a seed has its own lock: a seed's style part runs next to its main part
-    with experiments.seed_lock(work):
-        with experiments.seed_lock(work, ".lock-style"):
+    with units.seed_lock(work):
+        with units.seed_lock(work, ".lock-style"):
             assert (work / ".lock-style").read_text() == str(os.getpid())
     with pytest.raises(ValueError, match="part must be one of \\['main', 'style', 'all'\\], got 'both'"):
-        experiments.run_seed(3, QUICK_BUDGET, experiments.RunPaths.under(tmp_path), part="both")
+        units.run_fig2_seed(3, QUICK_BUDGET, manifest.RunPaths.under(tmp_path), part="both")
 
 
 def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
@@ -653,9 +652,9 @@ def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.online_seed_offset"):
             QUICK_BUDGET.replace(online_seed_offset=bad)
-    assert "online_seed_offset" in experiments.UNIT_FIELDS  # a resumed run refuses another offset
+    assert "online_seed_offset" in manifest.UNIT_FIELDS  # a resumed run refuses another offset
     # the pre-trained units of seed 1 are reused; the fine-tuned arms are trained again
-    paths = experiments.RunPaths.under(tmp_path)
+    paths = manifest.RunPaths.under(tmp_path)
     shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
     shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))  # the offline evaluations
     for arm in ("adaptive", "fixed", "adaptive_style"):
@@ -668,8 +667,8 @@ def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path
 
     monkeypatch.setattr(pipeline, "finetune", fake_finetune)
     with pytest.raises(KeyboardInterrupt):
-        experiments.run_seed(1, QUICK_BUDGET.replace(online_seed_offset=2), paths)
-    assert calls == [("pretrain_k3.zip", 1 + 2 * experiments.MAX_SEED)]
+        units.run_fig2_seed(1, QUICK_BUDGET.replace(online_seed_offset=2), paths)
+    assert calls == [("pretrain_k3.zip", 1 + 2 * names.MAX_SEED)]
 
 
 def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
@@ -679,7 +678,7 @@ def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
 
     from sb3_ua2c import pipeline
 
-    paths = experiments.RunPaths.under(tmp_path)
+    paths = manifest.RunPaths.under(tmp_path)
     shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
     shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))
     for path in [*paths.seed_work(1).glob("*_r1.zip"), *paths.seed_raw(1).glob("*_r1*.json")]:
@@ -693,8 +692,8 @@ def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
 
     monkeypatch.setattr(pipeline, "finetune", fake_finetune)
     budget = QUICK_BUDGET.replace(online_replicates=3, online_seed_offset=1)
-    ran = experiments.run_seed(1, budget, paths)
-    m = experiments.MAX_SEED
+    ran = units.run_fig2_seed(1, budget, paths)
+    m = names.MAX_SEED
     assert calls == [  # the first phase is reused; phases 1 and 2 run with offsets 1 + 1 and 1 + 2
         ("pretrain_k3.zip", "adaptive_r1.zip", 0.0, 1 + 2 * m),
         ("pretrain_k3.zip", "fixed_r1.zip", math.inf, 1 + 2 * m),
@@ -704,7 +703,7 @@ def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
     for name in ("adaptive_r1", "fixed_r1", "adaptive_r2_sampled", "fixed_r2_sampled"):
         assert (paths.seed_raw(1) / f"{name}.json").is_file(), name
     assert len(ran) == 4 + 8  # four fine-tunings, eight evaluations
-    assert experiments.run_seed(1, budget, paths) == []  # resumed: nothing left
+    assert units.run_fig2_seed(1, budget, paths) == []  # resumed: nothing left
 
 
 def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
@@ -722,7 +721,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
     assert QUICK_BUDGET.arm_kwargs(1) == {"batch_size": 32, "chunk_size": 1, "entropy_threshold": 0.0}
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
     assert Fig2Budget.from_dict({k: v for k, v in Fig2Budget().to_dict().items() if k != "onestep_kwargs"}) == Fig2Budget()
-    assert "onestep_kwargs" in experiments.UNIT_FIELDS  # a resumed run refuses another one-step size
+    assert "onestep_kwargs" in manifest.UNIT_FIELDS  # a resumed run refuses another one-step size
     with pytest.raises(ValueError, match=r"onestep_kwargs must not set \['chunk_size'\]"):
         Fig2Budget(onestep_kwargs={"chunk_size": 1})
     with pytest.raises(ValueError, match="onestep_kwargs must be a mapping"):
@@ -730,7 +729,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
     with pytest.raises(ValueError, match="elite_sweep holds 16, more than the 8 candidates"):
         Fig2Budget(onestep_kwargs={"n_candidates": 8})  # the default elite sweep reaches 16
     # the runner passes them to the k = 1 unit alone
-    paths = experiments.RunPaths.under(tmp_path)
+    paths = manifest.RunPaths.under(tmp_path)
     paths.seed_work(1).mkdir(parents=True)
     shutil.copytree(quick_run / "fig2_work" / "seed1" / "dataset", paths.seed_work(1) / "dataset")
     calls = {}
@@ -744,7 +743,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
 
     monkeypatch.setattr(pipeline, "pretrain", fake_pretrain)
     with pytest.raises(KeyboardInterrupt):
-        experiments.run_seed(1, budget, paths)
+        units.run_fig2_seed(1, budget, paths)
     assert calls == {f"pretrain_k{k}.zip": budget.arm_kwargs(k) for k in (1, 2, 3)}
     assert calls["pretrain_k1.zip"]["policy_kwargs"] == small and calls["pretrain_k3.zip"]["policy_kwargs"] == large
 
@@ -766,26 +765,27 @@ def test_explicit_default_net_arch_builds_the_same_networks() -> None:
 
 
 def test_command_line_is_quoted_for_the_shell() -> None:
-    assert experiments.command_line("python -m experiments.fig2", []) == "python -m experiments.fig2"
-    line = experiments.command_line("python -m experiments.fig2", ["--budget", '{"a": 1}', "--out", "r"])
+    assert command_line("python -m experiments.fig2", []) == "python -m experiments.fig2"
+    line = command_line("python -m experiments.fig2", ["--budget", '{"a": 1}', "--out", "r"])
     assert line == """python -m experiments.fig2 --budget '{"a": 1}' --out r"""
 
 
 def test_the_cli_subcommand_names_itself(capsys) -> None:
     with pytest.raises(SystemExit):
-        experiments.main(["--help"])
+        fig2_cli.main(["--help"])
     assert capsys.readouterr().out.startswith("usage: python -m experiments.fig2 ")
 
 
-def test_package_re_exports_the_public_names() -> None:
-    import importlib
+def test_each_name_is_imported_from_its_defining_module() -> None:
+    """``experiments.fig2`` re-exports nothing: a name has one home (its defining module)."""
+    import types
 
-    for name in experiments.__all__:
-        assert getattr(experiments, name) is not None, name
-    # the submodule is "aggregation", so the package attribute stays the function
-    assert callable(experiments.aggregate) and experiments.aggregate.__module__ == "experiments.fig2.aggregation"
-    units = importlib.import_module("experiments.fig2.units")
-    assert experiments.run_seed is units.run_seed and experiments.RunPaths is units.RunPaths
+    import experiments.fig2 as package
+
+    public = {n: v for n, v in vars(package).items() if not n.startswith("_")}
+    assert {"budget", "cli", "units"} <= set(public)  # imported above: attributes of the package
+    assert all(isinstance(v, types.ModuleType) for v in public.values()), public  # and nothing but modules
+    assert not hasattr(package, "__all__")
 
 
 def test_cli_argument_types() -> None:
@@ -808,50 +808,49 @@ def test_cli_argument_types() -> None:
 
 def test_bad_arguments_and_missing_results(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
-        experiments.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])
+        fig2_cli.main(["--quick", "--budget", '{"pretrain_stepz": 1}', "--out", str(tmp_path)])
     assert exc.value.code == 2
     assert "pretrain_stepz" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        experiments.main(["--seeds", "0", "--out", str(tmp_path)])
+        fig2_cli.main(["--seeds", "-1", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):
-        experiments.main(["--seed-list", "100", "--out", str(tmp_path)])
-    assert "seeds must be in [0, 100)" in capsys.readouterr().err
-    assert experiments.main(["--report-only", "--seeds", "1", "--out", str(tmp_path)]) == 2
-    assert "no raw results for seed 0" in capsys.readouterr().err
+        fig2_cli.main(["--seed-list", "100", "--out", str(tmp_path)])
+    assert "--seeds must be integers in [0, 100)" in capsys.readouterr().err
+    assert fig2_cli.main(["--report-only", "--seeds", "1", "--out", str(tmp_path)]) == 2
+    assert "no raw results for seed 1" in capsys.readouterr().err
 
 
 def test_budget_of_reruns_a_report_with_its_own_budget(quick_run: Path, tmp_path: Path, capsys) -> None:
-    recorded = experiments.recorded_budget(quick_run)  # the directory, or the file itself
-    assert recorded == QUICK_BUDGET == experiments.recorded_budget(quick_run / "fig2.json")
+    recorded = fig2_cli.recorded_budget(quick_run)  # the directory, or the file itself
+    assert recorded == QUICK_BUDGET == fig2_cli.recorded_budget(quick_run / "fig2.json")
     # a report made before a field existed: the field takes its class default
     old = json.loads((quick_run / "fig2.json").read_text())
     del old["budget"]["online_replicates"]
     (tmp_path / "old.json").write_text(json.dumps(old))
-    assert experiments.recorded_budget(tmp_path / "old.json") == QUICK_BUDGET.replace(online_replicates=1)
+    assert fig2_cli.recorded_budget(tmp_path / "old.json") == QUICK_BUDGET.replace(online_replicates=1)
     # rerun with the recorded budget: every unit of seed 0 exists
-    rerun = ["--budget-of", str(quick_run), "--seeds", "1", "--workers", "1", "--out", str(tmp_path / "rerun"),
+    rerun = ["--budget-of", str(quick_run), "--seeds", "0", "--workers", "1", "--out", str(tmp_path / "rerun"),
              "--work", str(quick_run / "fig2_work"), "--raw", str(quick_run / "fig2_raw")]
-    assert experiments.main(rerun) == 0
+    assert fig2_cli.main(rerun) == 0
     out = capsys.readouterr().out  # the quick run's own budget: every unit of both parts exists
     assert "seed 0 (main): 0 unit(s) run" in out and "seed 0 (style): 0 unit(s) run" in out
-    assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET
-    assert experiments.main([*rerun, "--budget", '{"online_replicates": 1}']) == 0  # --budget applies on top
-    assert experiments.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET.replace(online_replicates=1)
+    assert fig2_cli.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET
+    assert fig2_cli.main([*rerun, "--budget", '{"online_replicates": 1}']) == 0  # --budget applies on top
+    assert fig2_cli.recorded_budget(tmp_path / "rerun") == QUICK_BUDGET.replace(online_replicates=1)
     (tmp_path / "nobudget.json").write_text("{}")
     for bad, message in (
         (tmp_path / "missing", "does not exist"),
         (tmp_path / "nobudget.json", "is not a fig2.json with a 'budget' key"),
     ):
         with pytest.raises(SystemExit) as exc:
-            experiments.main(["--budget-of", str(bad), "--out", str(tmp_path)])
+            fig2_cli.main(["--budget-of", str(bad), "--out", str(tmp_path)])
         assert exc.value.code == 2 and message in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        experiments.main(["--budget-of", str(quick_run), "--quick", "--out", str(tmp_path)])
+        fig2_cli.main(["--budget-of", str(quick_run), "--quick", "--out", str(tmp_path)])
     assert "--budget-of and --quick" in capsys.readouterr().err
 
 
 def test_run_all_submits_every_main_part_before_the_style_parts(tmp_path: Path, monkeypatch) -> None:
-    from experiments.fig2 import units
 
     calls = []
 
@@ -859,9 +858,9 @@ def test_run_all_submits_every_main_part_before_the_style_parts(tmp_path: Path, 
         calls.append((seed, part))
         return [f"seed{seed}/{part}/unit"]
 
-    monkeypatch.setattr(units, "run_seed_unit", fake_seed_unit)
+    monkeypatch.setattr(units, "run_fig2_seed_unit", fake_seed_unit)
     lines: list[str] = []
-    executed = units.run_all([3, 1], QUICK_BUDGET, experiments.RunPaths.under(tmp_path), workers=1, printer=lines.append)
+    executed = units.run_all([3, 1], QUICK_BUDGET, manifest.RunPaths.under(tmp_path), workers=1, printer=lines.append)
     assert calls == [(3, "main"), (1, "main"), (3, "style"), (1, "style")]
     assert executed == ["seed3/main/unit", "seed1/main/unit", "seed3/style/unit", "seed1/style/unit"]
     assert lines[0].startswith("seed 3 (main): 1 unit(s) run in ")

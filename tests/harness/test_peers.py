@@ -12,7 +12,7 @@ from gymnasium import spaces
 from envs.collection import collect_dataset
 from envs.evaluation import evaluate
 from experiments.peers import EvalProtocol, run_d3rlpy, run_sb3_offline_mix, run_sb3_online, zoo_hyperparams
-from experiments.peers.common import episode_transitions, literal_call, recorded_path
+from experiments.peers.common import ArmInputs, episode_transitions, literal_call, recorded_path
 from experiments.peers.sb3_arms import OfflineMixReplayBuffer, scale_actions
 from sb3_ua2c.offline import Episode
 
@@ -181,6 +181,10 @@ def test_eval_protocol_rejects_bad_input():
         EvalProtocol((), 2)
     with pytest.raises(ValueError, match="eval_episodes"):
         EvalProtocol((1,), 0)
+    # an arm unit's inputs refuse a bad protocol when they are made, before any training
+    assert ArmInputs("out", "data", seed=1, online_steps=5, eval_seeds=[7], eval_episodes=2).protocol.seeds == (7,)
+    with pytest.raises(ValueError, match="eval_episodes"):
+        ArmInputs("out", "data", seed=1, online_steps=5, eval_seeds=[7], eval_episodes=0)
 
 
 @pytest.fixture(scope="module")
@@ -200,39 +204,38 @@ def _check_record(record, arm, dataset, online_steps=30):
 
 @pytest.mark.parametrize("algo", ["sac", "tqc"])
 def test_sb3_online_unit(tiny_dataset, tmp_path, algo):
-    record = run_sb3_online(tmp_path, tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,), eval_episodes=2,
-                            algo=algo, hyperparams=TINY)
+    inputs = ArmInputs(tmp_path, tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,), eval_episodes=2)
+    record = run_sb3_online(inputs, algo=algo, hyperparams=TINY)
     _check_record(record, algo, tiny_dataset)
     assert record["hyperparams"]["learning_rate"] == 3e-4 and record["hyperparams"]["policy_kwargs"] == {"net_arch": [16]}
     assert record["offline_evaluation"] is None and (tmp_path / "model.zip").is_file()
 
 
 def test_sb3_offline_mix_unit_is_reproducible(tiny_dataset, tmp_path):
-    kwargs = dict(dataset=tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,), eval_episodes=2, hyperparams=TINY)
-    first = run_sb3_offline_mix(tmp_path / "a", **kwargs)
+    kwargs = dict(dataset=tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,), eval_episodes=2)
+    first = run_sb3_offline_mix(ArmInputs(tmp_path / "a", **kwargs), hyperparams=TINY)
     _check_record(first, "sac_offline_mix", tiny_dataset)
     assert first["hyperparams"]["offline_ratio"] == 0.5 and "LayerNorm" in first["notes"]
-    again = run_sb3_offline_mix(tmp_path / "b", **kwargs)
+    again = run_sb3_offline_mix(ArmInputs(tmp_path / "b", **kwargs), hyperparams=TINY)
     assert again["evaluation"] == first["evaluation"] and again["online_episodes"] == first["online_episodes"]
     with pytest.raises(ValueError, match="online_steps"):
-        run_sb3_offline_mix(tmp_path / "c", **{**kwargs, "online_steps": 0})
+        run_sb3_offline_mix(ArmInputs(tmp_path / "c", **{**kwargs, "online_steps": 0}), hyperparams=TINY)
 
 
 @pytest.mark.parametrize("algo", ["iql", "calql"])
 def test_d3rlpy_unit_offline_then_online(tiny_dataset, tmp_path, monkeypatch, algo):
     require("d3rlpy")
     monkeypatch.chdir(tmp_path)
-    record = run_d3rlpy(tmp_path / "unit", tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,),
-                        eval_episodes=2, algo=algo, offline_steps=5, batch_size=8)
+    inputs = dict(dataset=tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,), eval_episodes=2)
+    record = run_d3rlpy(ArmInputs(tmp_path / "unit", **inputs), algo=algo, offline_steps=5, batch_size=8)
     _check_record(record, algo, tiny_dataset)
     assert record["offline_steps"] == 5 and record["offline_evaluation"]["summary"]["episodes"] == 2
     assert record["hyperparams"]["config"]["action_scaler"]["params"] == {"minimum": [-4.5, -1.0], "maximum": [3.0, 1.0]}
     assert (tmp_path / "unit" / "d3rlpy" / "online" / "model_30.d3").is_file()
     assert not (tmp_path / "d3rlpy_logs").exists()
     with pytest.raises(ValueError, match="algo must be one of"):
-        run_d3rlpy(tmp_path / "x", tiny_dataset.path, 1, 30, (2001,), 2, algo="cql")
+        run_d3rlpy(ArmInputs(tmp_path / "x", tiny_dataset.path, 1, 30, (2001,), 2), algo="cql")
     if algo == "iql":  # seeded: the same unit gives the same record
-        again = run_d3rlpy(tmp_path / "again", tiny_dataset.path, seed=1, online_steps=30, eval_seeds=(2001,),
-                           eval_episodes=2, algo=algo, offline_steps=5, batch_size=8)
+        again = run_d3rlpy(ArmInputs(tmp_path / "again", **inputs), algo=algo, offline_steps=5, batch_size=8)
         assert again["evaluation"] == record["evaluation"] and again["online_episodes"] == record["online_episodes"]
         assert again["offline_evaluation"] == record["offline_evaluation"]

@@ -11,6 +11,7 @@ import pytest
 from extras import require
 
 from experiments.common.names import DATASET_SEED_BASE
+from experiments.common.runner import list_schedule_seconds
 from experiments.peers import cli
 from experiments.peers.budget import (
     ARMS,
@@ -22,7 +23,6 @@ from experiments.peers.budget import (
     estimate_units,
     estimate_wall,
     peer_unit_seconds,
-    stage_wall_seconds,
 )
 from experiments.peers.report import (
     aggregate,
@@ -219,8 +219,9 @@ def test_estimate_reproduces_the_measured_peer_units_and_fits_three_hours():
     for arm, seconds in measured.items():
         assert peer_unit_seconds(arm, at_10k) == pytest.approx(seconds, rel=0.02), arm
     # longest first on 2 workers: 5 | 4, then 3 -> the 4-worker, 3 -> the 5-worker, 3 -> the 7-worker
-    assert stage_wall_seconds([3, 5, 3, 4, 3], 2) == 10
-    assert stage_wall_seconds([3, 5], 4) == 5
+    # longest first on 2 workers: 5 | 4, 3 -> 7 | 3 -> 8 | 3 -> 10
+    assert list_schedule_seconds(sorted([3, 5, 3, 4, 3], reverse=True), 2) == 10
+    assert list_schedule_seconds([5, 3], 4) == 5
     full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
     assert full["wall"] < 3 * 3600 and full["cpu"] > full["wall"]
 
@@ -302,3 +303,17 @@ def test_budget_overrides_reach_the_budget_and_bad_keys_are_named(tmp_path, caps
         with pytest.raises(SystemExit) as exit_info:
             cli.main(["--budget", bad, *out])
         assert exit_info.value.code == 2 and name in capsys.readouterr().err
+
+
+def test_measure_costs_measures_the_arms_the_cost_model_prices():
+    from experiments.peers.budget import PeerCostModel
+    from experiments.peers.measure_costs import MEASURED_ARMS, measured_budget
+    from experiments.peers.runner import eval_protocol
+
+    costs = PeerCostModel()
+    assert set(MEASURED_ARMS) == set(costs.sb3_update_ms) | set(costs.d3rlpy_offline_ms)
+    assert len(MEASURED_ARMS) == 9 and "behaviour" not in MEASURED_ARMS
+    budget = measured_budget(2000, 500, 200, 20)
+    assert (budget.online_steps, budget.offline_steps("iql"), budget.ua2c.dataset_episodes) == (2000, 500, 200)
+    # Figure 2's evaluation scenarios of seed 0: SUMO seeds 1000 * (2000 + 0) + i
+    assert eval_protocol(0, budget) == {"eval_seeds": (2000,), "eval_episodes": 20}

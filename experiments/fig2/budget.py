@@ -5,13 +5,13 @@
 from __future__ import annotations
 
 import dataclasses
-import heapq
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from experiments.common.names import MAIN_METHODS, SAMPLED_METHODS
+from experiments.common.runner import list_schedule_seconds
 from sb3_ua2c.checks import check_int
 
 
@@ -395,21 +395,6 @@ STYLE_STAGES = ("style", "style_ablation")
 """The stages of :func:`estimate_seconds` that a seed's ``"style"`` part runs; the ``"main"`` part runs the rest."""
 
 
-def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
-    """Wall time of units run in the given order on ``workers`` workers, each unit starting on the first
-    worker that is free (how the executor's process pool, or Ray on ``workers`` CPUs, takes them).
-
-    :param durations: the units' seconds, in submission order
-    :param workers: workers at once (>= 1)
-    :return: the time at which the last unit ends (0 without units)
-    """
-    check_int("workers", workers)
-    free = [0.0] * min(workers, max(len(durations), 1))
-    for seconds in durations:
-        heapq.heappush(free, heapq.heappop(free) + seconds)
-    return max(free)
-
-
 def estimate_wall_seconds(stages: Mapping[str, float], n_seeds: int, workers: int) -> float:
     """Wall time of a run whose CPU seconds per stage are ``stages`` (:func:`estimate_seconds`): each
     seed's two parts (``"main"``, then ``"style"``: :data:`STYLE_STAGES`) scheduled as
@@ -422,7 +407,7 @@ def estimate_wall_seconds(stages: Mapping[str, float], n_seeds: int, workers: in
     check_int("n_seeds", n_seeds)
     style = sum(stages.get(name, 0.0) for name in STYLE_STAGES) / n_seeds
     main = stages["total"] / n_seeds - style
-    return list_schedule_seconds([main] * n_seeds + [style] * n_seeds, workers)
+    return list_schedule_seconds([main] * n_seeds + [style] * n_seeds, workers)  # run_all's order
 
 
 def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
