@@ -24,9 +24,10 @@ from sb3_ua2c.flow import (
     one_step_actor_loss,
 )
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # UA2C imports this module: its annotations name the base class (no import cycle)
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm as UA2C
+
     from sb3_ua2c.buffers import ChunkReplaySamples
-    from sb3_ua2c.ua2c import UA2C
 
 
 class ActorObjective(NamedTuple):

@@ -63,7 +63,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     (:class:`~sb3_ua2c.rollouts.ChunkRollouts`), offline data and Phase 1
     (:class:`~sb3_ua2c.offline_training.OfflineTraining`) and checkpoints
     (:class:`~sb3_ua2c.checkpoints.Checkpoints`) are parts of it in modules of their own. It stays
-    over 300 lines for its 38 documented constructor arguments (SB3's and UA2C's).
+    over 300 lines for its 41 documented constructor arguments (SB3's and UA2C's).
 
     :param policy: the policy model to use (``"MlpPolicy"`` or :class:`UA2CPolicy`)
     :param env: the environment to learn from (if registered in Gym, can be str)
@@ -133,7 +133,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         (online-only training); ``model.replay_buffer.active_online_targets`` says which
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
-    :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
+    :param policy_kwargs: additional arguments of the policy (``net_arch``, ``actor_type``,
+        ``actor_past_actions``, ``n_elite``, ``critic_arch``, ``critic_net_arch``, ``critic_embed_dim``,
         ``critic_n_layers``, ``critic_n_heads``, ``critic_ff_dim``, ``n_critics``, ``activation_fn``,
         ``optimizer_class``, ``optimizer_kwargs``, ``torch_compile``: see :class:`UA2CPolicy`)
     :param verbose: verbosity level: 0 no output, 1 info, 2 debug
