@@ -214,7 +214,8 @@ def value_term_strength(model: UA2C, data: ChunkReplaySamples, generator: th.Gen
     masked flow term, x̂1 clipped before the critics; ``"one_step"``: the one-step policy's distillation
     and value terms), differentiated w.r.t. the network the value term trains (the velocity field, or
     the one-step policy): the gradient norms of the value term ``λ · Q term`` (``q_grad_norm``) and of
-    the rest of the objective (``flow_grad_norm``: flow matching, or the distillation ``α · ||mu - flow||²``),
+    the rest of the objective (``flow_grad_norm``: flow matching, or the distillation ``α · ||mu - flow||²``;
+    with ``smooth_weight > 0`` the smoothness term too, as the optimizer sees it),
     their ratio ``q_grad_ratio``, and ``x_hat_shift``: the mean ``|Δ|`` (action units) of the valued
     chunks (x̂1, or ``mu(h, z)``) after one step of the value term alone, scaled as Adam scales it when
     its second moment is this batch's squared gradient of both terms (each parameter moves by

@@ -14,7 +14,7 @@ from ua2c_helpers import FAST, TINY, rollout_actions, tiny_policy
 
 from sb3_ua2c import UA2C, UA2CPolicy
 from sb3_ua2c.actor_objectives import actor_objective
-from sb3_ua2c.diagnostics import plan_sensitivity, policy_gap, value_term_strength
+from sb3_ua2c.diagnostics import METRICS, diagnose, plan_sensitivity, policy_gap, value_term_strength
 from sb3_ua2c.flow import actor_loss, distillation_loss, drop_past_actions, one_step_actor_loss, value_term
 from sb3_ua2c.policies import DEFAULT_NET_ARCH
 from sb3_ua2c.presets import PAPER, preset
@@ -206,7 +206,9 @@ def test_one_step_targets_and_acting_are_one_network():
     model = trained(steps=60, policy_kwargs=ONE_STEP)
     data = model.replay_buffer.sample(8)
     gap = policy_gap(model, data.observation_history, data.action_history, th.Generator().manual_seed(0))
-    assert gap["spread_ratio"] == pytest.approx(1.0)  # the same mu whatever the Euler steps
+    assert gap["spread_ratio"] == 1.0  # the same mu whatever the Euler steps, from the same noise
+    report = diagnose(model, data)
+    assert list(report) == list(METRICS) and all(np.isfinite(list(report.values())))
 
 
 @pytest.mark.parametrize("critic_arch", ["transformer", "mlp"])
