@@ -18,6 +18,16 @@ from torch.nn import functional as F
 from sb3_ua2c.flow import euler_sample, euler_times
 
 
+def _trunk(net_arch: list[int], out_dim: int, activation_fn: type[nn.Module]) -> nn.Sequential:
+    """The MLP after a first layer of ``net_arch[0]`` units: activation, the other hidden layers, and
+    the output layer of ``out_dim`` units (the actors' common tail)."""
+    layers: list[nn.Module] = [activation_fn()]
+    for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
+        layers += [nn.Linear(n_in, n_out), activation_fn()]
+    layers.append(nn.Linear(net_arch[-1], out_dim))
+    return nn.Sequential(*layers)
+
+
 class VelocityField(nn.Module):
     """
     Conditional velocity field ``v_theta(x_tau, tau | h_t)`` over chunks (Eq. 2), an MLP.
@@ -50,11 +60,7 @@ class VelocityField(nn.Module):
         self.history_layer = nn.Linear(history_dim, net_arch[0])
         self.chunk_layer = nn.Linear(chunk_dim, net_arch[0], bias=False)
         self.time_weight = nn.Parameter(th.empty(net_arch[0]).uniform_(-1.0, 1.0))
-        layers: list[nn.Module] = [activation_fn()]
-        for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
-            layers += [nn.Linear(n_in, n_out), activation_fn()]
-        layers.append(nn.Linear(net_arch[-1], chunk_dim))
-        self.trunk = nn.Sequential(*layers)
+        self.trunk = _trunk(net_arch, chunk_dim, activation_fn)
 
     def condition(self, history: th.Tensor) -> th.Tensor:
         """
@@ -140,11 +146,7 @@ class OneStepActor(nn.Module):
         chunk_dim = chunk_size * action_dim
         self.history_layer = nn.Linear(history_dim, net_arch[0])
         self.noise_layer = nn.Linear(chunk_dim, net_arch[0], bias=False)
-        layers: list[nn.Module] = [activation_fn()]
-        for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
-            layers += [nn.Linear(n_in, n_out), activation_fn()]
-        layers.append(nn.Linear(net_arch[-1], chunk_dim))
-        self.trunk = nn.Sequential(*layers)
+        self.trunk = _trunk(net_arch, chunk_dim, activation_fn)
 
     def forward(self, history: th.Tensor, z: th.Tensor) -> th.Tensor:
         """
