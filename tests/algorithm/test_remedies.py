@@ -202,6 +202,29 @@ def test_one_step_value_term_trains_mu_only():
     assert value_term_strength(model, data, th.Generator().manual_seed(3))["q_grad_norm"] == 0.0
 
 
+@pytest.mark.parametrize("normalize_q", [True, False])
+def test_one_step_objective_recomputed_from_its_draws(normalize_q):
+    """The objective draws x0, tau, then z, and sums flow + alpha * distillation - lambda * Q term."""
+    model = trained(steps=60, policy_kwargs=ONE_STEP, q_weight=3.0, distill_weight=7.0, normalize_q=normalize_q)
+    policy, data = model.policy, model.replay_buffer.sample(8)
+    obs, act, x1 = data.observation_history, data.action_history, data.chunks
+    generator = th.Generator().manual_seed(4)
+    x0, tau = th.randn(x1.shape, generator=generator), th.rand(8, generator=generator)
+    z = th.randn(x1.shape, generator=generator)
+    with th.no_grad():
+        x_tau = (1 - tau[:, None, None]) * x0 + tau[:, None, None] * x1
+        error = (model.actor(x_tau, tau, policy.condition(obs, act)) - (x1 - x0)).pow(2) * data.chunk_mask[..., None]
+        flow = error.sum() / (data.chunk_mask.sum() * x1.shape[-1])
+        mu = policy.one_step_actor(policy.flatten_history(obs, act), z)
+        distill = (mu - policy.flow_sample(obs, act, z, policy.flow_steps)).pow(2).mean()
+        q = model.critic(obs.flatten(1), mu.clamp(-1, 1).unsqueeze(1))[:, :, 0].min(dim=0).values
+        q_term = -q.mean() / q.abs().mean() if normalize_q else -q.mean()
+        expected = flow + 7.0 * distill + 3.0 * q_term
+    objective = actor_objective(model, data, generator=th.Generator().manual_seed(4))
+    assert objective.loss.item() == pytest.approx(expected.item(), rel=1e-5)
+    assert th.allclose(objective.chunks, mu)
+
+
 def test_one_step_targets_and_acting_are_one_network():
     model = trained(steps=60, policy_kwargs=ONE_STEP)
     data = model.replay_buffer.sample(8)
