@@ -27,6 +27,10 @@ DEFAULT_ENTROPY_QUANTILE = 0.75
 #: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
 DEFAULT_ENTROPY_GROWTH = 0.5
 
+#: values of ``actor_type`` (:class:`~sb3_ua2c.policies.UA2CPolicy`): the paper's flow actor, or QC-FQL's
+#: one-step policy distilled from it
+ACTOR_TYPES = ("flow", "one_step")
+
 #: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
 #: the critic architectures (``critic_arch``): the paper's per-token Transformer, or an MLP over the
@@ -127,11 +131,16 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "discrete_entropy": check_bool,
     "commit_discrete": check_bool,
     "discrete_action_dims": _discrete_action_dims,
+    "past_action_dropout": _fraction,
+    "normalize_q": check_bool,
+    "distill_weight": _non_negative_number,
     "offline_ratio": _fraction,
     "online_targets": _one_of(ONLINE_TARGETS),
     # UA2CPolicy's networks and acting rule
     "n_elite": _positive_int,
     "net_arch": _net_arch,
+    "actor_type": _one_of(ACTOR_TYPES),
+    "actor_past_actions": check_bool,
     "critic_arch": _one_of(CRITIC_ARCHS),
     "critic_embed_dim": _positive_int,
     "critic_n_layers": _positive_int,

@@ -148,13 +148,15 @@ def actor_loss(
     roughness: th.Tensor | None = None,
     smooth_weight: float = 0.0,
     mask: th.Tensor | None = None,
+    normalize_q: bool = True,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
     Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``,
     plus ``mu * roughness(x̂1)`` when ``smooth_weight = mu > 0``.
 
-    The value term is divided by the (detached) mean ``|Q|`` of the batch, as in TD3+BC and FQL, so
-    that ``lambda`` is dimensionless and does not depend on the reward scale of the environment.
+    With ``normalize_q`` the value term is divided by the (detached) mean ``|Q|`` of the batch, as in
+    TD3+BC, so that ``lambda`` is dimensionless and does not depend on the reward scale of the
+    environment (:func:`value_term`).
     The smoothness term is not in the paper (``mu = 0`` is Eq. 2): it penalises step changes inside
     the terminal estimate ``x̂1`` (:func:`chunk_roughness`), so a ``k = 1`` policy is not affected.
 
@@ -167,12 +169,12 @@ def actor_loss(
     :param smooth_weight: ``mu`` (>= 0)
     :param mask: valid chunk positions of ``x1``, shape ``(batch, k)`` (:func:`flow_matching_loss`);
         ``None`` = all valid
+    :param normalize_q: divide the value term by the batch mean ``|Q|`` (:func:`value_term`)
     :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``, and
         ``roughness`` when ``mu > 0``)
     """
     flow = flow_matching_loss(velocity, x0, x1, mask)
-    q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
-    q_term = -q_values.mean() / q_scale
+    q_term, q_scale = value_term(q_values, normalize_q)
     loss = flow + q_weight * q_term
     info = {"flow_loss": flow.item(), "q_term": q_term.item(), "q_scale": q_scale.item()}
     if smooth_weight > 0.0:
@@ -181,3 +183,84 @@ def actor_loss(
         loss = loss + smooth_weight * roughness
         info["roughness"] = roughness.item()
     return loss, info
+
+
+def value_term(q_values: th.Tensor, normalize_q: bool = True) -> tuple[th.Tensor, th.Tensor]:
+    """
+    The value term of the actor objectives, ``-E[Q]``, divided by the detached batch mean ``|Q|`` with
+    ``normalize_q`` (TD3+BC's normalisation, Fujimoto & Gu, 2021), raw without it (FQL's and
+    QC-FQL's default, ``normalize_q_loss=False``).
+
+    :param q_values: values of the actor's chunks, shape ``(batch,)``
+    :param normalize_q: divide by the batch mean ``|Q|``
+    :return: the term (scalar) and the batch mean ``|Q|`` (detached, at least 1e-6; logged either way)
+    """
+    q_scale = q_values.detach().abs().mean().clamp_min(1e-6)
+    mean = q_values.mean()
+    return (-mean / q_scale if normalize_q else -mean), q_scale
+
+
+def distillation_loss(one_step_chunks: th.Tensor, flow_chunks: th.Tensor) -> th.Tensor:
+    """
+    Distillation of the flow into the one-step policy (QC-FQL, Li et al., 2025, after FQL, Park et
+    al., 2025): ``E ||mu(h, z) - flow(h, z)||^2``, averaged over the batch and the ``k * action_dim``
+    chunk entries, with ``flow(h, z)`` the flow's Euler sample from the same noise ``z`` (no gradient).
+
+    :param one_step_chunks: ``mu(h, z)``, shape ``(batch, k, action_dim)``
+    :param flow_chunks: ``flow(h, z)``, same shape (detached here)
+    :return: scalar loss
+    """
+    return (one_step_chunks - flow_chunks.detach()).pow(2).mean()
+
+
+def one_step_actor_loss(
+    flow_loss: th.Tensor,
+    one_step_chunks: th.Tensor,
+    flow_chunks: th.Tensor,
+    q_values: th.Tensor,
+    q_weight: float,
+    distill_weight: float,
+    normalize_q: bool = True,
+) -> tuple[th.Tensor, dict[str, float]]:
+    """
+    QC-FQL's actor objective (``actor_type="distill-ddpg"`` of Q-chunking, Li et al., 2025): the flow
+    trained by flow matching alone, the one-step policy ``mu`` by distillation and the value term,
+    ``flow_loss + alpha * E||mu(h, z) - flow(h, z)||^2 - lambda * E[Q(h, clip(mu(h, z)))]``. The
+    three networks' parameters are disjoint (the critics are frozen), so one sum trains both actors.
+
+    :param flow_loss: :func:`flow_matching_loss` of the flow on the batch (scalar)
+    :param one_step_chunks: ``mu(h, z)``, shape ``(batch, k, action_dim)``
+    :param flow_chunks: ``flow(h, z)``, same shape (:func:`distillation_loss`)
+    :param q_values: the critics' aggregate of ``Q(h, clip(mu(h, z)))`` (critics frozen), shape ``(batch,)``
+    :param q_weight: ``lambda`` (>= 0)
+    :param distill_weight: ``alpha`` (>= 0)
+    :param normalize_q: divide the value term by the batch mean ``|Q|`` (:func:`value_term`)
+    :return: scalar loss and the logged floats ``flow_loss``, ``distill_loss``, ``q_term``, ``q_scale``
+    """
+    distill = distillation_loss(one_step_chunks, flow_chunks)
+    q_term, q_scale = value_term(q_values, normalize_q)
+    loss = flow_loss + distill_weight * distill + q_weight * q_term
+    info = {"flow_loss": flow_loss.item(), "distill_loss": distill.item(), "q_term": q_term.item(),
+            "q_scale": q_scale.item()}
+    return loss, info
+
+
+def drop_past_actions(
+    action_history: th.Tensor, p: float, generator: th.Generator | None = None
+) -> th.Tensor:
+    """
+    History dropout against copycat behaviour cloning (Wen et al., NeurIPS 2020, "Fighting Copycat
+    Agents in Behavioral Cloning from Observation Histories"; de Haan et al., NeurIPS 2019): each
+    sample's past actions are zeroed with probability ``p``, all of them or none. With ``p = 0``
+    nothing is drawn (the random stream does not move) and the input is returned as it is.
+
+    :param action_history: ``(batch, ℓ, action_dim)``
+    :param p: dropout probability in ``[0, 1]``
+    :param generator: the random stream (``None``: torch's global one, as the rest of training)
+    :return: ``(batch, ℓ, action_dim)``, the dropped samples' rows all zero
+    """
+    if p == 0.0:
+        return action_history
+    u = th.rand(action_history.shape[0], generator=generator).to(action_history.device)  # (batch,)
+    keep = (u >= p).to(action_history.dtype)
+    return action_history * keep.reshape(-1, *([1] * (action_history.ndim - 1)))

@@ -18,6 +18,16 @@ from torch.nn import functional as F
 from sb3_ua2c.flow import euler_sample, euler_times
 
 
+def _trunk(net_arch: list[int], out_dim: int, activation_fn: type[nn.Module]) -> nn.Sequential:
+    """The MLP after a first layer of ``net_arch[0]`` units: activation, the other hidden layers, and
+    the output layer of ``out_dim`` units (the actors' common tail)."""
+    layers: list[nn.Module] = [activation_fn()]
+    for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
+        layers += [nn.Linear(n_in, n_out), activation_fn()]
+    layers.append(nn.Linear(net_arch[-1], out_dim))
+    return nn.Sequential(*layers)
+
+
 class VelocityField(nn.Module):
     """
     Conditional velocity field ``v_theta(x_tau, tau | h_t)`` over chunks (Eq. 2), an MLP.
@@ -50,11 +60,7 @@ class VelocityField(nn.Module):
         self.history_layer = nn.Linear(history_dim, net_arch[0])
         self.chunk_layer = nn.Linear(chunk_dim, net_arch[0], bias=False)
         self.time_weight = nn.Parameter(th.empty(net_arch[0]).uniform_(-1.0, 1.0))
-        layers: list[nn.Module] = [activation_fn()]
-        for n_in, n_out in zip(net_arch[:-1], net_arch[1:], strict=True):
-            layers += [nn.Linear(n_in, n_out), activation_fn()]
-        layers.append(nn.Linear(net_arch[-1], chunk_dim))
-        self.trunk = nn.Sequential(*layers)
+        self.trunk = _trunk(net_arch, chunk_dim, activation_fn)
 
     def condition(self, history: th.Tensor) -> th.Tensor:
         """
@@ -111,6 +117,46 @@ class VelocityField(nn.Module):
         taus = euler_times(n_steps, x0.dtype, x0.device)
         first = self.time_condition(taus.unsqueeze(-1), cond, x0.ndim - 3)  # (N, batch, *[1]*extra, hidden)
         return euler_sample(self.flat_velocity, x0.flatten(-2), n_steps, first).reshape(x0.shape)
+
+
+class OneStepActor(nn.Module):
+    """
+    QC-FQL's one-step policy ``mu(h, z)`` (Q-chunking, Li et al., 2025; FQL, Park et al., 2025): an MLP
+    from a history and a noise chunk ``z`` to a chunk in one call, distilled from the flow and trained
+    against Q (:func:`~sb3_ua2c.flow.one_step_actor_loss`). As in :class:`VelocityField`, the first layer
+    is split into a history part, computed once per history, and a noise part, so that S candidates
+    reuse the history features.
+
+    :param history_dim: size of the flattened history (the velocity field's input)
+    :param chunk_size: ``k``
+    :param action_dim: action size
+    :param net_arch: hidden layer sizes (at least one; the velocity field's)
+    :param activation_fn: activation class
+    """
+
+    def __init__(
+        self,
+        history_dim: int,
+        chunk_size: int,
+        action_dim: int,
+        net_arch: list[int],
+        activation_fn: type[nn.Module],
+    ) -> None:
+        super().__init__()
+        chunk_dim = chunk_size * action_dim
+        self.history_layer = nn.Linear(history_dim, net_arch[0])
+        self.noise_layer = nn.Linear(chunk_dim, net_arch[0], bias=False)
+        self.trunk = _trunk(net_arch, chunk_dim, activation_fn)
+
+    def forward(self, history: th.Tensor, z: th.Tensor) -> th.Tensor:
+        """
+        :param history: flattened histories, shape ``(batch, history_dim)``
+        :param z: noise chunks, shape ``(batch, *extra, k, action_dim)``
+        :return: chunks (not clipped), same shape as ``z``
+        """
+        first = self.history_layer(history)  # (batch, hidden)
+        first = first.reshape(first.shape[0], *([1] * (z.ndim - 3)), first.shape[-1])  # (batch, *[1]*extra, hidden)
+        return self.trunk(self.noise_layer(z.flatten(-2)) + first).reshape(z.shape)
 
 
 def _softmax(x: th.Tensor) -> th.Tensor:

@@ -30,7 +30,7 @@ from sb3_ua2c.chunking import (
 from sb3_ua2c.compat import legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
 from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
-from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, VelocityField
+from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, OneStepActor, VelocityField
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
@@ -73,7 +73,7 @@ class UA2CPolicy(ExecutionRuleState):
     the adaptive-chunk planner (Eq. 7) used by ``predict``.
 
     The execution rule and its state are a part of it in :class:`~sb3_ua2c.execution.ExecutionRuleState`.
-    The class stays over 300 lines for its 25 documented constructor arguments, each checked by name and
+    The class stays over 300 lines for its 27 documented constructor arguments, each checked by name and
     saved by name (:meth:`_get_constructor_parameters`): no table looks them up at run time.
 
     :param observation_space: Box observation space
@@ -94,7 +94,15 @@ class UA2CPolicy(ExecutionRuleState):
         (1 = the best candidate; see :func:`~sb3_ua2c.chunking.select_chunk`)
     :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
         selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
-    :param net_arch: hidden sizes of the velocity-field MLP
+    :param net_arch: hidden sizes of the velocity-field MLP (and of the one-step policy's)
+    :param actor_type: ``"flow"`` (the paper's Eq. 2: candidates are Euler samples of the velocity
+        field, which the value term trains) or ``"one_step"`` (QC-FQL's one-step policy, Li et al., 2025:
+        an MLP ``mu(h, z)`` (:class:`~sb3_ua2c.networks.OneStepActor`) distilled from the flow and trained
+        against Q; the flow learns by flow matching alone. Candidates, for acting and for the targets,
+        are ``mu``'s: one network call per replanning; see :meth:`sample_chunks`)
+    :param actor_past_actions: condition the actor on the past actions of the history (the paper's
+        ``h_t``); ``False``: on the observations only, against copycat behaviour cloning (Wen et al.,
+        NeurIPS 2020; de Haan et al., NeurIPS 2019). The critics never see past actions.
     :param critic_arch: ``"transformer"`` (the paper's per-token critic, :class:`~sb3_ua2c.networks.ChunkCritics`)
         or ``"mlp"`` (an MLP over the flattened history and chunk, :class:`~sb3_ua2c.networks.MLPChunkCritics`)
     :param critic_embed_dim: token width of the Transformer critics
@@ -130,6 +138,8 @@ class UA2CPolicy(ExecutionRuleState):
         commit_discrete: bool = False,
         n_elite: int = 1,
         net_arch: list[int] | None = None,
+        actor_type: str = "flow",
+        actor_past_actions: bool = True,
         critic_arch: str = "transformer",
         critic_embed_dim: int = 32,
         critic_n_layers: int = 1,
@@ -167,6 +177,8 @@ class UA2CPolicy(ExecutionRuleState):
         self.commit_discrete = commit_discrete
         self.n_elite = n_elite
         self.net_arch = list(DEFAULT_NET_ARCH) if net_arch is None else net_arch
+        self.actor_type = actor_type
+        self.actor_past_actions = actor_past_actions
         self.critic_arch = critic_arch
         self.critic_embed_dim = critic_embed_dim
         self.critic_n_layers = critic_n_layers
@@ -180,7 +192,8 @@ class UA2CPolicy(ExecutionRuleState):
         check_arguments(
             chunk_size=chunk_size, history_len=history_len, flow_steps=flow_steps, n_candidates=n_candidates,
             discrete_action_dims=discrete_action_dims, discrete_entropy=discrete_entropy,
-            commit_discrete=commit_discrete, n_elite=n_elite, net_arch=net_arch, critic_arch=critic_arch,
+            commit_discrete=commit_discrete, n_elite=n_elite, net_arch=net_arch, actor_type=actor_type,
+            actor_past_actions=actor_past_actions, critic_arch=critic_arch,
             critic_embed_dim=critic_embed_dim, critic_n_layers=critic_n_layers, critic_n_heads=critic_n_heads,
             critic_ff_dim=critic_ff_dim, critic_net_arch=critic_net_arch, critic_layer_norm=critic_layer_norm,
             n_critics=n_critics, activation_fn=activation_fn, optimizer_class=optimizer_class,
@@ -206,16 +219,19 @@ class UA2CPolicy(ExecutionRuleState):
             self.compile_networks()
 
     def _build(self, lr_schedule: Schedule) -> None:
-        history_dim = self.history_len * (self.obs_dim + self.action_dim)
-        self.actor = VelocityField(
-            history_dim, self.chunk_size, self.action_dim, list(self.net_arch), self.activation_fn
-        )
+        history_dim = self.history_len * (self.obs_dim + (self.action_dim if self.actor_past_actions else 0))
+        actor_args = (history_dim, self.chunk_size, self.action_dim, list(self.net_arch), self.activation_fn)
+        self.actor = VelocityField(*actor_args)
         self.critic, self.critic_target = self._make_critics(), self._make_critics()
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
+        #: QC-FQL's one-step policy ``mu(h, z)`` (``actor_type="one_step"``), ``None`` for ``"flow"``
+        self.one_step_actor = OneStepActor(*actor_args) if self.actor_type == "one_step" else None
+        # one optimizer for both actors: their objective is one sum over disjoint parameters
+        actor_params = [p for net in self.actor_networks() for p in net.parameters()]
         self.actor.optimizer = self.optimizer_class(  # type: ignore[assignment]
-            self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+            actor_params, lr=lr_schedule(1), **self.optimizer_kwargs
         )
         self.critic.optimizer = self.optimizer_class(  # type: ignore[assignment]
             self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
@@ -251,6 +267,8 @@ class UA2CPolicy(ExecutionRuleState):
             "commit_discrete": self.commit_discrete,
             "n_elite": self.n_elite,
             "net_arch": self.net_arch,
+            "actor_type": self.actor_type,
+            "actor_past_actions": self.actor_past_actions,
             "critic_arch": self.critic_arch,
             "critic_embed_dim": self.critic_embed_dim,
             "critic_n_layers": self.critic_n_layers,
@@ -317,15 +335,26 @@ class UA2CPolicy(ExecutionRuleState):
         return clipped, chunk_entropy(clipped, self.discrete_dims, discrete=self.discrete_entropy)
 
     def set_training_mode(self, mode: bool) -> None:
-        self.actor.train(mode)
+        for actor in self.actor_networks():
+            actor.train(mode)
         self.critic.train(mode)
         self.training = mode
 
     # ------------------------------------------------------------------ maths on tensors
-    @staticmethod
-    def flatten_history(obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
-        """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> actor input ``(B, ℓ*(obs_dim+action_dim))``."""
+    def actor_networks(self) -> list[nn.Module]:
+        """The velocity field, and the one-step policy with ``actor_type="one_step"``."""
+        return [self.actor] if self.one_step_actor is None else [self.actor, self.one_step_actor]
+
+    def value_trained_actor(self) -> nn.Module:
+        """The network the value term trains: the velocity field (``"flow"``, Eq. 2) or the one-step policy."""
+        return self.actor if self.one_step_actor is None else self.one_step_actor
+
+    def flatten_history(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+        """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> actor input ``(B, ℓ*(obs_dim+action_dim))``,
+        or ``(B, ℓ*obs_dim)`` with ``actor_past_actions=False``."""
         b = obs_history.shape[0]
+        if not self.actor_past_actions:
+            return obs_history.reshape(b, -1)
         return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
 
     def condition(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
@@ -349,22 +378,41 @@ class UA2CPolicy(ExecutionRuleState):
         x0: th.Tensor | None = None,
     ) -> th.Tensor:
         """
-        Sample ``n_samples`` chunks per history with ``n_steps`` Euler steps from Gaussian noise.
+        The one path from histories to candidate chunks (acting, targets, diagnostics): ``n_samples``
+        chunks per history from Gaussian noise, by ``n_steps`` Euler steps of the flow
+        (``actor_type="flow"``) or by one call of the one-step policy ``mu(h, z)`` (``"one_step"``;
+        ``n_steps`` is not used).
 
         :param obs_history: ``(B, ℓ, obs_dim)``
         :param action_history: ``(B, ℓ, action_dim)``
         :param n_samples: candidates per history
-        :param n_steps: Euler steps
+        :param n_steps: Euler steps of the flow
         :param generator: optional random generator for the noise
         :param x0: the noise to start from, ``(B, n_samples, k, action_dim)`` (:func:`history_noise`);
             ``None``: independent Gaussian noise
         :return: unclipped chunks, shape ``(B, n_samples, k, action_dim)``
         """
-        cond = self.condition(obs_history, action_history)  # (B, hidden)
         if x0 is None:
-            shape = (cond.shape[0], n_samples, self.chunk_size, self.action_dim)
-            x0 = th.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
-        return self.actor.sample(x0, cond, n_steps)
+            shape = (obs_history.shape[0], n_samples, self.chunk_size, self.action_dim)
+            x0 = th.randn(shape, generator=generator, device=obs_history.device, dtype=obs_history.dtype)
+        if self.one_step_actor is not None:
+            return self.one_step_actor(self.flatten_history(obs_history, action_history), x0)
+        return self.flow_sample(obs_history, action_history, x0, n_steps)
+
+    def flow_sample(
+        self, obs_history: th.Tensor, action_history: th.Tensor, x0: th.Tensor, n_steps: int
+    ) -> th.Tensor:
+        """
+        Euler samples of the flow from the noise ``x0`` (the candidates of ``actor_type="flow"``, the
+        distillation target of ``"one_step"``).
+
+        :param obs_history: ``(B, ℓ, obs_dim)``
+        :param action_history: ``(B, ℓ, action_dim)``
+        :param x0: ``(B, *extra, k, action_dim)``
+        :param n_steps: Euler steps
+        :return: unclipped chunks, the shape of ``x0``
+        """
+        return self.actor.sample(x0, self.condition(obs_history, action_history), n_steps)
 
     def plan_tensors(
         self,

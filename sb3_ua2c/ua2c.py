@@ -20,19 +20,14 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import polyak_update
 
+from sb3_ua2c.actor_objectives import actor_objective
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples
 from sb3_ua2c.checkpoints import Checkpoints
-from sb3_ua2c.chunking import (
-    bootstrap_value,
-    chunk_critic_loss,
-    chunk_target,
-    pessimistic_q,
-)
+from sb3_ua2c.chunking import bootstrap_value, chunk_critic_loss, chunk_target
 from sb3_ua2c.compat import legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_policy_kwargs, check_spaces
 from sb3_ua2c.diagnostics import training_stats
 from sb3_ua2c.execution import AdaptiveChunkExecutor
-from sb3_ua2c.flow import actor_loss, chunk_roughness, estimate_terminal, interpolate
 from sb3_ua2c.offline_training import OfflineTraining
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 from sb3_ua2c.rollouts import ChunkRollouts
@@ -68,7 +63,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     (:class:`~sb3_ua2c.rollouts.ChunkRollouts`), offline data and Phase 1
     (:class:`~sb3_ua2c.offline_training.OfflineTraining`) and checkpoints
     (:class:`~sb3_ua2c.checkpoints.Checkpoints`) are parts of it in modules of their own. It stays
-    over 300 lines for its 38 documented constructor arguments (SB3's and UA2C's).
+    over 300 lines for its 41 documented constructor arguments (SB3's and UA2C's).
 
     :param policy: the policy model to use (``"MlpPolicy"`` or :class:`UA2CPolicy`)
     :param env: the environment to learn from (if registered in Gym, can be str)
@@ -104,6 +99,20 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
         paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
         inside the actor's terminal estimate x̂1. It does not act on ``chunk_size=1``.
+    :param past_action_dropout: ``p`` of history dropout in training (not in the paper; 0 = the paper):
+        the past actions of each sample's history are zeroed with probability ``p`` in the actor's
+        objective (flow matching, value term, distillation), against copycat behaviour cloning from
+        histories (Wen et al., NeurIPS 2020, "Fighting Copycat Agents in Behavioral Cloning from
+        Observation Histories"; de Haan et al., NeurIPS 2019). Acting and the targets use the real
+        past actions. The mask comes from torch's global random stream (seeded runs reproduce);
+        ``p = 0`` draws nothing. To drop the past actions from the actor's input altogether, see
+        ``policy_kwargs["actor_past_actions"]``
+    :param normalize_q: divide the value term by the (detached) batch mean ``|Q|`` (``True``, TD3+BC's
+        normalisation, Fujimoto & Gu, 2021); ``False``: the raw ``λ Q`` of FQL (Park et al., 2025) and
+        QC-FQL (Li et al., 2025; ``normalize_q_loss=False``), so ``λ`` is in reward units
+    :param distill_weight: ``alpha`` of QC-FQL's one-step policy (``policy_kwargs["actor_type"] =
+        "one_step"`` only; QC-FQL's ``alpha = 100``): weight of the distance of ``mu(h, z)`` to the
+        flow's sample from the same ``z`` (:func:`~sb3_ua2c.flow.one_step_actor_loss`)
     :param discrete_entropy: ``H_u`` of Eq. 7 sums the entropies of the continuous and the
         categorical action dims (``True``, default); ``False`` leaves the categorical dims out, so
         a disagreement of the candidates on a lane change alone does not end the executed prefix
@@ -124,7 +133,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         (online-only training); ``model.replay_buffer.active_online_targets`` says which
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
-    :param policy_kwargs: additional arguments of the policy (``net_arch``, ``critic_embed_dim``,
+    :param policy_kwargs: additional arguments of the policy (``net_arch``, ``actor_type``,
+        ``actor_past_actions``, ``n_elite``, ``critic_arch``, ``critic_net_arch``, ``critic_embed_dim``,
         ``critic_n_layers``, ``critic_n_heads``, ``critic_ff_dim``, ``n_critics``, ``activation_fn``,
         ``optimizer_class``, ``optimizer_kwargs``, ``torch_compile``: see :class:`UA2CPolicy`)
     :param verbose: verbosity level: 0 no output, 1 info, 2 debug
@@ -165,6 +175,9 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         entropy_growth: float | None = None,
         q_weight: float = 1.0,
         smooth_weight: float = 0.0,
+        past_action_dropout: float = 0.0,
+        normalize_q: bool = True,
+        distill_weight: float = 100.0,
         discrete_entropy: bool = True,
         commit_discrete: bool = False,
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
@@ -225,6 +238,9 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         )
         self.q_weight = q_weight
         self.smooth_weight = smooth_weight
+        self.past_action_dropout = past_action_dropout
+        self.normalize_q = normalize_q
+        self.distill_weight = distill_weight
         self.discrete_entropy = discrete_entropy
         self.commit_discrete = commit_discrete
         self.discrete_action_dims = discrete_action_dims
@@ -248,6 +264,9 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
             n_target_candidates=self.n_target_candidates,
             q_weight=self.q_weight,
             smooth_weight=self.smooth_weight,
+            past_action_dropout=self.past_action_dropout,
+            normalize_q=self.normalize_q,
+            distill_weight=self.distill_weight,
         )
         check_spaces(self.observation_space, self.action_space)
         check_policy_kwargs(self.policy_kwargs, self.policy_class, UA2C)
@@ -374,7 +393,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         self.critic.optimizer.zero_grad()
         critic_loss.backward()
         self.critic.optimizer.step()
-        loss, info = self._actor_loss(data, obs_flat)
+        loss, info = self._actor_loss(data)
         self.actor.optimizer.zero_grad()
         loss.backward()
         self.actor.optimizer.step()
@@ -403,28 +422,11 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
         return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
 
-    def _actor_loss(
-        self, data: ChunkReplaySamples, obs_flat: th.Tensor
-    ) -> tuple[th.Tensor, dict[str, float]]:
-        """
-        Eq. 2 on the batch: flow matching on the sampled chunks and the value of the terminal estimate x̂1.
-        """
-        x1 = data.chunks
-        x0 = th.randn_like(x1)
-        tau = th.rand(x1.shape[0], device=x1.device)
-        x_tau = interpolate(x0, x1, tau)
-        cond = self.policy.condition(data.observation_history, data.action_history)
-        velocity = self.actor(x_tau, tau, cond)
-        x_hat = estimate_terminal(x_tau, tau, velocity)
-        self.critic.requires_grad_(False)  # the value term of Eq. 2 does not train the critics
-        try:  # x̂1 clipped to the bounds as FQL / Q-chunking clip before Q: a plain clamp, no gradient outside
-            q_pi = self.critic(obs_flat, x_hat.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
-        finally:
-            self.critic.requires_grad_(True)
-        q = pessimistic_q(q_pi)  # (n, B) -> (B,)
-        roughness = chunk_roughness(x_hat, self.policy.continuous_dims) if self.smooth_weight > 0.0 else None
-        mask = data.chunk_mask  # the flow term skips the zeros that pad a window after an episode end
-        return actor_loss(velocity, x0, x1, q, self.q_weight, roughness, self.smooth_weight, mask)
+    def _actor_loss(self, data: ChunkReplaySamples) -> tuple[th.Tensor, dict[str, float]]:
+        """The actor objective of the policy's ``actor_type`` on the batch (Eq. 2 or QC-FQL's one-step
+        policy, :func:`~sb3_ua2c.actor_objectives.actor_objective`)."""
+        objective = actor_objective(self, data)
+        return objective.loss, objective.info
 
     def learn(
         self: SelfUA2C,

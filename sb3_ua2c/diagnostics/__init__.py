@@ -15,15 +15,14 @@ are given, so they never move the global random streams a training run depends o
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import torch as th
 
+from sb3_ua2c.actor_objectives import ActorObjective, actor_objective
 from sb3_ua2c.chunking import bootstrap_value, chunk_target, pessimistic_q, select_chunk
-from sb3_ua2c.flow import actor_loss, estimate_terminal, interpolate
 
 if TYPE_CHECKING:
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm as UA2C
@@ -210,54 +209,51 @@ def action_correlations(policy: UA2CPolicy, data: ChunkReplaySamples, generator:
 def value_term_strength(model: UA2C, data: ChunkReplaySamples, generator: th.Generator,
                         shift: bool = True) -> dict[str, float]:
     """
-    Does the value term of Eq. 2 move the actor? On one batch, as ``UA2C._actor_loss`` computes
-    Eq. 2 (masked flow term, x̂1 clipped before the critics, value term divided by the batch mean
-    ``|Q|``): the gradient norms w.r.t. the actor's parameters of the value term ``λ · Q term``
-    (``q_grad_norm``) and of the flow term (``flow_grad_norm``), their ratio ``q_grad_ratio``, and
-    ``x_hat_shift``: the mean ``|Δx̂1|`` (action units) of one step of the value term alone, scaled as
-    Adam scales it when its second moment is this batch's squared gradient of both terms (each
-    parameter moves by ``lr · g_Q / sqrt(g_flow² + g_Q²)``, at most ``lr``).
+    Does the value term move the actor? On one batch, the actor objective of the model's
+    ``actor_type`` as training computes it (:func:`~sb3_ua2c.actor_objectives.actor_objective`; Eq. 2:
+    masked flow term, x̂1 clipped before the critics; ``"one_step"``: the one-step policy's distillation
+    and value terms), differentiated w.r.t. the network the value term trains (the velocity field, or
+    the one-step policy): the gradient norms of the value term ``λ · Q term`` (``q_grad_norm``) and of
+    the rest of the objective (``flow_grad_norm``: flow matching, or the distillation ``α · ||mu - flow||²``;
+    with ``smooth_weight > 0`` the smoothness term too, as the optimizer sees it),
+    their ratio ``q_grad_ratio``, and ``x_hat_shift``: the mean ``|Δ|`` (action units) of the valued
+    chunks (x̂1, or ``mu(h, z)``) after one step of the value term alone, scaled as Adam scales it when
+    its second moment is this batch's squared gradient of both terms (each parameter moves by
+    ``lr · g_Q / sqrt(g_flow² + g_Q²)``, at most ``lr``).
 
     Healthy: a ratio of 0.1 .. 1 (far below, the actor is behaviour cloning) and a shift that is a
     visible fraction of the action range.
 
-    :param model: the model (its actor, critics, ``q_weight`` and actor learning rate)
+    :param model: the model (its actors, critics, ``q_weight`` and actor learning rate)
     :param data: a batch with ``chunk_mask``
-    :param generator: draws ``x0`` and ``tau``
-    :param shift: compute ``x_hat_shift`` (a copy of the actor; skipped during training)
+    :param generator: draws the objective's noise (``x0``, ``tau``, and ``z`` / the dropout when used)
+    :param shift: compute ``x_hat_shift`` (skipped during training)
     """
-    policy, actor = model.policy, model.actor
-    x1 = data.chunks
-    x0 = _noise(tuple(x1.shape), generator, x1)
-    tau = th.rand(x1.shape[0], generator=generator).to(x1.device)
-    history = policy.flatten_history(data.observation_history, data.action_history)
+    net = model.policy.value_trained_actor()
+    params = [p for p in net.parameters() if p.requires_grad]
+    start = generator.get_state()
 
-    def terminal(net: Any) -> tuple[th.Tensor, th.Tensor]:
-        x_tau = interpolate(x0, x1, tau)
-        velocity = net(x_tau, tau, net.condition(history))
-        return velocity, estimate_terminal(x_tau, tau, velocity)
+    def objective(q_weight: float) -> ActorObjective:
+        generator.set_state(start)  # the same noise for every evaluation
+        return actor_objective(model, data, q_weight, generator)
 
-    velocity, x_hat = terminal(actor)
-    model.critic.requires_grad_(False)
-    try:
-        q = pessimistic_q(model.critic(data.observation_history.flatten(1), x_hat.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0])
-    finally:
-        model.critic.requires_grad_(True)
-    flow, _ = actor_loss(velocity, x0, x1, q, 0.0, mask=data.chunk_mask)
-    total, _ = actor_loss(velocity, x0, x1, q, model.q_weight, mask=data.chunk_mask)
-    params = [p for p in actor.parameters() if p.requires_grad]
-    g_flow = th.autograd.grad(flow, params, retain_graph=True)
-    g_q = [a - b for a, b in zip(th.autograd.grad(total, params), g_flow, strict=True)]
+    imitation, total = objective(0.0), objective(model.q_weight)
+    g_flow = th.autograd.grad(imitation.loss, params)
+    g_q = [a - b for a, b in zip(th.autograd.grad(total.loss, params), g_flow, strict=True)]
     q_norm, flow_norm = _norm(g_q), _norm(g_flow)
     out = {"q_grad_norm": q_norm, "flow_grad_norm": flow_norm,
            "q_grad_ratio": q_norm / flow_norm if flow_norm > 0 else math.nan}
     if shift:
-        lr = actor.optimizer.param_groups[0]["lr"]
-        moved = copy.deepcopy(actor)
+        lr = model.actor.optimizer.param_groups[0]["lr"]
+        saved = [p.detach().clone() for p in params]
         with th.no_grad():
-            for p, gq, gf in zip([p for p in moved.parameters() if p.requires_grad], g_q, g_flow, strict=True):
+            for p, gq, gf in zip(params, g_q, g_flow, strict=True):
                 p.sub_(lr * gq / (gf.pow(2) + gq.pow(2)).sqrt().clamp_min(1e-12))
-            out["x_hat_shift"] = (terminal(moved)[1] - x_hat).abs().mean().item()
+            try:
+                out["x_hat_shift"] = (objective(model.q_weight).chunks - total.chunks).abs().mean().item()
+            finally:
+                for p, value in zip(params, saved, strict=True):
+                    p.copy_(value)
     return out
 
 

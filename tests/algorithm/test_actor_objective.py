@@ -20,7 +20,7 @@ def batch(tail: float, mask: th.Tensor | None) -> ChunkReplaySamples:
 
 def flow_loss_of(model: UA2C, data: ChunkReplaySamples) -> float:
     th.manual_seed(7)  # the same x0 and tau every call
-    return model._actor_loss(data, data.observation_history.flatten(1))[1]["flow_loss"]
+    return model._actor_loss(data)[1]["flow_loss"]
 
 
 def test_flow_term_averages_the_valid_positions_only():
@@ -53,7 +53,7 @@ def test_value_term_values_the_clipped_terminal_estimate():
         model.q_weight = q_weight
         model.actor.zero_grad()
         th.manual_seed(7)
-        model._actor_loss(data, data.observation_history.flatten(1))[0].backward()
+        model._actor_loss(data)[0].backward()
         grads.append([p.grad.clone() for p in model.actor.parameters()])
     # the critic saw x̂1 clipped to the upper bound 1 ...
     assert th.equal(seen[0], th.ones(2, 1, 3, 1))

@@ -73,15 +73,16 @@ def test_unknown_keys_detects_a_misspelled_key():
 def test_yaml_keys_are_constructor_arguments_or_zoo_keys(config):
     entries = yaml.safe_load(config.read_text())
     assert {"Pendulum-v1", "MixedTraffic-v0"} <= set(entries)
-    algo_cls = _algo_class(config.stem)
+    algo_cls = _algo_class(config.stem.removesuffix("_paper"))  # ua2c_paper.yml: UA2C's paper preset
     for env_id, entry in entries.items():
         assert unknown_keys(algo_cls, entry) == [], f"{config.name}:{env_id}"
 
 
 def test_baselines_share_env_ids_and_budgets_with_ua2c():
     configs = {p.stem: yaml.safe_load(p.read_text()) for p in CONFIGS.glob("*.yml")}
-    assert set(configs) == {"ua2c", "sac", "tqc", "crossq"}
+    assert set(configs) == {"ua2c", "ua2c_paper", "sac", "tqc", "crossq"}
     assert set(configs["sac"]) == set(configs["tqc"]) == set(configs["crossq"]) == set(configs["ua2c"])
+    assert set(configs["ua2c_paper"]) == set(configs["ua2c"])
     # Same training budget and discount on each env id: the comparisons are like for like.
     for env_id in configs["ua2c"]:
         for key in ("n_timesteps", "gamma"):
