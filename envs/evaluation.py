@@ -12,7 +12,7 @@ import numpy as np
 import torch as th
 
 from envs.collection import BehaviourConfig, BehaviourDriver, make_traffic_env
-from sb3_ua2c import UA2C
+from sb3_ua2c import UA2C, ExecutionRule
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import check_spaces_match
@@ -87,7 +87,7 @@ def evaluate(
         if given and not isinstance(model, UA2C):
             raise ValueError(f"{given} apply to UA2C only, not to a {type(model).__name__}")
         if entropy_threshold is not None:
-            model.set_entropy_threshold(entropy_threshold)
+            model.set_execution_rule(ExecutionRule(entropy_threshold=entropy_threshold))
         if n_elite is not None:
             model.set_n_elite(n_elite)
         if flow_steps is not None:

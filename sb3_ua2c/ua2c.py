@@ -327,18 +327,6 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         self.policy.set_execution_rule(execution)
         self.execution = execution
 
-    def set_entropy_threshold(
-        self, entropy_threshold: float | str, target_plan_length: float | None = None
-    ) -> None:
-        """
-        Alias of :meth:`set_execution_rule` for Eq. 7 with one δ:
-        ``set_execution_rule(ExecutionRule(entropy_threshold=entropy_threshold, target_plan_length=...))``.
-
-        :param entropy_threshold: δ in nats, ``math.inf`` (fixed chunks) or ``"auto"``
-        :param target_plan_length: with ``"auto"`` only, the target mean ``L_t``
-        """
-        self.set_execution_rule(ExecutionRule(entropy_threshold=entropy_threshold, target_plan_length=target_plan_length))
-
     def set_n_elite(self, n_elite: int) -> None:
         """
         Change how many best candidates a replanning averages (``policy_kwargs["n_elite"]``, see

@@ -266,15 +266,15 @@ def test_auto_override_of_a_numeric_checkpoint_starts_with_an_empty_window(tmp_p
     assert int(auto.policy.entropy_window.count) == 0
 
 
-def test_set_entropy_threshold_to_auto_and_back():
+def test_set_execution_rule_to_auto_and_back():
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **FAST)
-    model.set_entropy_threshold("auto", target_plan_length=4)
+    model.set_execution_rule(ExecutionRule(entropy_threshold="auto", target_plan_length=4))
     assert model.execution == model.policy.execution == ExecutionRule(entropy_threshold="auto", target_plan_length=4)
     assert model.policy.entropy_window.rows.shape == (AUTO_THRESHOLD_WINDOW, 5)
-    model.set_entropy_threshold(math.inf)
+    model.set_execution_rule(ExecutionRule(entropy_threshold=math.inf))
     assert model.policy.entropy_window is None and model.policy.execution.entropy_threshold == math.inf
     with pytest.raises(ValueError, match="target_plan_length"):
-        model.set_entropy_threshold(0.0, target_plan_length=2)
+        model.set_execution_rule(ExecutionRule(entropy_threshold=0.0, target_plan_length=2))
 
 
 # ------------------------------------------------------------------------------ bad input

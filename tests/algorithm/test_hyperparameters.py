@@ -88,8 +88,7 @@ def test_the_model_builds_one_rule_and_the_policy_holds_it():
     fixed = dataclasses.replace(model.execution, rule="threshold", entropy_growth=None, entropy_threshold=math.inf)
     model.set_execution_rule(fixed)
     assert model.execution is model.policy.execution is fixed
-    model.set_entropy_threshold(-1.0)  # the alias
-    assert model.policy.execution == ExecutionRule(entropy_threshold=-1.0)
+    assert not hasattr(model, "set_entropy_threshold") and not hasattr(model.policy, "set_entropy_threshold")
 
 
 @pytest.mark.parametrize("key", ["execution", "entropy_threshold", "chunk_size"])
