@@ -13,6 +13,7 @@ INSTALL = {
     "rliable": "pip install -e '.[peers]'",
     "ray": "pip install -e '.[peers]'",
     "ogbench": "pip install -e '.[ogbench]'",
+    "sphinx": "pip install -e '.[docs]'",
 }
 
 

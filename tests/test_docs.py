@@ -15,6 +15,7 @@ import unicodedata
 from pathlib import Path
 
 import pytest
+from extras import require
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
@@ -221,6 +222,7 @@ def test_the_module_and_parameter_readers() -> None:
 
 @pytest.fixture
 def ext(monkeypatch):
+    require("sphinx")  # the extensions import it: the docs extra
     monkeypatch.syspath_prepend(str(DOCS / "_ext"))
     import python_names
     import repo_pages

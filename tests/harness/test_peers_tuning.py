@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+from extras import require
 
 from experiments.peers import cli, tuning
 from experiments.peers.budget import FULL_PEERS_BUDGET, QUICK_PEERS_BUDGET, PeersBudget, peer_unit_seconds
@@ -110,6 +111,7 @@ def test_the_test_run_reads_the_selection_from_a_file(tmp_path):
 
 
 def test_tuning_command_end_to_end_at_the_quick_budget(tmp_path, capsys):
+    require("rliable")  # the report's statistics: the peers extra
     argv = ["--quick", "--arms", "ua2c_adaptive", "sac", "--seeds", "0", "--workers", "1", "--out", str(tmp_path)]
     assert tuning.main(argv) == 0
     summary = json.loads((tmp_path / "tuning.json").read_text())
