@@ -24,20 +24,51 @@ from typing import Any
 
 from experiments.common.names import SCENARIO_BASES
 from experiments.common.runner import list_schedule_seconds
-from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, extra_kweights
+from experiments.fig2.budget import (
+    FULL_BUDGET,
+    QUICK_BUDGET,
+    CostModel,
+    Fig2Budget,
+    extra_kweights,
+    finetune_overrides,
+)
 from sb3_ua2c.checks import check_int
 
-#: UA2C arms (Figure 2's), by name: chunk length ("k" = the budget's ``chunk_size``) and δ ("delta" = the
-#: budget's ``entropy_threshold``, ``"inf"`` = fixed chunks, ``None`` = one step, δ irrelevant).
-UA2C_ARMS: dict[str, tuple[str | int, str | None]] = {
-    "ua2c_adaptive": ("k", "delta"),
-    "ua2c_fixed": ("k", "inf"),
-    "ua2c_onestep": (1, None),
-    "ua2c_adaptive_per_step": ("k", "delta"),
+
+@dataclass(frozen=True)
+class UA2CArm:
+    """How a UA2C arm is built from the budget.
+
+    :param k: chunk length (``"k"``: the budget's ``chunk_size``)
+    :param delta: δ it acts with (``"delta"``: the budget's ``entropy_threshold``; ``"inf"``: fixed
+        chunks; ``None``: its checkpoint's own, so one step for ``k = 1`` and Eq. 7's δ for the preset)
+    :param config: its constructor arguments: ``"budget"``, the budget's ``algo_kwargs`` over UA2C's
+        defaults; ``"paper"``, the preset :data:`sb3_ua2c.presets.PAPER` with the budget's optimisation
+        settings (``learning_rate``, ``batch_size``, ``gamma``, ``tau``)
+    :param cadence: its online updates: ``"fig2"``, one gradient step per ``chunk_size`` env steps
+        (Figure 2's); ``"per_step"``, one per env step (the peers'); ``"own"``, its configuration's
+        ``train_freq`` and ``gradient_steps``
+    """
+
+    k: str | int = "k"
+    delta: str | None = "delta"
+    config: str = "budget"
+    cadence: str = "fig2"
+
+
+#: UA2C arms by name. ``ua2c`` is UA2C as a user gets it (the defaults of this release with the
+#: budget's ``algo_kwargs``, its own update schedule), ``ua2c_paper`` the paper as written (the
+#: preset); the others are Figure 2's arms at Figure 2's cadence.
+UA2C_ARMS: dict[str, UA2CArm] = {
+    "ua2c": UA2CArm(cadence="own"),
+    "ua2c_paper": UA2CArm(delta=None, config="paper", cadence="own"),
+    "ua2c_adaptive": UA2CArm(),
+    "ua2c_fixed": UA2CArm(delta="inf"),
+    "ua2c_onestep": UA2CArm(k=1, delta=None),
+    "ua2c_adaptive_per_step": UA2CArm(cadence="per_step"),
 }
-#: UA2C arms fine-tuned with one gradient step per env step, the peers' update budget (the other UA2C
-#: arms: one per ``chunk_size`` env steps, Figure 2's cadence)
-UA2C_PER_STEP_ARMS = ("ua2c_adaptive_per_step",)
+#: UA2C constructor arguments of a budget that the preset leaves to the problem (``"paper"`` arms keep them)
+OPTIMISATION_KEYS = ("learning_rate", "batch_size", "gamma", "tau")
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.
 PEER_ARMS = ("sac", "tqc", "crossq", "sac_offline_mix", "rlpd", "iql", "calql", "rebrac")
 #: Reference rows, nothing learned online: the dataset's behaviour policy and behaviour cloning of the dataset
@@ -49,6 +80,8 @@ D3RLPY_ARMS = ("rlpd", "iql", "calql", "rebrac", "bc")
 #: d3rlpy arms without an online phase
 OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
+    "ua2c": "UA2C (defaults)",
+    "ua2c_paper": "UA2C as in the paper (preset)",
     "ua2c_adaptive": "UA2C adaptive chunks",
     "ua2c_fixed": "UA2C fixed chunks (δ=inf)",
     "ua2c_onestep": "UA2C one-step (k=1)",
@@ -146,13 +179,50 @@ class PeersBudget:
 
     def chunk_length(self, arm: str) -> int:
         """Chunk length of a UA2C arm."""
-        k, _ = UA2C_ARMS[arm]
+        k = UA2C_ARMS[arm].k
         return self.ua2c.chunk_size if k == "k" else int(k)
 
     def delta(self, arm: str) -> float | None:
-        """δ a UA2C arm acts with (``inf``: fixed chunks; ``None``: one step)."""
-        _, d = UA2C_ARMS[arm]
+        """δ a UA2C arm acts with (``inf``: fixed chunks; ``None``: its checkpoint's)."""
+        d = UA2C_ARMS[arm].delta
         return None if d is None else float("inf") if d == "inf" else self.ua2c.entropy_threshold
+
+    def pretrain_name(self, arm: str) -> str:
+        """Name of the pre-trained checkpoint a UA2C arm starts from (shared by the arms of one configuration
+        and chunk length): ``pretrain_k<k>``, ``pretrain_k<k>_paper`` for the preset."""
+        suffix = "_paper" if UA2C_ARMS[arm].config == "paper" else ""
+        return f"pretrain_k{self.chunk_length(arm)}{suffix}"
+
+    def pretrain_kwargs(self, arm: str) -> dict[str, Any]:
+        """UA2C constructor arguments a UA2C arm is pre-trained with."""
+        k = self.chunk_length(arm)
+        if UA2C_ARMS[arm].config == "paper":
+            from sb3_ua2c.presets import preset
+
+            kept = {key: v for key, v in self.ua2c.algo_kwargs.items() if key in OPTIMISATION_KEYS}
+            return {**kept, **preset("paper"), "chunk_size": k}
+        return self.ua2c.arm_kwargs(k)
+
+    def finetune_overrides(self, arm: str) -> dict[str, Any]:
+        """Phase-2 attributes of a UA2C arm: its update cadence (:class:`UA2CArm`) and, for the budget's
+        configuration, the budget's ``finetune_kwargs``."""
+        spec = UA2C_ARMS[arm]
+        if spec.cadence == "own":
+            return {} if spec.config == "paper" else dict(self.ua2c.finetune_kwargs)
+        overrides = finetune_overrides(self.ua2c)
+        if spec.cadence == "per_step":
+            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}
+        return overrides
+
+    def steps_per_update(self, arm: str, plan_length: float) -> float:
+        """Online env steps per gradient step of a UA2C arm (``plan_length``: its mean plan length, what
+        ``gradient_steps=-1`` counts)."""
+        kwargs = {**_ua2c_schedule_defaults(), **self.pretrain_kwargs(arm), **self.finetune_overrides(arm)}
+        if kwargs["gradient_steps"] == -1:
+            return plan_length
+        freq = kwargs["train_freq"]
+        steps = freq if isinstance(freq, int) else freq[0] if freq[1] == "step" else steps_per_episode(self.ua2c)
+        return float(steps) / float(kwargs["gradient_steps"])
 
     def to_dict(self) -> dict[str, Any]:
         return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
@@ -222,6 +292,16 @@ class PeerCostModel:
     eval_ms_per_step: float = 0.5
 
 
+def _ua2c_schedule_defaults() -> dict[str, Any]:
+    """UA2C's default ``train_freq`` and ``gradient_steps`` (its constructor's)."""
+    import inspect
+
+    from sb3_ua2c import UA2C
+
+    params = inspect.signature(UA2C.__init__).parameters
+    return {name: params[name].default for name in ("train_freq", "gradient_steps")}
+
+
 def steps_per_episode(budget: Fig2Budget) -> float:
     """Env steps of a full episode: ``time_limit / step_length`` (40 s / 0.2 s = 200 by default)."""
     return float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
@@ -255,17 +335,15 @@ def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> d
     c, b, ms = costs or CostModel(), budget.ua2c, 1e-3
     spe = steps_per_episode(b)
     out = {"dataset": b.dataset_episodes * spe * c.collect_ms_per_step * ms}
-    for k in sorted({1, b.chunk_size}):
-        out[f"pretrain_k{k}"] = b.pretrain_steps * c.pretrain_step_ms(k, extra_kweights(b.arm_kwargs(k))) * ms
     scale = b.algo_kwargs.get("batch_size", 256) / 256
     for arm in UA2C_ARMS:
         k = budget.chunk_length(arm)
-        extra = extra_kweights(b.arm_kwargs(k))
+        extra = extra_kweights(budget.pretrain_kwargs(arm))
+        out[budget.pretrain_name(arm)] = b.pretrain_steps * c.pretrain_step_ms(k, extra) * ms
         plan_length = 1.0 if k == 1 else float(k) if budget.delta(arm) == float("inf") else c.adaptive_plan_length
-        # one update per chunk_size env steps (Figure 2's Phase-2 cadence), or per env step
-        steps_per_update = 1 if arm in UA2C_PER_STEP_ARMS else b.chunk_size
         online_ms = (c.finetune_ms_per_env_step + c.replan_ms(extra) / plan_length
-                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight) / steps_per_update)
+                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight)
+                     / budget.steps_per_update(arm, plan_length))
         eval_ms = c.eval_ms_per_step + extra / plan_length * c.plan_ms_per_kweight
         out[arm] = (budget.online_steps * online_ms + 2 * b.eval_episodes * spe * eval_ms) * ms
     return out
@@ -274,14 +352,14 @@ def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> d
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int) -> dict[str, Any]:
     """CPU seconds per unit of each stage and arm (one seed), for :func:`format_estimate`.
 
-    :return: ``{"dataset": s, "pretrain": {k: s}, "arms": {arm: s}}``
+    :return: ``{"dataset": s, "pretrain": {k: s}, "arms": {arm: s}}`` (``k``: ``"5"``, ``"5_paper"`` for the preset)
     """
     ua2c = ua2c_stage_seconds(budget)
-    ks = sorted({budget.chunk_length(a) for a in arms if a in UA2C_ARMS})
+    names = sorted({budget.pretrain_name(a) for a in arms if a in UA2C_ARMS})
     return {
         "seeds": n_seeds,
         "dataset": ua2c["dataset"],
-        "pretrain": {k: ua2c[f"pretrain_k{k}"] for k in ks},
+        "pretrain": {name.removeprefix("pretrain_k"): ua2c[name] for name in names},  # "5", "5_paper"
         "arms": {a: ua2c[a] if a in UA2C_ARMS else peer_unit_seconds(a, budget) for a in arms},
     }
 

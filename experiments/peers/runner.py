@@ -3,7 +3,8 @@
 Three stages, each a list of units run with one executor (local processes or a Ray cluster):
 
 1. ``seed<s>/dataset``: the seed's Figure-2 dataset (``<work>/seed<s>/dataset``);
-2. ``seed<s>/pretrain_k<k>``: the UA2C checkpoints the UA2C arms start from (one-step and chunk);
+2. ``seed<s>/pretrain_k<k>[_paper]``: the UA2C checkpoints the UA2C arms start from (one per chunk
+   length and configuration, shared by the arms that start from it);
 3. ``seed<s>/<arm>``: one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``.
 
 Every unit has a result file and is skipped when it exists: an interrupted run resumes, and deleting
@@ -24,12 +25,10 @@ from typing import Any
 from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
 from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
-from experiments.fig2.budget import finetune_overrides
 from experiments.peers.budget import (
     D3RLPY_ARMS,
     ONLINE_SB3_ARMS,
     UA2C_ARMS,
-    UA2C_PER_STEP_ARMS,
     PeersBudget,
     estimate_units,
 )
@@ -100,12 +99,12 @@ def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) 
 def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
     from experiments.peers.ua2c_arms import build_checkpoint
 
-    ks = sorted({budget.chunk_length(a) for a in arms if a in UA2C_ARMS})
+    ua2c_arms = {budget.pretrain_name(a): a for a in arms if a in UA2C_ARMS}  # one arm per checkpoint
     b = budget.ua2c
-    return [Unit(f"seed{s}/pretrain_k{k}", build_checkpoint,
-                 {"dataset": str(paths.seed_work(s) / "dataset"), "out": str(paths.seed_work(s) / f"pretrain_k{k}.zip"),
-                  "pretrain_steps": b.pretrain_steps, "seed": s, "algo_kwargs": b.arm_kwargs(k)},
-                 paths.seed_work(s) / f"pretrain_k{k}.json") for s in seeds for k in ks]
+    return [Unit(f"seed{s}/{name}", build_checkpoint,
+                 {"dataset": str(paths.seed_work(s) / "dataset"), "out": str(paths.seed_work(s) / f"{name}.zip"),
+                  "pretrain_steps": b.pretrain_steps, "seed": s, "algo_kwargs": budget.pretrain_kwargs(arm)},
+                 paths.seed_work(s) / f"{name}.json") for s in seeds for name, arm in sorted(ua2c_arms.items())]
 
 
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
@@ -118,12 +117,9 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
                        seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
     fn: Callable[..., Any]
     if arm in UA2C_ARMS:
-        record = pretrained[f"seed{seed}/pretrain_k{budget.chunk_length(arm)}"]
-        overrides = finetune_overrides(budget.ua2c)
-        if arm in UA2C_PER_STEP_ARMS:  # the peers' update budget: one gradient step per env step
-            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}
+        record = pretrained[f"seed{seed}/{budget.pretrain_name(arm)}"]
         fn, kwargs = run_ua2c_arm, {"arm": arm, "checkpoint": record["checkpoint"], "delta": budget.delta(arm),
-                                    "finetune_overrides": overrides, "pretrain_record": record}
+                                    "finetune_overrides": budget.finetune_overrides(arm), "pretrain_record": record}
     elif arm in ONLINE_SB3_ARMS:
         fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_kwargs(arm)}
     elif arm == "sac_offline_mix":

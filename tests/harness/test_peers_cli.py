@@ -33,8 +33,9 @@ from experiments.peers.report import (
     results_table,
     verdicts,
 )
+from sb3_ua2c.presets import preset
 
-OFFLINE_ARMS = {"ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "ua2c_adaptive_per_step", "iql", "calql", "rebrac", "bc", "behaviour"}  # rlpd: none
+OFFLINE_ARMS = {"ua2c", "ua2c_paper", "ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "ua2c_adaptive_per_step", "iql", "calql", "rebrac", "bc", "behaviour"}  # rlpd: none
 
 
 @pytest.fixture(scope="module")
@@ -102,6 +103,10 @@ def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
     per_step = _records(quick_run, "ua2c_adaptive_per_step")[0]["hyperparams"]
     assert per_step["finetune_overrides"] == {"train_freq": 1, "gradient_steps": 1} and per_step["delta"] == 0.0
     assert _records(quick_run, "iql")[0]["offline_steps"] == 8  # the UA2C arms' pretrain_steps
+    default, paper = _records(quick_run, "ua2c")[0]["hyperparams"], _records(quick_run, "ua2c_paper")[0]["hyperparams"]
+    assert default["finetune_overrides"] == {} and paper["finetune_overrides"] == {}  # their own schedules
+    assert default["algo_kwargs"] == {"batch_size": 32, "chunk_size": 3, "entropy_threshold": 0.0}
+    assert paper["algo_kwargs"] == {**preset("paper"), "batch_size": 32, "chunk_size": 3} and paper["delta"] is None
 
 
 def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run, capsys):
@@ -111,11 +116,12 @@ def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run
     capsys.readouterr()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "28 of 28 unit(s) already stored, 0 to run" in out and "0 arm unit(s) run, 28 stored" in out
+    n = 2 * len(ARMS)  # 2 seeds
+    assert f"{n} of {n} unit(s) already stored, 0 to run" in out and f"0 arm unit(s) run, {n} stored" in out
     sac.unlink()
     assert cli.main(args) == 0
     out = capsys.readouterr().out
-    assert "27 of 28 unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
+    assert f"{n - 1} of {n} unit(s) already stored, 1 to run" in out and "[1/1] unit seed1/sac:" in out
     again = json.loads(sac.read_text())
     assert again["evaluation"] == before["evaluation"] and again["online_episodes"] == before["online_episodes"]
     # --rerun: the selected unit runs again without deleting anything by hand
@@ -224,6 +230,32 @@ def test_estimate_reproduces_the_measured_peer_units_and_fits_three_hours():
     assert list_schedule_seconds([5, 3], 4) == 5
     full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
     assert full["wall"] < 3 * 3600 and full["cpu"] > full["wall"]
+
+
+def test_ua2c_arms_take_their_configuration_checkpoint_and_cadence_from_the_budget():
+    WIDE = {"net_arch": [512, 512, 512], "n_elite": 8}
+    b = PeersBudget().with_overrides({"ua2c": {"algo_kwargs": {"batch_size": 128, "q_weight": 0.3, "policy_kwargs": WIDE},
+                                               "finetune_kwargs": {"n_elite": 4}}})
+    assert [b.pretrain_name(a) for a in UA2C_ARMS] == [
+        "pretrain_k5", "pretrain_k5_paper", "pretrain_k5", "pretrain_k5", "pretrain_k1", "pretrain_k5"]
+    # the preset keeps the budget's optimisation settings and nothing else of it
+    assert b.pretrain_kwargs("ua2c_paper") == {**preset("paper"), "batch_size": 128, "chunk_size": 5}
+    assert b.pretrain_kwargs("ua2c") == {"batch_size": 128, "q_weight": 0.3, "policy_kwargs": WIDE,
+                                         "chunk_size": 5, "entropy_threshold": 0.0}
+    assert b.finetune_overrides("ua2c") == {"n_elite": 4} and b.finetune_overrides("ua2c_paper") == {}
+    assert b.finetune_overrides("ua2c_adaptive") == {"n_elite": 4, "train_freq": 5, "gradient_steps": 1}
+    assert b.finetune_overrides("ua2c_adaptive_per_step") == {"n_elite": 4, "train_freq": 1, "gradient_steps": 1}
+    assert (b.delta("ua2c"), b.delta("ua2c_paper"), b.delta("ua2c_fixed")) == (0.0, None, float("inf"))
+    # env steps per update: the paper's one per plan (gradient_steps=-1) counts plans; the others their cadence
+    assert b.steps_per_update("ua2c_paper", 2.5) == 2.5 and b.steps_per_update("ua2c_adaptive", 2.5) == 5.0
+    assert b.steps_per_update("ua2c_adaptive_per_step", 2.5) == 1.0
+    every_other = b.with_overrides({"ua2c": {"algo_kwargs": {"train_freq": 4, "gradient_steps": 2,
+                                                                     "policy_kwargs": {"n_elite": 8}}}})
+    assert every_other.steps_per_update("ua2c", 2.5) == 2.0
+    # one pre-training per checkpoint, priced by its own network (the preset's 128 x 2 field is cheaper)
+    estimate = estimate_units(b, ["ua2c", "ua2c_paper", "ua2c_adaptive"], 5)
+    assert sorted(estimate["pretrain"]) == ["5", "5_paper"]
+    assert estimate["pretrain"]["5_paper"] < estimate["pretrain"]["5"]
 
 
 def test_headline_names_the_best_of_each_side():
