@@ -61,8 +61,12 @@ def history_noise(obs_history: th.Tensor, action_history: th.Tensor, n_samples: 
     return noise.to(obs_history.device)
 
 
-#: Hidden sizes of the velocity field when ``net_arch`` is not given.
-DEFAULT_NET_ARCH: tuple[int, ...] = (128, 128)
+#: Hidden sizes of the velocity field when ``net_arch`` is not given (chosen on validation; the paper's
+#: 128 × 2 is :data:`sb3_ua2c.presets.PAPER`'s).
+DEFAULT_NET_ARCH: tuple[int, ...] = (512, 512, 512)
+#: Candidates averaged into the executed chunk when ``n_elite`` is not given (chosen on validation;
+#: the paper's best candidate, 1, is :data:`sb3_ua2c.presets.PAPER`'s), or all of them when fewer.
+DEFAULT_N_ELITE = 8
 #: Hidden sizes of the MLP critics (``critic_arch="mlp"``) when ``critic_net_arch`` is not given: SAC's.
 DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
@@ -91,7 +95,8 @@ class UA2CPolicy(ExecutionRuleState):
     :param discrete_entropy: ``H_u`` of Eq. 7 includes the categorical dims (``False``: the
         continuous dims alone; see :func:`~sb3_ua2c.chunking.chunk_entropy`)
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
-        (1 = the best candidate; see :func:`~sb3_ua2c.chunking.select_chunk`)
+        (``None``: :data:`DEFAULT_N_ELITE` = 8, chosen on validation, or ``n_candidates`` when fewer;
+        1 = the best candidate, the paper's; see :func:`~sb3_ua2c.chunking.select_chunk`)
     :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
         selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
     :param net_arch: hidden sizes of the velocity-field MLP (and of the one-step policy's)
@@ -136,7 +141,7 @@ class UA2CPolicy(ExecutionRuleState):
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         discrete_entropy: bool = True,
         commit_discrete: bool = False,
-        n_elite: int = 1,
+        n_elite: int | None = None,
         net_arch: list[int] | None = None,
         actor_type: str = "flow",
         actor_past_actions: bool = True,
@@ -175,7 +180,7 @@ class UA2CPolicy(ExecutionRuleState):
         self.discrete_action_dims = discrete_action_dims
         self.discrete_entropy = discrete_entropy
         self.commit_discrete = commit_discrete
-        self.n_elite = n_elite
+        self.n_elite = min(DEFAULT_N_ELITE, n_candidates) if n_elite is None else n_elite
         self.net_arch = list(DEFAULT_NET_ARCH) if net_arch is None else net_arch
         self.actor_type = actor_type
         self.actor_past_actions = actor_past_actions
@@ -192,7 +197,7 @@ class UA2CPolicy(ExecutionRuleState):
         check_arguments(
             chunk_size=chunk_size, history_len=history_len, flow_steps=flow_steps, n_candidates=n_candidates,
             discrete_action_dims=discrete_action_dims, discrete_entropy=discrete_entropy,
-            commit_discrete=commit_discrete, n_elite=n_elite, net_arch=net_arch, actor_type=actor_type,
+            commit_discrete=commit_discrete, n_elite=self.n_elite, net_arch=net_arch, actor_type=actor_type,
             actor_past_actions=actor_past_actions, critic_arch=critic_arch,
             critic_embed_dim=critic_embed_dim, critic_n_layers=critic_n_layers, critic_n_heads=critic_n_heads,
             critic_ff_dim=critic_ff_dim, critic_net_arch=critic_net_arch, critic_layer_norm=critic_layer_norm,

@@ -15,8 +15,10 @@ import copy
 from typing import Any
 
 #: The paper as written ("UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online
-#: Decision-Making in Mixed Traffic"), which is also the configuration of the constructors' defaults
-#: of this release:
+#: Decision-Making in Mixed Traffic"). The constructors' defaults of this release differ from it in four
+#: values, chosen on validation seeds and scenarios of ``MixedTraffic-v0`` (docs/algorithm.md,
+#: "Defaults and the paper preset"): ``gradient_steps`` 1 (one update per env step), ``q_weight`` 0.3,
+#: ``policy_kwargs`` ``net_arch`` [512, 512, 512] and ``n_elite`` 8. The preset:
 #:
 #: - ``q_weight`` 1.0, ``normalize_q`` True: Eq. 2's value term ``λ Q(x̂1)``, divided by the batch mean
 #:   ``|Q|`` (TD3+BC's normalisation, so that λ does not depend on the reward scale)

@@ -74,7 +74,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     :param tau: Polyak coefficient of the target critics
     :param gamma: discount factor (per environment step; a chunk of length ``L`` is discounted by ``gamma^L``)
     :param train_freq: update the model every ``train_freq`` steps (int or ``(n, "step"|"episode")``)
-    :param gradient_steps: gradient steps after each rollout; ``-1`` (default) = one per plan started
+    :param gradient_steps: gradient steps after each rollout (default 1: one per env step, SAC's); ``-1``
+        (the paper's) = one per plan started
         during the rollout, i.e. one update per new chunk sample (SB3's ``-1`` counts env steps)
     :param action_noise: optional exploration noise added to the executed actions
     :param replay_buffer_class: must be ``None`` or :class:`ChunkReplayBuffer`
@@ -95,7 +96,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in ``[1, k]``
     :param entropy_quantile: with ``execution_rule="quantile"`` only: ``q`` in ``[0, 1]``
     :param entropy_growth: with ``execution_rule="growth"`` only: ``c`` in nats above ``H_1``
-    :param q_weight: ``lambda``, weight of the value term in Eq. 2
+    :param q_weight: ``lambda``, weight of the value term in Eq. 2 (default 0.3, chosen on validation;
+        the paper's: 1.0)
     :param smooth_weight: ``mu``, weight of an in-chunk smoothness term added to Eq. 2 (not in the
         paper; 0 = Eq. 2): ``mu`` times the mean squared step change of the continuous actions
         inside the actor's terminal estimate x̂1. It does not act on ``chunk_size=1``.
@@ -158,7 +160,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         tau: float = 0.005,
         gamma: float = 0.99,
         train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = -1,
+        gradient_steps: int = 1,
         action_noise: ActionNoise | None = None,
         replay_buffer_class: type[ReplayBuffer] | type[ChunkReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
@@ -173,7 +175,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         target_plan_length: float | None = None,
         entropy_quantile: float | None = None,
         entropy_growth: float | None = None,
-        q_weight: float = 1.0,
+        q_weight: float = 0.3,
         smooth_weight: float = 0.0,
         past_action_dropout: float = 0.0,
         normalize_q: bool = True,

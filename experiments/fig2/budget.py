@@ -308,10 +308,14 @@ class CostModel:
         return self.plan_ms + extra_kweights * self.plan_ms_per_kweight
 
 
+#: The velocity field :class:`CostModel` was measured with (the paper's 128 × 2)
+COST_REFERENCE_NET_ARCH = (128, 128)
+
+
 def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
     """Hidden-to-hidden weights of the velocity field that UA2C arguments ``kwargs`` build
-    (``policy_kwargs["net_arch"]``, default 128 × 2: 16,384), the part of its size that grows with
-    the hidden widths."""
+    (``policy_kwargs["net_arch"]``, else UA2C's default), the part of its size that grows with the
+    hidden widths (128 × 2: 16,384)."""
     from sb3_ua2c.policies import DEFAULT_NET_ARCH
 
     net_arch = list(_policy_kwargs(kwargs).get("net_arch") or DEFAULT_NET_ARCH)
@@ -319,9 +323,11 @@ def velocity_field_weights(kwargs: Mapping[str, Any]) -> int:
 
 
 def extra_kweights(kwargs: Mapping[str, Any]) -> float:
-    """Hidden weights of the velocity field built by UA2C arguments ``kwargs`` beyond the default
-    128 × 2, in thousands (0 for smaller fields): what :class:`CostModel` scales with."""
-    return max(0, velocity_field_weights(kwargs) - velocity_field_weights({})) / 1000
+    """Hidden weights of the velocity field built by UA2C arguments ``kwargs`` beyond the
+    :data:`COST_REFERENCE_NET_ARCH` the cost model was measured with, in thousands (0 for smaller
+    fields): what :class:`CostModel` scales with."""
+    reference = velocity_field_weights({"policy_kwargs": {"net_arch": list(COST_REFERENCE_NET_ARCH)}})
+    return max(0, velocity_field_weights(kwargs) - reference) / 1000
 
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, costs: CostModel | None = None) -> dict[str, float]:

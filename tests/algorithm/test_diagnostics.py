@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch as th
 from torch import nn
-from ua2c_helpers import FAST, tiny_policy
+from ua2c_helpers import FAST, TINY, tiny_policy
 
 from sb3_ua2c import UA2C
 from sb3_ua2c import diagnostics as diag
@@ -149,7 +149,8 @@ def test_value_term_strength_is_zero_without_a_value_gradient_and_linear_in_lamb
 
 
 def test_policy_gap_is_zero_when_the_targets_sample_as_the_policy_acts():
-    model = pendulum_model(n_candidates=4, n_target_candidates=4, flow_steps=3, target_flow_steps=3)
+    model = pendulum_model(n_candidates=4, n_target_candidates=4, flow_steps=3, target_flow_steps=3,
+                           policy_kwargs={**TINY, "n_elite": 1})
     set_critics(model, lambda o, c, j: c.sum(dim=(-2, -1)) - j)
     obs, act = pendulum_batch(model)[:2]
     gap = diag.policy_gap(model, obs, act, th.Generator().manual_seed(0))

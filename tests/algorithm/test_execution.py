@@ -149,9 +149,9 @@ class _FirstActionCritic(nn.Module):
 
 
 def fixed_policy(**rule):
-    """k = 3, S = 3 fixed candidates, acting under ``ExecutionRule(**rule)``."""
+    """k = 3, S = 3 fixed candidates, acting by the best of them under ``ExecutionRule(**rule)``."""
     policy = UA2CPolicy(
-        OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, flow_steps=10, n_candidates=3,
+        OBS, ACT, lambda _: 1e-3, chunk_size=3, history_len=2, flow_steps=10, n_candidates=3, n_elite=1,
         execution=ExecutionRule(**rule),
     )
     policy.sample_chunks = lambda *args, **kw: CANDIDATES.clone()

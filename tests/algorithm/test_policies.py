@@ -31,9 +31,14 @@ def test_policy_rejects_bad_elite_size(n_elite):
         make_policy(n_elite=n_elite)
 
 
-def test_plan_executes_the_best_candidate_by_default():
+def test_default_n_elite_is_eight_or_every_candidate_when_fewer():
+    assert make_policy(n_candidates=32).n_elite == 8 and make_policy(n_candidates=6).n_elite == 6
+    assert make_policy(n_candidates=6, n_elite=1).n_elite == 1
+
+
+def test_plan_executes_the_best_candidate_with_n_elite_1():
     th.manual_seed(0)
-    policy = make_policy()
+    policy = make_policy(n_elite=1)
     obs_h, act_h = th.randn(4, 2, 3), th.zeros(4, 2, 2)
     chunks, _, _ = policy.plan_tensors(obs_h, act_h, th.Generator().manual_seed(5))
     samples, q = candidates_and_values(policy, obs_h, act_h, 5)

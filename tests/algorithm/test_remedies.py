@@ -293,19 +293,29 @@ def test_preset_is_a_copy_and_names_unknown_presets():
         preset("recommended")
 
 
-def test_paper_preset_is_todays_defaults():
-    """Until the defaults change, the paper preset is the constructors' defaults: a model built with it
-    is the default model, and trains bit for bit as it does."""
-    model, policy = inspect.signature(UA2C.__init__).parameters, inspect.signature(UA2CPolicy.__init__).parameters
-    for name, value in PAPER.items():
-        if name != "policy_kwargs":
-            assert model[name].default == value, name
-    for name, value in PAPER["policy_kwargs"].items():
-        default = policy[name].default
-        assert (list(DEFAULT_NET_ARCH) if name == "net_arch" else default) == value, name
-    with_preset = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **preset("paper"))
+#: where the defaults of this release leave the paper (docs/algorithm.md, "Defaults and the paper preset")
+CHOSEN = {"gradient_steps": 1, "q_weight": 0.3, "net_arch": [512, 512, 512], "n_elite": 8}
+
+
+def test_defaults_leave_the_paper_preset_in_the_chosen_values_only():
+    """The constructors' defaults are the paper preset but for four values chosen on validation: a model
+    built with the preset and those four is the default model, bit for bit."""
     default = UA2C("MlpPolicy", "Pendulum-v1", seed=0)
-    assert state_hash(with_preset) == state_hash(default)
+    built = {name: getattr(default, name) for name in PAPER if name not in ("policy_kwargs", "execution_rule",
+                                                                        "entropy_threshold")}
+    built |= {"execution_rule": default.execution.rule, "entropy_threshold": default.execution.entropy_threshold,
+              "train_freq": default.train_freq.frequency}  # SB3 converts it to a TrainFreq
+    built |= {name: getattr(default.policy, name) for name in PAPER["policy_kwargs"]}
+    paper = {**{k: v for k, v in PAPER.items() if k != "policy_kwargs"}, **PAPER["policy_kwargs"]}
+    assert {name: value for name, value in built.items() if paper[name] != value} == CHOSEN
+    assert list(DEFAULT_NET_ARCH) == CHOSEN["net_arch"]
+    kwargs = preset("paper")
+    kwargs.update(gradient_steps=1, q_weight=0.3)
+    kwargs["policy_kwargs"].update(net_arch=[512, 512, 512], n_elite=8)
+    assert state_hash(UA2C("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)) == state_hash(default)
+    paper_model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **preset("paper"))
+    assert paper_model.policy.net_arch == [128, 128] and paper_model.policy.n_elite == 1
+    assert (paper_model.gradient_steps, paper_model.q_weight) == (-1, 1.0)
 
 
 @pytest.mark.parametrize("env_id", ["Pendulum-v1", "MixedTraffic-v0"])

@@ -217,14 +217,18 @@ def test_evaluate_policy_after_load(tmp_path):
     assert -2000.0 < mean < 0.0
 
 
+#: the tiny settings, acting by the best of 4 candidates
+BEST_OF_4 = {**FAST, "n_candidates": 4, "policy_kwargs": {**FAST["policy_kwargs"], "n_elite": 1}}
+
+
 def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **{k: v for k, v in FAST.items() if k != "n_candidates"})
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **BEST_OF_4)
     obs = np.zeros(3, dtype=np.float32)
     best, _ = model.predict(obs, deterministic=True)
     model.set_n_elite(4)  # the mean of all 4 candidates
     mean, _ = model.predict(obs, deterministic=True)
     assert model.policy.n_elite == 4 and not np.allclose(best, mean)
-    assert "n_elite" not in FAST["policy_kwargs"]  # the caller's policy_kwargs are not changed
+    assert BEST_OF_4["policy_kwargs"]["n_elite"] == 1  # the caller's policy_kwargs are not changed
     model.save(tmp_path / "m.zip")
     loaded = UA2C.load(tmp_path / "m.zip")
     assert loaded.policy.n_elite == 4
@@ -236,8 +240,7 @@ def test_set_n_elite_changes_execution_and_is_saved(tmp_path):
 
 def test_load_n_elite_override_sets_the_policy(tmp_path):
     """``UA2C.load(path, n_elite=m)`` acts by the elite mean of m, as ``set_n_elite`` does."""
-    kwargs = {k: v for k, v in FAST.items() if k != "n_candidates"}
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **kwargs)
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **BEST_OF_4)
     model.save(tmp_path / "m.zip")
     obs = np.zeros(3, dtype=np.float32)
     model.set_n_elite(4)
@@ -258,7 +261,7 @@ def test_load_n_elite_override_sets_the_policy(tmp_path):
 def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
     from sb3_ua2c.policies import history_noise
 
-    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, n_candidates=4, **{k: v for k, v in FAST.items() if k != "n_candidates"})
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **BEST_OF_4)
     policy = model.policy
     obs = th.tensor([[0.3, -0.2, 0.5]])
     model.set_flow_steps(1)

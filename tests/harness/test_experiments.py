@@ -193,6 +193,8 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
         elite_sweep=(),
         flow_sweep=(),
         sampled_eval=False,
+        algo_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},  # the cost model's reference field
+        onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},
     )
     est = estimate_seconds(budget, n_seeds=2, costs=costs)
     steps = 200  # 40 s / 0.2 s
@@ -213,7 +215,8 @@ def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
     assert phases["finetune"] == pytest.approx(3 * est["finetune"])
     assert phases["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 2) * 2 * steps * 1e-3)
     # a larger velocity field for the chunk policy alone: its gradient steps and replannings cost more
-    assert fig2_budget.velocity_field_weights({}) == 128 * 128
+    assert fig2_budget.velocity_field_weights({}) == 2 * 512 * 512  # UA2C's default field
+    assert fig2_budget.velocity_field_weights({"policy_kwargs": {"net_arch": [128, 128]}}) == 128 * 128
     assert fig2_budget.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
     wide = budget.replace(
         algo_kwargs={"policy_kwargs": {"net_arch": [512, 512, 512]}}, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}
@@ -749,15 +752,16 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
 
 
 def test_explicit_default_net_arch_builds_the_same_networks() -> None:
-    """``onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}`` trains the default one-step
-    baseline: a checkpoint of the default budget stands for it."""
+    """``policy_kwargs={"net_arch": DEFAULT_NET_ARCH}`` builds the default velocity field: a budget that
+    spells the default out trains what one that leaves it unset trains."""
     import gymnasium as gym
 
     from sb3_ua2c import UA2C
+    from sb3_ua2c.policies import DEFAULT_NET_ARCH
 
     models = [
         UA2C("MlpPolicy", gym.make("Pendulum-v1"), seed=3, device="cpu", **kwargs)
-        for kwargs in ({}, {"policy_kwargs": {"net_arch": [128, 128]}})
+        for kwargs in ({}, {"policy_kwargs": {"net_arch": list(DEFAULT_NET_ARCH)}})
     ]
     (a, b) = (m.policy.state_dict() for m in models)
     assert a.keys() == b.keys()

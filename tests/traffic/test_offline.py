@@ -256,6 +256,7 @@ def test_finetune_n_elite_override_reaches_rollouts_and_checkpoint(traffic_datas
     from sb3_ua2c.pipeline import finetune, pretrain
 
     ckpt = pretrain(traffic_dataset, tmp_path / "pre.zip", 2, algo_kwargs=TINY)
+    stored = UA2C.load(ckpt).policy.n_elite  # the default: all 4 candidates (fewer than 8)
     seen = []
     original = UA2C.learn
 
@@ -268,7 +269,7 @@ def test_finetune_n_elite_override_reaches_rollouts_and_checkpoint(traffic_datas
     assert seen == [2]
     tuned = UA2C.load(out)
     assert tuned.policy.n_elite == 2 and tuned.policy_kwargs["n_elite"] == 2
-    assert UA2C.load(ckpt).policy.n_elite == 1  # the pre-trained checkpoint is untouched
+    assert stored == 4 and UA2C.load(ckpt).policy.n_elite == stored  # the pre-trained checkpoint is untouched
     with pytest.raises(ValueError, match="n_elite=5 must not exceed n_candidates=4"):
         finetune(ckpt, tmp_path / "bad.zip", 6, dataset=traffic_dataset, algo_overrides={"n_elite": 5})
     assert not (tmp_path / "bad.zip").exists()

@@ -165,12 +165,13 @@ def test_policy_aliases():
 
 
 @pytest.mark.parametrize(("chunk_size", "expected_updates"), [(4, 10), (1, 40)])
-def test_default_cadence_is_one_gradient_step_per_plan(chunk_size, expected_updates):
+def test_paper_cadence_is_one_gradient_step_per_plan_and_the_default_one_per_env_step(chunk_size, expected_updates):
     kwargs = {**FAST, "learning_starts": 40}
     model = UA2C(
-        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=chunk_size, entropy_threshold=math.inf, **kwargs
+        "MlpPolicy", "Pendulum-v1", seed=0, chunk_size=chunk_size, entropy_threshold=math.inf, gradient_steps=-1,
+        **kwargs,
     )
     model.learn(80)  # 40 policy steps after the warm-up: 10 plans of 4 actions, or 40 of 1
     assert model._n_updates == expected_updates
-    sb3_cadence = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, gradient_steps=1, **kwargs).learn(80)
-    assert sb3_cadence._n_updates == 40  # a non-negative value keeps SB3's meaning (per rollout step)
+    sb3_cadence = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, **kwargs).learn(80)
+    assert sb3_cadence._n_updates == 40  # the default, 1: SB3's meaning (per rollout step)
