@@ -370,12 +370,7 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         "mean per-seed difference with its Student-t interval.",
         f"- Observation: {obs}. Action space: the same `Box` (acceleration, lane-change command with the env's "
         "thresholds) for every arm.",
-        f"- UA2C arms: Figure 2's (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for adaptive, "
-        "δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the offline data "
-        "in the buffer and one gradient step per k env steps (Figure 2's cadence), the one-step arm too: about "
-        f"1/{b['chunk_size']} of the updates of SAC, TQC, CrossQ and the d3rlpy arms (one per env step; RLPD "
-        f"{summary['budget'].get('rlpd_updates_per_step', 1)}). \"UA2C adaptive, one update per env step\" is the "
-        "adaptive arm at the peers' update budget.",
+        *_ua2c_protocol(summary),
         "- SAC, TQC and CrossQ: online from scratch, hyperparameters from `zoo_configs/sac.yml` / "
         "`zoo_configs/tqc.yml` / `zoo_configs/crossq.yml` "
         "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
@@ -389,6 +384,29 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
         *([f"- Settings on top of these (`peer_kwargs`, chosen on validation scenarios): {tuned}"]
           if (tuned := summary["budget"].get("peer_kwargs")) else []),
     ]
+
+
+def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
+    """The protocol's lines on the UA2C arms of ``summary`` (those it holds)."""
+    b = summary["budget"]["ua2c"]
+    arms = summary["arms"]
+    lines = []
+    if "ua2c" in arms or "ua2c_paper" in arms:
+        lines.append(
+            "- UA2C as a user gets it (`ua2c`: this release's defaults with the budget's `algo_kwargs`, one "
+            "gradient step per env step) and as the paper writes it (`ua2c_paper`: `preset(\"paper\")` with the "
+            "budget's learning rate, batch, γ and τ, one gradient step per replanning), each pre-trained offline "
+            f"into its own checkpoint, chunk length k = {b['chunk_size']}, then fine-tuned online with the offline "
+            "data in the buffer.")
+    if any(a in arms for a in ("ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "ua2c_adaptive_per_step")):
+        lines.append(
+            f"- Figure 2's UA2C arms (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for "
+            "adaptive, δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the "
+            "offline data in the buffer and one gradient step per k env steps (Figure 2's cadence), the one-step "
+            f"arm too: about 1/{b['chunk_size']} of the updates of SAC, TQC, CrossQ and the d3rlpy arms (one per "
+            f"env step; RLPD {summary['budget'].get('rlpd_updates_per_step', 1)}). \"UA2C adaptive, one update per "
+            "env step\" is the adaptive arm at the peers' update budget.")
+    return lines
 
 
 def format_markdown(summary: Mapping[str, Any]) -> str:
