@@ -67,6 +67,19 @@ UA2C_ARMS: dict[str, UA2CArm] = {
     "ua2c_onestep": UA2CArm(k=1, delta=None),
     "ua2c_adaptive_per_step": UA2CArm(cadence="per_step"),
 }
+_CADENCE_TEXT = {"fig2": "one gradient step per chunk_size env steps (Figure 2's cadence)",
+                 "per_step": "one gradient step per env step (the peers' cadence)",
+                 "own": "its configuration's own train_freq and gradient_steps"}
+
+
+def describe_ua2c_arm(arm: str) -> str:
+    """A UA2C arm in words, for its record's ``notes``: its configuration and its online update cadence."""
+    spec = UA2C_ARMS[arm]
+    config = "preset('paper')" if spec.config == "paper" else "the defaults with the budget's algo_kwargs"
+    return (f"UA2C ({arm}: {config}): offline checkpoint, then online with the offline data in its buffer and "
+            f"{_CADENCE_TEXT[spec.cadence]}")
+
+
 #: UA2C constructor arguments of a budget that the preset leaves to the problem (``"paper"`` arms keep them)
 OPTIMISATION_KEYS = ("learning_rate", "batch_size", "gamma", "tau")
 #: Peer arms: SB3 online from scratch, SAC with the offline data in half of each batch, d3rlpy offline then online.

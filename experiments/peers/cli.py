@@ -114,16 +114,32 @@ def observation_text(records: dict[str, list[dict[str, Any]]]) -> str:
     return f"the observation with the driving-style context c_t (classifier {sorted(map(str, classifiers))})"
 
 
+def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict[str, list[str]]:
+    """Arms whose records another run made (their dataset lies outside ``work``; records are reused where
+    seeds, data and scenarios are the same): ``{that run's work directory: arms}``."""
+    reused: dict[str, set[str]] = {}
+    for arm, rs in records.items():
+        for r in rs:
+            dataset = Path(r["dataset"]["path"])  # <work>/seed<N>/dataset
+            if not dataset.resolve().is_relative_to(work.resolve()):
+                reused.setdefault(dataset.parent.parent.as_posix(), set()).add(arm)
+    return {run: sorted(arms) for run, arms in sorted(reused.items())}
+
+
 def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command: str, date: str,
                   reps: int = 2000) -> dict[str, Any]:
-    """``peers.json``: the header (command, date, budget, estimate, observation) and :func:`aggregate`."""
+    """``peers.json``: the header (command, date, budget, estimate of the units run here, records reused
+    from other runs, observation) and :func:`aggregate`."""
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})
-    estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS], len(seeds))  # run units only
+    reused = reused_records(records, paths.work)
+    elsewhere = {a for arms in reused.values() for a in arms}
+    estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS and a not in elsewhere], len(seeds))
     return {"command": command, "date": date, "seeds": seeds, "budget": budget.to_dict(),
             "estimate": {**estimate_wall(estimate, workers), "workers": workers, "per_unit": estimate},
-            "observation": observation_text(records), "scenarios": scenario_text(records), **summary}
+            "reused": reused, "observation": observation_text(records), "scenarios": scenario_text(records),
+            **summary}
 
 
 def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: PeersBudget, paths: PeersPaths) -> None:

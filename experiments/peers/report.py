@@ -418,6 +418,8 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         f"Command: `{summary['command']}` ({summary['date']}). Seeds: {summary['seeds']}. "
         f"Estimated before the run: {est['cpu'] / 60:.0f} CPU-min, ~{est['wall'] / 60:.0f} min wall on "
         f"{est['workers']} worker(s).",
+        *(f"Records reused from the run in `{run}` (the same seeds, data and scenarios): {', '.join(arms)}."
+          for run, arms in summary.get("reused", {}).items()),
         "",
         *_protocol_lines(summary),
         "",

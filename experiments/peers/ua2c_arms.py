@@ -4,9 +4,10 @@ one unit per UA2C arm, each returning the same record as the peer units
 
 The stages are Figure 2's (:mod:`experiments.fig2.units`): the seed's dataset is collected with
 the same seed and behaviour policy, the checkpoints pre-trained with the same arguments and seed,
-and the online phase runs with Figure 2's cadence (one gradient step per ``chunk_size`` env steps,
-:func:`~experiments.fig2.units.finetune_overrides`), so a UA2C arm here is the Figure-2 arm at
-this online budget.
+and the online phase of Figure 2's arms runs with Figure 2's cadence (one gradient step per
+``chunk_size`` env steps, :func:`~experiments.fig2.units.finetune_overrides`), so such an arm here is
+the Figure-2 arm at this online budget; ``ua2c`` and ``ua2c_paper`` keep their configuration's own
+schedule (:data:`~experiments.peers.budget.UA2C_ARMS`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
+from experiments.peers.budget import describe_ua2c_arm
 from experiments.peers.common import (
     ArmInputs,
     EvalProtocol,
@@ -117,8 +119,6 @@ def run_ua2c_arm(
     clock.cpu["offline"] = float(pretrain_record["cpu_seconds"]["offline"])
     hyper = {"algo": "ua2c", "delta": "inf" if delta == float("inf") else delta,
              "algo_kwargs": dict(pretrain_record["algo_kwargs"]), "finetune_overrides": dict(finetune_overrides)}
-    notes = (f"UA2C (Figure 2's {arm.removeprefix('ua2c_')} arm): offline checkpoint, then online with the offline "
-             "data in its buffer and one gradient step per chunk_size env steps")
     return unit_record(arm, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
                        clock, offline_steps=int(pretrain_record["pretrain_steps"]),
-                       offline_evaluation=offline_evaluation, notes=notes)
+                       offline_evaluation=offline_evaluation, notes=describe_ua2c_arm(arm))

@@ -107,6 +107,29 @@ def test_every_arm_of_a_seed_reads_the_same_data_and_scenarios(quick_run):
     assert default["finetune_overrides"] == {} and paper["finetune_overrides"] == {}  # their own schedules
     assert default["algo_kwargs"] == {"batch_size": 32, "chunk_size": 3, "entropy_threshold": 0.0}
     assert paper["algo_kwargs"] == {**preset("paper"), "batch_size": 32, "chunk_size": 3} and paper["delta"] is None
+    # each UA2C record says in words which configuration and cadence it ran with
+    assert _records(quick_run, "ua2c")[0]["notes"].endswith("its configuration's own train_freq and gradient_steps")
+    assert "preset('paper')" in _records(quick_run, "ua2c_paper")[0]["notes"]
+    assert "(Figure 2's cadence)" in _records(quick_run, "ua2c_fixed")[0]["notes"]
+    assert "(the peers' cadence)" in _records(quick_run, "ua2c_adaptive_per_step")[0]["notes"]
+
+
+def test_a_report_over_records_of_another_run_names_that_run(quick_run, tmp_path):
+    out = tmp_path / "merged"
+    for s in (0, 1):
+        (out / "peers_raw" / f"seed{s}").mkdir(parents=True)
+        for arm in ("ua2c", "sac"):
+            name = f"seed{s}/{arm}.json"
+            (out / "peers_raw" / name).write_text((quick_run / "peers_raw" / name).read_text())
+    args = ["--quick", "--seeds", "0", "1", "--arms", "ua2c", "sac", "--out", str(out), "--report-only"]
+    assert cli.main(args) == 0
+    summary = json.loads((out / "peers.json").read_text())
+    assert summary["reused"] == {(quick_run / "peers_work").as_posix(): ["sac", "ua2c"]}
+    assert summary["estimate"]["cpu"] == 0  # nothing of it ran here
+    md = (out / "peers.md").read_text()
+    assert f"Records reused from the run in `{(quick_run / 'peers_work').as_posix()}`" in md and ": sac, ua2c." in md
+    # the run's own records are not "reused"
+    assert json.loads((quick_run / "peers.json").read_text())["reused"] == {}
 
 
 def test_a_second_run_skips_every_unit_and_one_deleted_unit_runs_alone(quick_run, capsys):
