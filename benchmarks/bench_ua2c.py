@@ -64,11 +64,11 @@ def flops(fn: Callable[[], object]) -> int:
 
 
 def latency(repeats: int, ua2c_kwargs: dict) -> None:
-    """One replanning of UA2C (S=32 candidates, k=10, N=10 Euler steps, min-Q selection, entropy,
-    prefix length) next to SAC's predict on the same observation."""
+    """One replanning of UA2C (S=32 candidates, k=10, N=10 Euler steps unless ``ua2c_kwargs`` say
+    otherwise; min-Q selection, entropy, prefix length) next to SAC's predict on the same observation."""
     env = gym.make(ENV_ID)
     obs, _ = env.reset(seed=0)
-    ua2c = UA2C("MlpPolicy", ENV_ID, chunk_size=10, n_candidates=32, flow_steps=10, seed=0, **ua2c_kwargs)
+    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0, **{"chunk_size": 10, "n_candidates": 32, "flow_steps": 10, **ua2c_kwargs})
     sac = SAC("MlpPolicy", ENV_ID, seed=0)
     policy = ua2c.policy
     obs_h = np.repeat(obs[None, None], ua2c.history_len, axis=1).astype(np.float32)  # (1, ℓ, obs_dim)
@@ -91,7 +91,7 @@ def latency(repeats: int, ua2c_kwargs: dict) -> None:
         sac_flops = flops(lambda: sac.policy.actor(th.as_tensor(obs[None]), deterministic=True))
         parts = _plan_parts(policy, obs_t, act_t, repeats)
     print(
-        f"replanning UA2C (S=32, k=10, N=10): median {plan_ms:.3f} ms wall, {plan_cpu:.3f} ms CPU, "
+        f"replanning UA2C (S={policy.n_candidates}, k={ua2c.chunk_size}, N={policy.flow_steps}): median {plan_ms:.3f} ms wall, {plan_cpu:.3f} ms CPU, "
         f"{plan_flops / 1e6:.2f} MFLOP = {plan_flops / plan_cpu / 1e6:.1f} GFLOP/s (goal <= 0.6 ms wall)"
     )
     print("  of which (ms CPU): " + ", ".join(f"{name} {ms:.3f}" for name, ms in parts.items()))
