@@ -125,7 +125,7 @@ def test_a_report_over_records_of_another_run_names_that_run(quick_run, tmp_path
     assert cli.main(args) == 0
     summary = json.loads((out / "peers.json").read_text())
     assert summary["reused"] == {(quick_run / "peers_work").as_posix(): ["sac", "ua2c"]}
-    assert summary["estimate"]["cpu"] == 0  # nothing of it ran here
+    assert summary["estimate"]["per_unit"]["arms"] == {} and summary["estimate"]["per_unit"]["pretrain"] == {}  # none ran here
     md = (out / "peers.md").read_text()
     assert f"Records reused from the run in `{(quick_run / 'peers_work').as_posix()}`" in md and ": sac, ua2c." in md
     # the run's own records are not "reused"
