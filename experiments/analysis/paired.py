@@ -119,14 +119,27 @@ def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[st
             **paired_difference(sx, sy, higher_is_better=higher_is_better)}
 
 
-def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str) -> str:
-    """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval."""
+#: Episode metrics where less is better (the harness's records): with ``--lower-is-better`` their
+#: difference is reported as Y − X.
+COST_METRICS = ("collision", "cumulative_jerk", "jerk_per_step")
+
+
+def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str,
+                higher_is_better: bool = True) -> str:
+    """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval
+    (X − Y, or Y − X for a cost), saying which way is better."""
     if not (x.conditions and y.conditions):  # a report's list: its metric is whatever the list holds
         metric = "score"
+    if not higher_is_better:
+        sense, ahead = "Y − X (lower is better), X better when > 0", "X ahead in"
+    elif metric in COST_METRICS:
+        sense, ahead = "X − Y (a cost: X better when < 0; --lower-is-better reports Y − X)", "X higher in"
+    else:
+        sense, ahead = "X − Y, X better when > 0", "X ahead in"
     return (f"X = {x.name}: {result['x_mean']:.2f}\nY = {y.name}: {result['y_mean']:.2f}\n"
-            f"{metric}, X better when > 0, paired over seeds {result['seeds']}: {result['difference']:+.2f} "
+            f"{metric}, {sense}, paired over seeds {result['seeds']}: {result['difference']:+.2f} "
             f"[{result['ci_low']:+.2f}, {result['ci_high']:+.2f}] (95 % Student-t); "
-            f"X ahead in {result['x_better_runs']} of {result['runs']} runs")
+            f"{ahead} {result['x_better_runs']} of {result['runs']} runs")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -146,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = pair(x, y, higher_is_better=not args.lower_is_better)
     except ValueError as exc:
         parser.error(str(exc))
-    print(format_pair(x, y, result, args.metric))
+    print(format_pair(x, y, result, args.metric, higher_is_better=not args.lower_is_better))
     return 0
 
 

@@ -133,3 +133,13 @@ def test_a_report_key_that_is_not_a_score_list(tmp_path):
         paired.load_scores(f"{report}:a.b", "reward", "evaluation")
     with pytest.raises(ValueError, match="not a list of numbers"):
         paired.load_scores(f"{report}:c", "reward", "evaluation")
+
+
+def test_the_printed_line_says_which_way_is_better_for_a_cost(runs, capsys):
+    a, b = runs
+    assert paired.main([f"{a}:x", f"{b}:y", "--metric", "cumulative_jerk"]) == 0
+    out = capsys.readouterr().out  # x's jerk is 10, 20, 30 above y's on the 3 seeds
+    assert "X − Y (a cost: X better when < 0" in out and "+20.00" in out and "X higher in 3 of 3 runs" in out
+    assert paired.main([f"{a}:x", f"{b}:y", "--metric", "cumulative_jerk", "--lower-is-better"]) == 0
+    out = capsys.readouterr().out
+    assert "Y − X (lower is better), X better when > 0" in out and "-20.00" in out and "X ahead in 0 of 3 runs" in out
