@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import paired_difference, run_scores
+from experiments.common.stats import LOWER_IS_BETTER, paired_difference, run_scores
 from experiments.peers.runner import PeersPaths, load_records
 
 
@@ -119,11 +119,6 @@ def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[st
             **paired_difference(sx, sy, higher_is_better=higher_is_better)}
 
 
-#: Episode metrics where less is better (the harness's records): with ``--lower-is-better`` their
-#: difference is reported as Y − X.
-COST_METRICS = ("collision", "cumulative_jerk", "jerk_per_step")
-
-
 def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str,
                 higher_is_better: bool = True) -> str:
     """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval
@@ -132,7 +127,7 @@ def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric:
         metric = "score"
     if not higher_is_better:
         sense, ahead = "Y − X (lower is better), X better when > 0", "X ahead in"
-    elif metric in COST_METRICS:
+    elif metric in LOWER_IS_BETTER:
         sense, ahead = "X − Y (a cost: X better when < 0; --lower-is-better reports Y − X)", "X higher in"
     else:
         sense, ahead = "X − Y, X better when > 0", "X ahead in"

@@ -118,10 +118,11 @@ def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict
     """Arms whose records another run made (their dataset lies outside ``work``; records are reused where
     seeds, data and scenarios are the same): ``{that run's work directory: arms}``."""
     reused: dict[str, set[str]] = {}
+    work = work.resolve()
     for arm, rs in records.items():
         for r in rs:
             dataset = Path(r["dataset"]["path"])  # <work>/seed<N>/dataset
-            if not dataset.resolve().is_relative_to(work.resolve()):
+            if not dataset.resolve().is_relative_to(work):
                 reused.setdefault(dataset.parent.parent.as_posix(), set()).add(arm)
     return {run: sorted(arms) for run, arms in sorted(reused.items())}
 

@@ -391,14 +391,15 @@ def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
     b = summary["budget"]["ua2c"]
     arms = summary["arms"]
     lines = []
-    if "ua2c" in arms or "ua2c_paper" in arms:
+    own = [UA2C_ARMS[a].cadence == "own" for a in arms if a in UA2C_ARMS]  # the user's and the paper's arms
+    if any(own):
         lines.append(
             "- UA2C as a user gets it (`ua2c`: this release's defaults with the budget's `algo_kwargs`, one "
             "gradient step per env step) and as the paper writes it (`ua2c_paper`: `preset(\"paper\")` with the "
             "budget's learning rate, batch, γ and τ, one gradient step per replanning), each pre-trained offline "
             f"into its own checkpoint, chunk length k = {b['chunk_size']}, then fine-tuned online with the offline "
             "data in the buffer.")
-    if any(a in arms for a in ("ua2c_adaptive", "ua2c_fixed", "ua2c_onestep", "ua2c_adaptive_per_step")):
+    if not all(own):  # Figure 2's arms
         lines.append(
             f"- Figure 2's UA2C arms (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for "
             "adaptive, δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the "
