@@ -58,13 +58,15 @@ class UA2CArm:
 
 #: UA2C arms by name. ``ua2c`` is UA2C as a user gets it (the defaults of this release with the
 #: budget's ``algo_kwargs``, its own update schedule), ``ua2c_paper`` the paper as written (the
-#: preset); the others are Figure 2's arms at Figure 2's cadence.
+#: preset); ``ua2c_fixed`` and ``ua2c_onestep`` are ``ua2c`` with δ = inf and with k = 1 at the same
+#: schedule, the arms Figure 2 (a)-(c) compare with it; ``ua2c_adaptive`` is ``ua2c`` at Figure 2's
+#: cadence (the paper's one update per ``k`` env steps), ``ua2c_adaptive_per_step`` at the peers'.
 UA2C_ARMS: dict[str, UA2CArm] = {
     "ua2c": UA2CArm(cadence="own"),
     "ua2c_paper": UA2CArm(delta=None, config="paper", cadence="own"),
     "ua2c_adaptive": UA2CArm(),
-    "ua2c_fixed": UA2CArm(delta="inf"),
-    "ua2c_onestep": UA2CArm(k=1, delta=None),
+    "ua2c_fixed": UA2CArm(delta="inf", cadence="own"),
+    "ua2c_onestep": UA2CArm(k=1, delta=None, cadence="own"),
     "ua2c_adaptive_per_step": UA2CArm(cadence="per_step"),
 }
 _CADENCE_TEXT = {"fig2": "one gradient step per chunk_size env steps (Figure 2's cadence)",
@@ -95,9 +97,9 @@ OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
     "ua2c": "UA2C (defaults)",
     "ua2c_paper": "UA2C as in the paper (preset)",
-    "ua2c_adaptive": "UA2C adaptive chunks",
-    "ua2c_fixed": "UA2C fixed chunks (δ=inf)",
-    "ua2c_onestep": "UA2C one-step (k=1)",
+    "ua2c_adaptive": "UA2C adaptive, one update per k env steps",
+    "ua2c_fixed": "UA2C (defaults) fixed chunks (δ=inf)",
+    "ua2c_onestep": "UA2C (defaults) one-step (k=1)",
     "ua2c_adaptive_per_step": "UA2C adaptive, one update per env step",
     "sac": "SB3 SAC (online)",
     "tqc": "sb3-contrib TQC (online)",

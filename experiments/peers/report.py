@@ -38,12 +38,12 @@ POI_METRICS = ("reward", "collision", "merge_success", "jerk_per_step")
 CURVE_BINS = 20
 #: Figure 2's claims (a)-(c) read from the UA2C arms of a run: claim -> (arm X, arm Y, metric, evaluation,
 #: higher is better). (a), (b): the offline chunk policy (whole chunks) against the one-step baseline;
-#: (c): adaptive against fixed execution after the online phase.
+#: (c): adaptive execution (the defaults, ``ua2c``) against fixed execution after the online phase.
 FIGURE2_CLAIMS = {
     "(a) offline reward, chunks (k = 5) vs one-step": ("ua2c_fixed", "ua2c_onestep", "reward", "offline_evaluation", True),
     "(b) offline cum. jerk, chunks vs one-step": ("ua2c_fixed", "ua2c_onestep", "cumulative_jerk", "offline_evaluation",
                                                  False),
-    "(c) online reward, adaptive vs fixed chunks": ("ua2c_adaptive", "ua2c_fixed", "reward", "evaluation", True),
+    "(c) online reward, adaptive vs fixed chunks": ("ua2c", "ua2c_fixed", "reward", "evaluation", True),
 }
 
 
@@ -391,22 +391,25 @@ def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
     b = summary["budget"]["ua2c"]
     arms = summary["arms"]
     lines = []
-    own = [UA2C_ARMS[a].cadence == "own" for a in arms if a in UA2C_ARMS]  # the user's and the paper's arms
-    if any(own):
+    ours = [a for a in arms if a in UA2C_ARMS]
+    if {"ua2c", "ua2c_paper"} & set(ours):
         lines.append(
             "- UA2C as a user gets it (`ua2c`: this release's defaults with the budget's `algo_kwargs`, one "
             "gradient step per env step) and as the paper writes it (`ua2c_paper`: `preset(\"paper\")` with the "
             "budget's learning rate, batch, γ and τ, one gradient step per replanning), each pre-trained offline "
             f"into its own checkpoint, chunk length k = {b['chunk_size']}, then fine-tuned online with the offline "
             "data in the buffer.")
-    if not all(own):  # Figure 2's arms
+    if {"ua2c_fixed", "ua2c_onestep"} & set(ours):
         lines.append(
-            f"- Figure 2's UA2C arms (chunk length k = {b['chunk_size']}, δ = {b['entropy_threshold']:g} for "
-            "adaptive, δ = inf for fixed, k = 1 for one-step), pre-trained offline, then fine-tuned online with the "
-            "offline data in the buffer and one gradient step per k env steps (Figure 2's cadence), the one-step "
-            f"arm too: about 1/{b['chunk_size']} of the updates of SAC, TQC, CrossQ and the d3rlpy arms (one per "
-            f"env step; RLPD {summary['budget'].get('rlpd_updates_per_step', 1)}). \"UA2C adaptive, one update per "
-            "env step\" is the adaptive arm at the peers' update budget.")
+            "- Figure 2's arms at the defaults: `ua2c_fixed` acts the `ua2c` checkpoint with δ = inf (whole "
+            "chunks), `ua2c_onestep` is `ua2c` with k = 1 in its own checkpoint; both keep `ua2c`'s update "
+            "schedule, so the three arms make the same gradient steps.")
+    fig2 = [a for a in ours if UA2C_ARMS[a].cadence != "own"]
+    if fig2:
+        lines.append(
+            f"- {', '.join(f'`{a}`' for a in fig2)}: `ua2c` (δ = {b['entropy_threshold']:g}) fine-tuned with one "
+            f"gradient step per k = {b['chunk_size']} env steps (Figure 2's cadence: about 1/{b['chunk_size']} of "
+            "the peers' updates) or, `_per_step`, one per env step (the peers' cadence).")
     return lines
 
 

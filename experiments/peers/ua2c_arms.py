@@ -3,11 +3,11 @@ one unit per UA2C arm, each returning the same record as the peer units
 (:func:`~experiments.peers.common.unit_record`).
 
 The stages are Figure 2's (:mod:`experiments.fig2.units`): the seed's dataset is collected with
-the same seed and behaviour policy, the checkpoints pre-trained with the same arguments and seed,
-and the online phase of Figure 2's arms runs with Figure 2's cadence (one gradient step per
-``chunk_size`` env steps, :func:`~experiments.fig2.units.finetune_overrides`), so such an arm here is
-the Figure-2 arm at this online budget; ``ua2c`` and ``ua2c_paper`` keep their configuration's own
-schedule (:data:`~experiments.peers.budget.UA2C_ARMS`).
+the same seed and behaviour policy, the checkpoints pre-trained with the same arguments and seed.
+``ua2c``, ``ua2c_paper`` and Figure 2's arms at the defaults (``ua2c_fixed``, ``ua2c_onestep``) keep
+their configuration's own update schedule; ``ua2c_adaptive`` runs with Figure 2's cadence (one
+gradient step per ``chunk_size`` env steps, :func:`~experiments.fig2.units.finetune_overrides`)
+(:data:`~experiments.peers.budget.UA2C_ARMS`).
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def run_ua2c_arm(
 
     :param arm: the arm's name (``ua2c_adaptive``, ``ua2c_fixed``, ``ua2c_onestep``)
     :param delta: δ the arm acts and fine-tunes with (``inf``: fixed chunks; ``None``: the checkpoint's)
-    :param finetune_overrides: Phase-2 attributes (Figure 2's :func:`finetune_overrides`)
+    :param finetune_overrides: Phase-2 attributes (:meth:`~experiments.peers.budget.PeersBudget.finetune_overrides`)
     :param pretrain_record: the record of :func:`build_checkpoint` (its time is counted in this arm's)
     :param inputs: the unit's directory, dataset, seed, online steps and evaluation scenarios
         (:class:`~experiments.peers.common.ArmInputs`)
