@@ -391,20 +391,20 @@ def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
     b = summary["budget"]["ua2c"]
     arms = summary["arms"]
     lines = []
-    ours = [a for a in arms if a in UA2C_ARMS]
-    if {"ua2c", "ua2c_paper"} & set(ours):
+    ours = set(arms) & set(UA2C_ARMS)
+    if ours & {"ua2c", "ua2c_paper"}:
         lines.append(
             "- UA2C as a user gets it (`ua2c`: this release's defaults with the budget's `algo_kwargs`, one "
             "gradient step per env step) and as the paper writes it (`ua2c_paper`: `preset(\"paper\")` with the "
             "budget's learning rate, batch, γ and τ, one gradient step per replanning), each pre-trained offline "
             f"into its own checkpoint, chunk length k = {b['chunk_size']}, then fine-tuned online with the offline "
             "data in the buffer.")
-    if {"ua2c_fixed", "ua2c_onestep"} & set(ours):
+    if ours & {"ua2c_fixed", "ua2c_onestep"}:
         lines.append(
             "- Figure 2's arms at the defaults: `ua2c_fixed` acts the `ua2c` checkpoint with δ = inf (whole "
             "chunks), `ua2c_onestep` is `ua2c` with k = 1 in its own checkpoint; both keep `ua2c`'s update "
             "schedule, so the three arms make the same gradient steps.")
-    fig2 = [a for a in ours if UA2C_ARMS[a].cadence != "own"]
+    fig2 = [a for a in UA2C_ARMS if a in ours and UA2C_ARMS[a].cadence != "own"]  # in UA2C_ARMS's order
     if fig2:
         lines.append(
             f"- {', '.join(f'`{a}`' for a in fig2)}: `ua2c` (δ = {b['entropy_threshold']:g}) fine-tuned with one "
