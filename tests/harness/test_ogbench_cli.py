@@ -239,6 +239,10 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
     one_arm = format_markdown(summarize(hand_records[3:], reps=50))  # the one-step arm alone
     assert "One arm ran: no pair of arms" in one_arm and "| X > Y |" not in one_arm
     assert "| X > Y |" in text  # two arms: the table of pairs
+    cpu = sum(summary["seconds"].values()) / 60
+    for estimate, said in ((2 * cpu, "an upper bound"), (cpu / 2, "exceeded: the units cost more")):
+        summary["estimate"] = {"total_cpu": estimate * 60}
+        assert f"(estimate {estimate:.0f} CPU-min, {said}" in format_markdown(summary)
 
 
 def test_report_rejects_mixed_tasks_and_reads_run_rates(hand_records):
