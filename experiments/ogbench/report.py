@@ -125,12 +125,11 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
         lines += [f"Command: `{command}`" + (f" ({summary['date']})" if summary.get("date") else ""), ""]
     cpu = sum(summary["seconds"].values()) / 60
     est = summary.get("estimate") or {}
+    compute = f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units"
     if est.get("total_cpu"):  # the cost model's estimate bounds the run unless its units cost more than modelled
         bound = "an upper bound" if cpu <= est["total_cpu"] / 60 else "exceeded: the units cost more than the cost model"
-        lines += [f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units (estimate "
-                  f"{est['total_cpu'] / 60:.0f} CPU-min, {bound}).", ""]
-    else:
-        lines += [f"Compute: {cpu:.0f} CPU-min over {summary['n_units']} units.", ""]
+        compute += f" (estimate {est['total_cpu'] / 60:.0f} CPU-min, {bound})"
+    lines += [compute + ".", ""]
     lines += ["Success rate after each phase. A run's score is its success rate over its evaluation episodes; "
               "the table gives the mean over runs, the IQM over runs with its stratified bootstrap 95 % interval "
               "(rliable), and every run's rate.", "",
