@@ -71,6 +71,24 @@ DEFAULT_N_ELITE = 8
 DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
 
+def resolved_policy_defaults(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """
+    ``policy_kwargs`` with the arguments whose ``None`` stands for a default given that default:
+    ``n_elite`` (:data:`DEFAULT_N_ELITE`),
+    and ``net_arch`` (:data:`DEFAULT_NET_ARCH`); ``critic_net_arch`` stays ``None`` (it applies to
+    ``critic_arch="mlp"`` only, where ``None`` is :data:`DEFAULT_CRITIC_NET_ARCH`). Used by :func:`sb3_ua2c.defaults.defaults`.
+
+    :param policy_kwargs: the policy's arguments by name
+    :return: a new dict
+    """
+    out = dict(policy_kwargs)
+    if out.get("n_elite", 0) is None:
+        out["n_elite"] = DEFAULT_N_ELITE
+    if out.get("net_arch", 0) is None:
+        out["net_arch"] = list(DEFAULT_NET_ARCH)
+    return out
+
+
 class UA2CPolicy(ExecutionRuleState):
     """
     Policy of UA2C: flow-matching chunk actor, twin Transformer chunk critics (+ Polyak targets) and
