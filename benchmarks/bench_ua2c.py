@@ -6,6 +6,7 @@
     python benchmarks/bench_ua2c.py throughput --env envs:MixedTraffic-v0   # the SUMO env, both at defaults
     python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
     python benchmarks/bench_ua2c.py learning --algos UA2C --ua2c-kwargs "{'chunk_size': 1}"
+    python benchmarks/bench_ua2c.py profile --env envs:MixedTraffic-v0   # where a step and a replanning go
 
 Everything runs on one CPU thread. The machine may be shared: read the ratios, not the absolute times.
 """
@@ -28,6 +29,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import chunk_entropy
+from sb3_ua2c.presets import preset
 
 ENV_ID = "Pendulum-v1"
 
@@ -204,11 +206,122 @@ def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str],
         print(f"UA2C mean executed length L_t: {np.mean(lengths):.2f}")
 
 
+#: configurations of ``profile``: the defaults, the paper preset and one speed lever each (on the defaults)
+PROFILE_CONFIGS: dict[str, dict] = {
+    "defaults": {},
+    "paper": preset("paper"),
+    "field 256x2": {"policy_kwargs": {"net_arch": [256, 256]}},
+    "field 128x2": {"policy_kwargs": {"net_arch": [128, 128]}},
+    "N=5 acting": {"flow_steps": 5},
+    "one-step actor": {"policy_kwargs": {"actor_type": "one_step"}},
+    "MLP critic": {"policy_kwargs": {"critic_arch": "mlp"}},
+    "fast 256": {"flow_steps": 5, "policy_kwargs": {"net_arch": [256, 256], "critic_arch": "mlp"}},
+    "fast 128": {"flow_steps": 5, "policy_kwargs": {"net_arch": [128, 128], "critic_arch": "mlp"}},
+    "fast 256, Q=1": {"flow_steps": 5, "n_target_candidates": 1,
+                      "policy_kwargs": {"net_arch": [256, 256], "critic_arch": "mlp"}},
+}
+
+
+class _PartTimer:
+    """Thread CPU ms per named part, summed over the parts' calls, medians over repetitions."""
+
+    def __init__(self) -> None:
+        self.current: dict[str, float] = {}
+        self.rows: list[dict[str, float]] = []
+
+    def part(self, name: str, fn: Callable[[], object]) -> object:
+        start = time.thread_time()
+        out = fn()
+        self.current[name] = self.current.get(name, 0.0) + 1e3 * (time.thread_time() - start)
+        return out
+
+    def next_row(self) -> None:
+        self.rows.append(self.current)
+        self.current = {}
+
+    def medians(self) -> dict[str, float]:
+        return {name: statistics.median(row.get(name, 0.0) for row in self.rows) for name in self.rows[0]}
+
+
+def _profiled_step(model: UA2C, data, timer: _PartTimer) -> None:
+    """``UA2C._gradient_step`` cut into timed parts (the same calls in the same order)."""
+    from stable_baselines3.common.utils import polyak_update
+
+    from sb3_ua2c.actor_objectives import actor_objective
+    from sb3_ua2c.chunking import bootstrap_value, chunk_critic_loss, chunk_target
+    from sb3_ua2c.diagnostics import training_stats
+
+    policy = model.policy
+    obs_flat = data.observation_history.flatten(1)
+    with th.no_grad():
+        m = data.next_observation_history.shape[0]
+        candidates = timer.part("target: candidates", lambda: policy.sample_chunks(
+            data.next_observation_history, data.next_action_history, model.n_target_candidates,
+            model.target_flow_steps))
+        next_q = timer.part("target: critics", lambda: model.critic_target(
+            data.next_observation_history.reshape(m, -1), candidates.clamp(-1.0, 1.0)))
+        target = chunk_target(data.rewards, data.horizons, data.bootstrap, bootstrap_value(next_q), model.gamma)
+    q = timer.part("critic: forward", lambda: model.critic(obs_flat, data.chunks.unsqueeze(1)).squeeze(2))
+    critic_loss = chunk_critic_loss(q, target)
+    model.critic.optimizer.zero_grad()
+    timer.part("critic: backward", critic_loss.backward)
+    timer.part("critic: Adam", model.critic.optimizer.step)
+    objective = timer.part("actor: forward (flow loss + value term)", lambda: actor_objective(model, data))
+    model.actor.optimizer.zero_grad()
+    timer.part("actor: backward", objective.loss.backward)
+    timer.part("actor: Adam", model.actor.optimizer.step)
+    timer.part("Polyak", lambda: polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau))
+    timer.part("logged stats", lambda: training_stats(model, data, q.detach(), target))
+    timer.next_row()
+
+
+def profile(env_id: str, repeats: int, names: list[str]) -> None:
+    """Where a gradient step and a replanning spend their time: each configuration of
+    :data:`PROFILE_CONFIGS` after a warm-up on ``env_id`` (thread CPU ms, medians of ``repeats`` steps),
+    next to SAC's gradient step and ``predict`` measured in the same run."""
+    print(f"env {env_id}, thread CPU ms, medians of {repeats} steps")
+    table: dict[str, dict[str, float]] = {}
+    for name in names:
+        model = UA2C("MlpPolicy", env_id, seed=0, **PROFILE_CONFIGS[name])
+        model.learn(model.learning_starts + 200)
+        model.env.close()
+        model.policy.set_training_mode(True)
+        timer = _PartTimer()
+        for _ in range(repeats + 3):
+            data = model.replay_buffer.sample(model.batch_size)
+            _profiled_step(model, data, timer)
+        timer.rows = timer.rows[3:]
+        parts = timer.medians()
+        step_flops = flops(lambda: model._gradient_step(model.replay_buffer.sample(model.batch_size)))
+        model.policy.set_training_mode(False)
+        policy = model.policy
+        data = model.replay_buffer.sample(1)
+        obs_t, act_t = data.observation_history, data.action_history
+        with th.inference_mode():
+            plan = cpu_ms(lambda: policy.plan_tensors(obs_t, act_t), repeats * 10)
+            plan_parts = _plan_parts(policy, obs_t, act_t, repeats * 10)
+        table[name] = {**parts, "gradient step (sum)": sum(parts.values()), "GFLOP": step_flops / 1e9,
+                       "replanning": plan, **{f"replanning: {k}": v for k, v in plan_parts.items()}}
+        print(name, {k: round(v, 2) for k, v in table[name].items()}, flush=True)
+    sac = SAC("MlpPolicy", env_id, seed=0)
+    sac.learn(sac.learning_starts + 200)
+    obs = sac.env.reset()
+    sac.env.close()
+    sac_step = cpu_ms(lambda: sac.train(1, sac.batch_size), repeats, warmup=3)
+    sac_predict = cpu_ms(lambda: sac.predict(obs, deterministic=True), repeats * 10)
+    rows = list(next(iter(table.values())))
+    print("\n| part | " + " | ".join(table) + " | SAC |")
+    print("|---|" + "---|" * (len(table) + 1))
+    for row in rows:
+        sac_cell = {"gradient step (sum)": f"{sac_step:.2f}", "replanning": f"`predict` {sac_predict:.2f}"}.get(row, "")
+        print(f"| {row} | " + " | ".join(f"{table[n][row]:.2f}" for n in table) + f" | {sac_cell} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("part", choices=["latency", "throughput", "learning"])
+    parser.add_argument("part", choices=["latency", "throughput", "learning", "profile"])
     parser.add_argument("--repeats", type=int, default=300, help="latency: timed calls")
     parser.add_argument(
         "--steps", type=int, default=None, help="throughput: 1000 timed steps; learning: 20000"
@@ -224,12 +337,16 @@ def main() -> None:
     parser.add_argument(
         "--env", default=ENV_ID, help="throughput: env id (module:id imports the module first, e.g. envs:MixedTraffic-v0)"
     )
+    parser.add_argument("--configs", nargs="+", choices=list(PROFILE_CONFIGS), default=list(PROFILE_CONFIGS),
+                        help="profile: the configurations to measure")
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
     args = parser.parse_args()
     th.set_num_threads(1)
     print(f"torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
     if args.part == "latency":
         latency(args.repeats, args.ua2c_kwargs)
+    elif args.part == "profile":
+        profile(args.env, min(args.repeats, 30), args.configs)
     elif args.part == "throughput":
         throughput(args.steps or 1000, args.ua2c_kwargs, args.env)
     else:
