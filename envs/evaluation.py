@@ -207,17 +207,67 @@ def plan_length_shares(results: list[EpisodeMetrics], chunk_size: int) -> list[f
     return length_shares([n for r in results for n in r.plan_lengths], chunk_size)
 
 
-def format_table(rows: dict[str, dict[str, float]]) -> str:
-    """A plain-text table, one row per method, 95 characters wide (fits a terminal and the README)."""
-    headers = ("method", "reward", "cum. jerk", "collision", "merge", "speed", "mean L_t")
-    lines = [" | ".join(f"{h:>11}" for h in headers)]
-    lines.append("-|-".join("-" * 11 for _ in headers))
+#: the keys of :data:`SUMMARY_KEYS` that are rates of a yes/no outcome per episode
+RATE_KEYS = ("collision", "merge_success")
+#: the columns of :func:`format_table`: ``(header, summary key)``
+TABLE_COLUMNS = (("reward", "reward"), ("cum. jerk", "cumulative_jerk"), ("collision", "collision"),
+                 ("merge", "merge_success"), ("speed", "mean_speed"), ("mean L_t", "mean_executed_length"))
+
+
+def episode_intervals(results: list[EpisodeMetrics], confidence: float = 0.95) -> dict[str, tuple[float, float]]:
+    """
+    Confidence intervals of :func:`summarize`'s means over the episodes of one run: Student's t interval
+    of the mean (scipy) for the continuous metrics, Wilson's score interval (scipy's ``binomtest``) for the
+    rates :data:`RATE_KEYS`. An interval over the scenarios of one run, not over training runs.
+
+    :param results: the episodes (at least 1; with 1, or no spread, the interval is the mean itself)
+    :param confidence: the interval's level
+    :return: ``{key: (low, high)}`` for every key of :data:`SUMMARY_KEYS`
+    """
+    from scipy import stats
+
+    if not results:
+        raise ValueError("no episodes to summarize")
+    n, out = len(results), {}
+    for key in SUMMARY_KEYS:
+        x = np.array([float(getattr(r, key)) for r in results])
+        if key in RATE_KEYS:
+            ci = stats.binomtest(int(x.sum()), n).proportion_ci(confidence, method="wilson")
+            out[key] = (float(ci.low), float(ci.high))
+        elif n < 2 or not np.ptp(x) > 0:
+            out[key] = (float(x.mean()), float(x.mean()))
+        else:
+            low, high = stats.t.interval(confidence, n - 1, loc=x.mean(), scale=stats.sem(x))
+            out[key] = (float(low), float(high))
+    return out
+
+
+def _interval_cell(low: float, high: float) -> str:
+    digits = 2 if max(abs(low), abs(high)) < 10 else 1 if max(abs(low), abs(high)) < 1000 else 0
+    return f"{low:.{digits}f}–{high:.{digits}f}"
+
+
+def format_table(
+    rows: dict[str, dict[str, float]], intervals: dict[str, dict[str, tuple[float, float]]] | None = None
+) -> str:
+    """
+    A plain-text table, one row per method, 95 characters wide (fits a terminal and the README).
+
+    :param rows: ``{method: summary}`` (:func:`summarize`)
+    :param intervals: ``{method: intervals}`` (:func:`episode_intervals`): each such method's row is followed
+        by a row ``95 % CI`` of ``low–high`` cells
+    """
+    lines = [" | ".join(f"{h:>11}" for h in ("method", *(header for header, _ in TABLE_COLUMNS)))]
+    lines.append("-|-".join("-" * 11 for _ in range(len(TABLE_COLUMNS) + 1)))
     for name, s in rows.items():
-        values = (s["reward"], s["cumulative_jerk"], s["collision"], s["merge_success"], s["mean_speed"], s["mean_executed_length"])
-        lines.append(" | ".join([f"{name:>11}"] + [f"{v:11.3f}" for v in values]))
+        lines.append(" | ".join([f"{name:>11}"] + [f"{s[key]:11.3f}" for _, key in TABLE_COLUMNS]))
+        if intervals and name in intervals:
+            cells = [_interval_cell(*intervals[name][key]) for _, key in TABLE_COLUMNS]
+            lines.append(" | ".join([f"{'95 % CI':>11}"] + [f"{c:>11}" for c in cells]))
     return "\n".join(lines)
 
 
 __all__ = [
-    "SUMMARY_KEYS", "EpisodeMetrics", "evaluate", "evaluate_behaviour", "format_table", "plan_length_shares", "summarize",
+    "RATE_KEYS", "SUMMARY_KEYS", "EpisodeMetrics", "episode_intervals", "evaluate", "evaluate_behaviour", "format_table",
+    "plan_length_shares", "summarize",
 ]

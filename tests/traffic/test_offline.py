@@ -381,6 +381,25 @@ def test_format_table_is_95_characters_wide_with_three_decimals() -> None:
     assert {len(line) for line in lines} == {95}
 
 
+def test_episode_intervals_hand_computed() -> None:
+    from envs.evaluation import EpisodeMetrics, episode_intervals, format_table, summarize
+
+    episodes = [EpisodeMetrics(seed=i, reward=float(i + 1), length=200, cumulative_jerk=10.0, collision=i == 0,
+                               merge_success=True, mean_speed=20.0, mean_executed_length=2.0) for i in range(4)]
+    ci = episode_intervals(episodes)
+    # rewards 1..4: mean 2.5, SE 1.29099 / 2 = 0.645497, t(0.975, 3) = 3.182446: 2.5 ± 2.054260
+    assert ci["reward"] == pytest.approx((0.445740, 4.554260), abs=1e-5)
+    # 1 collision in 4, Wilson: centre 0.730182 / 1.960365 = 0.372473, half-width 0.326886
+    assert ci["collision"] == pytest.approx((0.045587, 0.699359), abs=1e-5)
+    # 4 merges in 4: Wilson's upper end is 1, its lower end n / (n + z^2) = 4 / 7.841459 = 0.510109
+    assert ci["merge_success"] == pytest.approx((0.510109, 1.0), abs=1e-5)
+    assert ci["cumulative_jerk"] == (10.0, 10.0)  # no spread: the mean itself
+    lines = format_table({"finetuned": summarize(episodes)}, {"finetuned": ci}).splitlines()
+    assert lines[3] == ("    95 % CI |   0.45–4.55 |   10.0–10.0 |   0.05–0.70 |   0.51–1.00 |   20.0–20.0 |"
+                        "   2.00–2.00")
+    assert {len(line) for line in lines} == {95}
+
+
 def test_generic_stages_refuse_what_they_cannot_build(tmp_path: Path) -> None:
     """The algorithm's own make_env builds any registered env; a dataset that records a setting of
     an application package (the style classifier of ``envs``) needs that package's maker."""
