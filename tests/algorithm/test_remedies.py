@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch as th
-import yaml
 from stable_baselines3.common.noise import ActionNoise
 from ua2c_helpers import FAST, TINY, rollout_actions, tiny_policy
 
@@ -316,15 +315,3 @@ def test_defaults_leave_the_paper_preset_in_the_chosen_values_only():
     paper_model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **preset("paper"))
     assert paper_model.policy.net_arch == [128, 128] and paper_model.policy.n_elite == 1
     assert (paper_model.gradient_steps, paper_model.q_weight) == (-1, 1.0)
-
-
-@pytest.mark.parametrize("env_id", ["Pendulum-v1", "MixedTraffic-v0"])
-def test_paper_yaml_is_the_preset(env_id):
-    paper = yaml.safe_load((REPO / "zoo_configs" / "ua2c_paper.yml").read_text())[env_id]
-    default = yaml.safe_load((REPO / "zoo_configs" / "ua2c.yml").read_text())[env_id]
-    paper["policy_kwargs"] = eval(paper["policy_kwargs"], {"dict": dict})
-    assert {name: paper[name] for name in PAPER} == PAPER
-    # the rest of the entry is ua2c.yml's: the preset is the one switch
-    rest = {name: value for name, value in paper.items() if name not in PAPER}
-    assert rest == {name: value for name, value in default.items() if name not in PAPER}
-

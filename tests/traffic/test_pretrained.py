@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sb3_ua2c import UA2C, zoo
+from sb3_ua2c import UA2C
 
 REPO = Path(__file__).resolve().parents[2]
 FOLDER = REPO / "rl-trained-agents"
@@ -77,12 +77,18 @@ def test_size_is_about_one_megabyte():
 
 
 def test_config_matches_the_zoo_config():
+    """What ``train -i`` and ``enjoy`` need equal: the keys the zoo entry states, and the shapes it leaves
+    to the library's defaults (rl-zoo3 drops ``policy_kwargs`` when it continues a checkpoint)."""
+    from sb3_ua2c.defaults import defaults
+
     with open(REPO / "zoo_configs" / "ua2c.yml") as f:
         entry = yaml.safe_load(f)[ENV_ID]
     saved = _saved_hyperparams()
-    assert {k: saved.get(k) for k in SHARED_KEYS} == {k: entry.get(k) for k in SHARED_KEYS}
-    # the check `train -i` runs before loading: the zoo config keeps the checkpoint's shapes
-    zoo.check_checkpoint_compatible(str(CHECKPOINT), {k: entry[k] for k in zoo.SHAPE_ARGUMENTS})
+    stated = [k for k in SHARED_KEYS if k in entry]
+    assert {k: saved.get(k) for k in stated} == {k: entry[k] for k in stated}
+    assert {"discrete_action_dims", "env_wrapper", "policy"} <= set(stated)
+    for key in ("chunk_size", "history_len"):
+        assert saved.get(key, defaults()[key]) == entry.get(key, defaults()[key]), key
 
 
 def test_loads_and_has_the_zoo_env_spaces(model, zoo_env):
