@@ -27,11 +27,12 @@ from envs.collection import (
     collect_dataset,
     make_traffic_env,
 )
-from envs.evaluation import evaluate, format_table, plan_length_shares, summarize
+from envs.evaluation import episode_intervals, evaluate, format_table, plan_length_shares, summarize
 from envs.style import main as style_main
 from sb3_ua2c import UA2C
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg, threshold_arg
+from sb3_ua2c.defaults import defaults
 from sb3_ua2c.execution import format_length_shares
 from sb3_ua2c.offline import load_dataset
 from sb3_ua2c.pipeline import env_settings, finetune, pretrain, write_json
@@ -40,7 +41,7 @@ DEFAULT_RUNS = Path("runs")
 
 #: Embedded defaults of ``main``: a few minutes on 2 cores.
 MAIN_BUDGET = {
-    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 10},
+    "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 30},
     "quick": {"episodes": 4, "pretrain_steps": 30, "finetune_steps": 200, "eval_episodes": 1},
 }
 
@@ -118,12 +119,30 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _evaluate_for_main(checkpoint: str, n_episodes: int, seed: int, settings: dict[str, Any]) -> list[Any]:
+    """``main``'s evaluation of one checkpoint on its held-out scenarios, one torch thread (it may run in
+    a second process beside the fine-tuning: libsumo runs one simulation per process)."""
+    import torch
+
+    torch.set_num_threads(1)
+    return evaluate(UA2C.load(checkpoint, device="cpu"), n_episodes=n_episodes, seeds=(seed,), env_settings_=settings)
+
+
 def cmd_main(args: argparse.Namespace) -> int:
-    """collect -> pretrain -> finetune -> evaluate with :data:`MAIN_BUDGET`; prints the metrics table and
-    the ``L_t`` histogram of each checkpoint, and writes ``summary.json`` into the run directory."""
+    """collect -> pretrain -> finetune -> evaluate with :data:`MAIN_BUDGET`; prints the metrics table with
+    the 95 % intervals over the evaluation episodes and the ``L_t`` histogram of each checkpoint, and
+    writes ``summary.json`` into the run directory. The pre-trained checkpoint is evaluated in a second
+    process while the fine-tuning runs (each on one torch thread: the job uses two cores)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import torch
+
     budget = MAIN_BUDGET["quick" if args.quick else "full"]
     run = _run_dir(args)
     progress = not args.no_progress
+    if args.threads == 0:
+        torch.set_num_threads(1)
     t0 = time.time()
     print(f"[1/4] collect {budget['episodes']} episodes of SUMO-driven data -> {run / 'dataset'}"
           f"{'' if args.no_style_context else ' (with the driving-style context c_t)'}")
@@ -132,30 +151,32 @@ def cmd_main(args: argparse.Namespace) -> int:
         run / "dataset", budget["episodes"], seed=args.seed, style_classifier=style_classifier, progress_bar=progress,
         overwrite=True,
     )
+    settings = env_settings(ds)
     print(f"[2/4] Phase 1: pre-train UA2C for {budget['pretrain_steps']} gradient steps")
     pre = pretrain(ds, run / "pretrained.zip", budget["pretrain_steps"], seed=args.seed, progress_bar=progress,
                    algo_kwargs=TRAFFIC_DEFAULTS, make_env=make_traffic_env)
-    print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks)")
-    fine = finetune(
-        pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress,
-        monitor_file=run / "finetuned",  # SB3's Monitor log of the online episodes: finetuned.monitor.csv
-        make_env=make_traffic_env,
-    )
-    print(f"[4/4] evaluate on {budget['eval_episodes']} held-out episodes")
-    settings = env_settings(ds)
-    models = {name: UA2C.load(ckpt, device="cpu") for name, ckpt in (("pretrained", pre), ("finetuned", fine))}
-    rows, raw = {}, {}
-    for name, model in models.items():
-        results = evaluate(model, n_episodes=budget["eval_episodes"], seeds=(args.seed + 100,), env_settings_=settings)
-        rows[name], raw[name] = summarize(results), results
+    eval_args = (budget["eval_episodes"], args.seed + 100, settings)
+    print(f"[3/4] Phase 2: online adaptation for {budget['finetune_steps']} env steps (adaptive chunks); "
+          f"meanwhile the pre-trained checkpoint is evaluated on {budget['eval_episodes']} held-out scenarios")
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pending = pool.submit(_evaluate_for_main, str(pre), *eval_args)
+        fine = finetune(
+            pre, run / "finetuned.zip", budget["finetune_steps"], dataset=ds, seed=args.seed, progress_bar=progress,
+            monitor_file=run / "finetuned",  # SB3's Monitor log of the online episodes: finetuned.monitor.csv
+            make_env=make_traffic_env,
+        )
+        print(f"[4/4] evaluate the fine-tuned checkpoint on the same {budget['eval_episodes']} scenarios")
+        raw = {"finetuned": _evaluate_for_main(str(fine), *eval_args), "pretrained": pending.result()}
+    raw = {name: raw[name] for name in ("pretrained", "finetuned")}
+    rows = {name: summarize(results) for name, results in raw.items()}
     rows["dataset"] = {
         "reward": ds.metadata["mean_return"], "cumulative_jerk": math.nan, "collision": math.nan,
         "merge_success": math.nan, "mean_speed": math.nan, "mean_executed_length": math.nan,
     }
-    print(format_table(rows))
-    for name, model in models.items():
-        k = model.chunk_size
-        print(f"{name:>11} | L_t = 1..{k}, % of plans: {format_length_shares(plan_length_shares(raw[name], k))}")
+    print(format_table(rows, {name: episode_intervals(results) for name, results in raw.items()}))
+    k = {**defaults(), **TRAFFIC_DEFAULTS}["chunk_size"]
+    for name, results in raw.items():
+        print(f"{name:>11} | L_t = 1..{k}, % of plans: {format_length_shares(plan_length_shares(results, k))}")
     write_json(run / "summary.json", {"summary": rows, "episodes": raw, "budget": budget, "seconds": time.time() - t0})
     print(f"run directory: {run}  ({time.time() - t0:.0f} s)")
     return 0

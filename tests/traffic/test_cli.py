@@ -90,12 +90,14 @@ def test_cli_main_quick_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
 
     monkeypatch.setattr(UA2C, "load", classmethod(counting_load))
     assert main(["main", "--quick", "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 0
-    # finetune loads the pre-trained checkpoint; the evaluation loads each checkpoint once
-    assert loaded == ["pretrained.zip", "pretrained.zip", "finetuned.zip"]
+    # finetune loads the pre-trained checkpoint, the evaluation the fine-tuned one (the pre-trained one is
+    # evaluated in a second process, whose loads this process does not see)
+    assert loaded == ["pretrained.zip", "finetuned.zip"]
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert set(summary["summary"]) == {"pretrained", "finetuned", "dataset"}
     # the L_t histogram of each checkpoint's evaluation plans, printed under the table
     out = capsys.readouterr().out
+    assert out.count("    95 % CI | ") == 2  # a row of intervals under each checkpoint's row
     for name in ("pretrained", "finetuned"):
         lengths = [n for e in summary["episodes"][name] for n in e["plan_lengths"]]
         shares = [100 * lengths.count(u) / len(lengths) for u in range(1, 6)]
