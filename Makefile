@@ -24,7 +24,7 @@ main: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow"
 
-# The tests over about 10 s (whole experiments in quick mode, Ray, PostgreSQL, torch.compile); CI runs them.
+# The tests over about 10 s (whole experiments in quick mode, Ray, two-worker Optuna sweeps, torch.compile); CI runs them.
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow
 

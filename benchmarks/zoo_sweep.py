@@ -1,17 +1,20 @@
-"""rl-zoo integration benchmark: launcher overhead and multi-worker Optuna sweeps on PostgreSQL.
+"""rl-zoo integration benchmark: launcher overhead and Optuna sweeps on a shared journal file.
 
 Runs, side by side in one run (the machine is shared, so only ratios measured together mean
 something):
 
 1. launcher overhead: ``python -m sb3_ua2c.zoo train --algo sac`` against rl-zoo3's own
-   ``python -m rl_zoo3.train --algo sac`` with identical arguments (wall time of the process);
-2. sweep throughput: the same number of UA2C trials on Pendulum-v1 run by one worker with an
-   in-memory study, one worker on PostgreSQL, and two workers sharing a PostgreSQL study.
+   ``python -m rl_zoo3.train --algo sac`` with identical arguments (wall and CPU time per process,
+   the two alternating);
+2. sweep throughput: the same UA2C trials on Pendulum-v1 run by one worker with an in-memory study
+   (rl-zoo3's default), one worker on a journal file and two workers sharing one journal file
+   (rl-zoo3's ``--storage <dir>/study.log --study-name NAME``: Optuna's ``JournalStorage``).
 
-The PostgreSQL server is a throw-away one on loopback (as in ``tests/test_zoo_postgres.py``);
-the benchmark needs the Debian ``postgresql`` package.
+The two workers run exactly the trials of the one-worker sweeps: those are drawn with one seed by
+the random sampler, read back from the one-worker journal and enqueued in the shared study, from
+which each worker takes its half. Nothing but Python and the ``zoo`` extra is needed.
 
-Usage: ``python benchmarks/zoo_sweep.py [--trials 6] [--timesteps 300] [--repeats 2]``
+Usage: ``python benchmarks/zoo_sweep.py [--trials 4] [--timesteps 200] [--repeats 2]``
 """
 
 from __future__ import annotations
@@ -27,9 +30,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
-
-from postgres_server import PostgresServer  # noqa: E402
 
 ENV = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
 
@@ -60,7 +60,12 @@ def _run_all(commands: list[list[str]], cwd: Path) -> tuple[float, float]:
     return elapsed, _children_cpu() - cpu
 
 
-def launcher_overhead(workdir: Path, repeats: int) -> tuple[tuple[float, float], tuple[float, float]]:
+def launcher_overhead(
+    workdir: Path, repeats: int
+) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """
+    :return: (ours, peer): (wall, CPU) seconds of each process, in run order
+    """
     common = ["--algo", "sac", "--env", "Pendulum-v1", "--conf-file", str(REPO / "zoo_configs" / "sac.yml"),
               "-n", "500", "--seed", "0", "--eval-freq", "-1", "--verbose", "0", "--num-threads", "1",
               "-params", "learning_starts:100", "batch_size:64"]  # fmt: skip
@@ -70,14 +75,12 @@ def launcher_overhead(workdir: Path, repeats: int) -> tuple[tuple[float, float],
         ours.append(
             _run_all([[sys.executable, "-m", "sb3_ua2c.zoo", "train", *common, "-f", f"ours{i}"]], workdir)
         )
-
-    def median(runs: list[tuple[float, float]]) -> tuple[float, float]:
-        return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
-
-    return median(ours), median(peer)
+    return ours, peer
 
 
-def sweep_command(trials: int, timesteps: int, seed: int, folder: str, storage: str | None) -> list[str]:
+def sweep_command(
+    trials: int, timesteps: int, seed: int, folder: str, storage: Path | None, study: str | None
+) -> list[str]:
     command = [sys.executable, "-m", "sb3_ua2c.zoo", "optimize", "--env", "Pendulum-v1",
                "--conf-file", str(REPO / "zoo_configs" / "ua2c.yml"), "--n-trials", str(trials),
                "--sampler", "random", "--pruner", "none", "-n", str(timesteps), "--n-evaluations", "1",
@@ -86,8 +89,15 @@ def sweep_command(trials: int, timesteps: int, seed: int, folder: str, storage: 
                # a few dozen gradient steps per trial (the sampler picks the network sizes)
                "-params", f"learning_starts:{max(timesteps - 50, 1)}", "buffer_size:10000"]  # fmt: skip
     if storage is not None:
-        command += ["--storage", storage, "--study-name", f"bench-{folder}"]
+        command += ["--storage", str(storage), "--study-name", study]
     return command
+
+
+def journal(path: Path):
+    """The Optuna storage rl-zoo3 opens for ``--storage path`` (a ``*.log`` file)."""
+    import optuna
+
+    return optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(path)))
 
 
 def main() -> None:
@@ -100,45 +110,59 @@ def main() -> None:
     args = parser.parse_args()
     if args.trials < 2 or args.trials % 2:
         parser.error("--trials must be an even number >= 2")
+    if args.repeats < 1:
+        parser.error("--repeats must be >= 1")
 
-    with tempfile.TemporaryDirectory(prefix="ua2c-zoo-bench-") as tmp, PostgresServer() as server:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    with tempfile.TemporaryDirectory(prefix="ua2c-zoo-bench-") as tmp:
         workdir = Path(tmp)
-        print(f"cpus={os.cpu_count()} python={sys.version.split()[0]}")
+        print(f"cpus={os.cpu_count()} python={sys.version.split()[0]} optuna={optuna.__version__}")
 
-        (ours, ours_cpu), (peer, peer_cpu) = launcher_overhead(workdir, args.repeats)
-        print("\n[launcher] SAC, Pendulum-v1, 500 steps, one process, median of the runs")
-        print(f"  rl_zoo3.train (peer)   wall {peer:7.2f} s   cpu {peer_cpu:7.2f} s")
-        print(f"  sb3_ua2c.zoo train     wall {ours:7.2f} s   cpu {ours_cpu:7.2f} s   "
-              f"ratio ours/peer: wall {ours / peer:.2f}, cpu {ours_cpu / peer_cpu:.2f}")  # fmt: skip
+        ours, peer = launcher_overhead(workdir, args.repeats)
+        print(
+            f"\n[launcher] SAC, Pendulum-v1, 500 steps, one process each, {args.repeats} alternating run(s)"
+        )
+        for i, ((o_wall, o_cpu), (p_wall, p_cpu)) in enumerate(zip(ours, peer, strict=True)):
+            print(f"  run {i}: rl_zoo3.train (peer) wall {p_wall:7.2f} s cpu {p_cpu:7.2f} s | "
+                  f"sb3_ua2c.zoo train wall {o_wall:7.2f} s cpu {o_cpu:7.2f} s | "
+                  f"ours/peer wall {o_wall / p_wall:.2f} cpu {o_cpu / p_cpu:.2f}")  # fmt: skip
+        wall = statistics.median(o[0] / p[0] for o, p in zip(ours, peer, strict=True))
+        cpu = statistics.median(o[1] / p[1] for o, p in zip(ours, peer, strict=True))
+        print(f"  median ratio ours/peer: wall {wall:.2f}, cpu {cpu:.2f}")
 
         n = args.trials
-        memory, memory_cpu = _run_all([sweep_command(n, args.timesteps, 0, "mem", None)], workdir)
-        pg_one, pg_one_cpu = _run_all(
-            [sweep_command(n, args.timesteps, 0, "pg1", server.create_database("one"))], workdir
-        )
-        # The two workers run exactly the trials of the one-worker sweeps (same seed, same draws):
-        # they pop them from the shared study's queue.
-        import optuna
-
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        done = optuna.load_study(study_name="bench-pg1", storage=server.url("one")).trials
-        url = server.create_database("two")
-        shared = optuna.create_study(study_name="bench-pg2", storage=url, direction="maximize")
+        memory, memory_cpu = _run_all([sweep_command(n, args.timesteps, 0, "mem", None, None)], workdir)
+        one_log = workdir / "one" / "study.log"
+        one, one_cpu = _run_all([sweep_command(n, args.timesteps, 0, "one", one_log, "bench-one")], workdir)
+        done = optuna.load_study(study_name="bench-one", storage=journal(one_log)).trials
+        two_log = workdir / "two" / "study.log"
+        two_log.parent.mkdir()
+        shared = optuna.create_study(study_name="bench-two", storage=journal(two_log), direction="maximize")
         for trial in done:
             shared.enqueue_trial(trial.params)
-        pg_two, pg_two_cpu = _run_all(
-            [sweep_command(n // 2, args.timesteps, seed, "pg2", url) for seed in (1, 2)], workdir
+        two, two_cpu = _run_all(
+            [
+                sweep_command(n // 2, args.timesteps, seed, f"two{seed}", two_log, "bench-two")
+                for seed in (1, 2)
+            ],
+            workdir,
         )
-        print(f"\n[sweep] UA2C, Pendulum-v1, {n} trials x {args.timesteps} steps, whole sweep")
-        print(f"  1 worker, in-memory study (peer)  wall {memory:7.2f} s   cpu {memory_cpu:7.2f} s")
-        print(f"  1 worker, PostgreSQL (same trials) wall {pg_one:7.2f} s   cpu {pg_one_cpu:7.2f} s   "
-              f"cpu ratio vs in-memory = {pg_one_cpu / memory_cpu:.2f}")  # fmt: skip
-        same = sorted(map(str, (t.params for t in done))) == sorted(
-            map(str, (t.params for t in optuna.load_study(study_name="bench-pg2", storage=url).trials))
+        ran = optuna.load_study(study_name="bench-two", storage=journal(two_log)).trials
+        complete = sum(t.state == optuna.trial.TrialState.COMPLETE for t in ran)
+        same = sorted(map(str, (t.params for t in done))) == sorted(map(str, (t.params for t in ran)))
+
+        print(
+            f"\n[sweep] UA2C, Pendulum-v1, {n} trials x {args.timesteps} steps, whole sweep (wall, CPU summed)"
         )
-        print(f"  2 workers, shared PostgreSQL (same trials: {same})")
-        print(f"                                    wall {pg_two:7.2f} s   cpu {pg_two_cpu:7.2f} s   "
-              f"wall speed-up vs 1 worker in-memory = {memory / pg_two:.2f}x")  # fmt: skip
+        print(f"  1 worker, in-memory study (peer)    wall {memory:7.2f} s   cpu {memory_cpu:7.2f} s")
+        print(f"  1 worker, journal file              wall {one:7.2f} s   cpu {one_cpu:7.2f} s   "
+              f"vs in-memory: wall {one / memory:.2f}, cpu {one_cpu / memory_cpu:.2f}")  # fmt: skip
+        print(f"  2 workers, one shared journal file  wall {two:7.2f} s   cpu {two_cpu:7.2f} s   "
+              f"vs in-memory: wall {two / memory:.2f} (speed-up {memory / two:.2f}x), "
+              f"cpu {two_cpu / memory_cpu:.2f}")  # fmt: skip
+        print(f"  shared study: {len(ran)} trials, {complete} complete, same trials as 1 worker: {same}")
 
 
 if __name__ == "__main__":

@@ -327,8 +327,8 @@ class MixedTrafficEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["applied_action"]``).
     """
 
-    # process_exclusive: one live instance per process (libsumo); launchers such as ua2c-zoo
-    # read it to give every env its own process.
+    # process_exclusive: one live instance per process (libsumo). ua2c-zoo reads it and refuses a
+    # dummy vec env that would hold two (n_envs > 1, or an evaluation env): pass --vec-env subproc.
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5, "process_exclusive": True}
 
     def __init__(self, render_mode: str | None = None, config: MixedTrafficConfig | None = None, **kwargs: Any):
