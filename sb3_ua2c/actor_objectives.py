@@ -145,8 +145,8 @@ def flow_objective(
     q = _frozen_q(inputs.critic, data.observation_history.flatten(1), x_hat)
     mu = weights.smooth_weight
     roughness = chunk_roughness(x_hat, inputs.continuous_dims) if mu > 0.0 else None
-    loss, info = actor_loss(velocity, x0, data.chunks, q, weights.q_weight, roughness, mu,
-                            data.chunk_mask, weights.normalize_q)
+    loss, info = actor_loss(velocity, x0, data.chunks, q, weights.q_weight, mu, weights.normalize_q,
+                            roughness, data.chunk_mask)
     return ActorObjective(loss, info, x_hat)
 
 
