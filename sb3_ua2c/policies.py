@@ -197,7 +197,6 @@ class UA2CPolicy(ExecutionRuleState):
         self.actor_type = actor_type
         self.actor_past_actions = actor_past_actions
         self.critic_arch = critic_arch
-        self.critic_kwargs = critic_kwargs
         self.n_critics = n_critics
         self.activation_fn = activation_fn
         self.torch_compile = torch_compile
@@ -210,6 +209,8 @@ class UA2CPolicy(ExecutionRuleState):
             optimizer_kwargs=optimizer_kwargs, normalize_images=normalize_images, torch_compile=torch_compile,
         )
         self._check_execution(self.execution)
+        #: the critic class's own arguments, its signature's defaults filled in (saved with the policy)
+        self.critic_kwargs = {**critic_defaults(critic_arch), **(critic_kwargs or {})}
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
         #: ``{action index: n_categories}`` of the categorical action dims, and the other (continuous) dims

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import math
 import os
 import socket
@@ -54,7 +55,9 @@ from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_ua2c.checks import check_int
 from sb3_ua2c.config import ExecutionRule, check_arguments, policy_kwargs_names
+from sb3_ua2c.critics import critic_defaults
 from sb3_ua2c.policies import UA2CPolicy
 
 if TYPE_CHECKING:
@@ -202,6 +205,8 @@ def _check_value(name: str, value: Any) -> None:
     """UA2C's own check of one value of the constructor argument ``name`` (``ValueError`` naming it)."""
     if name == "entropy_threshold":
         ExecutionRule(entropy_threshold=value)
+    elif name == "critic_embed_dim":  # the Transformer critic's critic_kwargs["embed_dim"]
+        check_int(name, value)
     else:
         check_arguments(**{name: value})
 
@@ -256,7 +261,8 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
     :param sampled: ``trial.params`` of a UA2C trial
     :return: the same parameters with ``one_minus_gamma`` replaced by ``gamma`` and the arguments of
         :class:`~sb3_ua2c.policies.UA2CPolicy` that UA2C does not take itself (``net_arch``, a
-        :data:`NET_ARCHS` name, ``critic_arch``, ``critic_embed_dim``, ``n_elite``) moved into ``policy_kwargs``.
+        :data:`NET_ARCHS` name, ``critic_arch``, ``n_elite``) moved into ``policy_kwargs``, and ``critic_embed_dim``
+        into its ``critic_kwargs`` as ``embed_dim`` (the Transformer critic's only; dropped for another ``critic_arch``).
         As for every rl-zoo3 algorithm, a sampled ``policy_kwargs`` replaces the YAML one.
     """
     params = dict(sampled)
@@ -270,6 +276,11 @@ def convert_ua2c_params(sampled: dict[str, Any]) -> dict[str, Any]:
     from sb3_ua2c.ua2c import UA2C
 
     policy_kwargs = {name: params.pop(name) for name in policy_kwargs_names(UA2CPolicy, UA2C) if name in params}
+    if "critic_embed_dim" in params:
+        embed_dim = params.pop("critic_embed_dim")
+        arch = policy_kwargs.get("critic_arch", inspect.signature(UA2CPolicy).parameters["critic_arch"].default)
+        if "embed_dim" in critic_defaults(arch):
+            policy_kwargs["critic_kwargs"] = {"embed_dim": embed_dim}
     if policy_kwargs:
         params["policy_kwargs"] = policy_kwargs
     return params

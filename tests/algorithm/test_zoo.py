@@ -201,7 +201,7 @@ TINY_UA2C = {
     "target_flow_steps": 2,
     "n_candidates": 8,
     "n_target_candidates": 2,
-    "policy_kwargs": {"net_arch": [16], "critic_embed_dim": 16, "critic_ff_dim": 16, "critic_n_heads": 2},
+    "policy_kwargs": {"net_arch": [16], "critic_kwargs": {"embed_dim": 16, "ff_dim": 16, "n_heads": 2}},
 }
 
 
@@ -448,8 +448,11 @@ def test_convert_ua2c_params_maps_one_minus_gamma():
 def test_convert_ua2c_params_moves_policy_arguments_into_policy_kwargs():
     assert zoo.convert_ua2c_params({"net_arch": "small", "critic_embed_dim": 32, "q_weight": 0.5}) == {
         "q_weight": 0.5,
-        "policy_kwargs": {"net_arch": [64, 64], "critic_embed_dim": 32},
+        "policy_kwargs": {"net_arch": [64, 64], "critic_kwargs": {"embed_dim": 32}},
     }
+    # the MLP critic has no embed_dim: the sampled value does not reach it
+    assert zoo.convert_ua2c_params({"critic_arch": "mlp", "critic_embed_dim": 32}) == {
+        "policy_kwargs": {"critic_arch": "mlp"}}
     with pytest.raises(ValueError, match="net_arch must be one of"):
         zoo.convert_ua2c_params({"net_arch": "huge"})
 
@@ -490,7 +493,8 @@ def test_sampler_draws_inside_the_search_space():
         ):
             assert params[name] in getattr(space, name), name
         assert tuple(params["policy_kwargs"]["net_arch"]) in zoo.NET_ARCHS.values()
-        assert params["policy_kwargs"]["critic_embed_dim"] in space.critic_embed_dim
+        if params["policy_kwargs"]["critic_arch"] == "transformer":
+            assert params["policy_kwargs"]["critic_kwargs"]["embed_dim"] in space.critic_embed_dim
         assert params["policy_kwargs"]["critic_arch"] in space.critic_arch
         assert params["policy_kwargs"]["n_elite"] in space.n_elite
         # --trial-id reloads the same constructor arguments from the stored raw parameters.
@@ -570,5 +574,8 @@ def test_search_space_fields_are_constructor_arguments():
     from sb3_ua2c import UA2C, UA2CPolicy
     from sb3_ua2c.config import policy_kwargs_names
 
+    from sb3_ua2c.critics import critic_defaults
+
     known = set(inspect.signature(UA2C.__init__).parameters) | set(policy_kwargs_names(UA2CPolicy, UA2C))
+    known |= {f"critic_{name}" for name in critic_defaults("transformer")}  # into critic_kwargs
     assert {f.name for f in dataclasses.fields(zoo.UA2CSearchSpace)} <= known
