@@ -12,7 +12,7 @@ own random generator and with ``q_weight = 0``.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import torch as th
 from torch import nn
@@ -28,9 +28,6 @@ from sb3_ua2c.flow import (
     one_step_actor_loss,
 )
 
-if TYPE_CHECKING:
-    from sb3_ua2c.buffers import ChunkReplaySamples
-
 
 class ActorObjective(NamedTuple):
     """An actor objective on a batch."""
@@ -41,6 +38,19 @@ class ActorObjective(NamedTuple):
     info: dict[str, float]
     #: the chunks the value term values, before clipping, ``(B, k, A)``: x̂1 (``"flow"``) or ``mu(h, z)``
     chunks: th.Tensor
+
+
+class ActorBatch(Protocol):
+    """The batch tensors an actor objective reads (a :class:`~sb3_ua2c.buffers.ChunkReplaySamples` has them)."""
+
+    #: ``(B, ℓ, obs_dim)``
+    observation_history: th.Tensor
+    #: ``(B, ℓ, action_dim)``
+    action_history: th.Tensor
+    #: the logged chunks ``x1``, ``(B, k, action_dim)``
+    chunks: th.Tensor
+    #: valid positions of ``chunks``, ``(B, k)`` (``None``: all)
+    chunk_mask: th.Tensor | None
 
 
 class ActorInputs(NamedTuple):
@@ -114,7 +124,7 @@ def _frozen_q(critic: nn.Module, obs_flat: th.Tensor, chunks: th.Tensor) -> th.T
 
 
 def _flow_matching(
-    inputs: ActorInputs, data: ChunkReplaySamples, dropout: float, generator: th.Generator | None
+    inputs: ActorInputs, data: ActorBatch, dropout: float, generator: th.Generator | None
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
     """Noise, flow times, the actors' (dropped) histories and the velocity field's prediction on the batch:
     ``x0 (B, k, A), tau (B,), x_tau (B, k, A), velocity (B, k, A), history (B, history_dim)``."""
@@ -129,7 +139,7 @@ def _flow_matching(
 
 
 def flow_objective(
-    inputs: ActorInputs, data: ChunkReplaySamples, weights: ActorWeights, generator: th.Generator | None
+    inputs: ActorInputs, data: ActorBatch, weights: ActorWeights, generator: th.Generator | None
 ) -> ActorObjective:
     """
     Eq. 2 (``actor_type="flow"``): flow matching on the batch's chunks (masked on window padding) and
@@ -151,7 +161,7 @@ def flow_objective(
 
 
 def one_step_objective(
-    inputs: ActorInputs, data: ChunkReplaySamples, weights: ActorWeights, generator: th.Generator | None
+    inputs: ActorInputs, data: ActorBatch, weights: ActorWeights, generator: th.Generator | None
 ) -> ActorObjective:
     """
     QC-FQL (``actor_type="one_step"``): the flow by flow matching alone, the one-step policy
@@ -180,4 +190,4 @@ def one_step_objective(
     return ActorObjective(loss, info, mu)
 
 
-__all__ = ["ActorInputs", "ActorObjective", "ActorWeights", "actor_history", "flow_objective", "one_step_objective"]
+__all__ = ["ActorBatch", "ActorInputs", "ActorObjective", "ActorWeights", "actor_history", "flow_objective", "one_step_objective"]

@@ -20,6 +20,8 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
+from sb3_ua2c.actor_objectives import ActorInputs, actor_history
+from sb3_ua2c.actors import ACTORS, actor_class
 from sb3_ua2c.chunking import (
     chunk_entropy,
     commit_through_switch,
@@ -29,10 +31,8 @@ from sb3_ua2c.chunking import (
 )
 from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
-from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
-from sb3_ua2c.actor_objectives import ActorInputs, actor_history
-from sb3_ua2c.actors import ACTORS, actor_class
 from sb3_ua2c.critics import critic_defaults, make_critic
+from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
@@ -365,6 +365,15 @@ class UA2CPolicy(ExecutionRuleState):
         """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> the actors' input ``(B, history_dim)``
         (:func:`~sb3_ua2c.actor_objectives.actor_history`)."""
         return actor_history(obs_history, action_history, self.actor_past_actions)
+
+    def condition(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+        """
+        The velocity field's history features: ``(B, ℓ, obs_dim), (B, ℓ, action_dim) -> (B, hidden)``.
+
+        :param obs_history: ``(B, ℓ, obs_dim)``
+        :param action_history: ``(B, ℓ, action_dim)``
+        """
+        return self.actor.condition(self.flatten_history(obs_history, action_history))
 
     def sample_chunks(
         self,

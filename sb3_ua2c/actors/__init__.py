@@ -12,17 +12,14 @@ critic or an actor").
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import Any, ClassVar, Protocol
 
 import torch as th
 from torch import nn
 
-from sb3_ua2c.actor_objectives import ActorInputs, ActorObjective, ActorWeights
+from sb3_ua2c.actor_objectives import ActorBatch, ActorInputs, ActorObjective, ActorWeights
 from sb3_ua2c.actors.flow import VelocityField
 from sb3_ua2c.actors.one_step import OneStepActor
-
-if TYPE_CHECKING:
-    from sb3_ua2c.buffers import ChunkReplaySamples
 
 
 class ChunkActor(Protocol):
@@ -33,7 +30,7 @@ class ChunkActor(Protocol):
 
     #: the policy attribute that holds it, its state-dict prefix (``"actor"``: the velocity field itself)
     attribute: ClassVar[str]
-    #: its objective on a batch, ``(ActorInputs, ChunkReplaySamples, ActorWeights, generator) -> ActorObjective``
+    #: its objective on a batch, ``(ActorInputs, ActorBatch, ActorWeights, generator) -> ActorObjective``
     #: (:mod:`sb3_ua2c.actor_objectives`)
     objective: ClassVar[Any]
 
@@ -66,7 +63,7 @@ def actor_class(actor_type: str) -> Any:
 def actor_objective(
     actor_type: str,
     inputs: ActorInputs,
-    data: ChunkReplaySamples,
+    data: ActorBatch,
     weights: ActorWeights,
     generator: th.Generator | None = None,
 ) -> ActorObjective:

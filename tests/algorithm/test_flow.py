@@ -6,6 +6,7 @@ import pytest
 import torch as th
 from torch import nn
 
+from sb3_ua2c.actors import VelocityField
 from sb3_ua2c.flow import (
     actor_loss,
     chunk_roughness,
@@ -16,7 +17,6 @@ from sb3_ua2c.flow import (
     interpolate,
     target_velocity,
 )
-from sb3_ua2c.actors import VelocityField
 
 
 def chunk(*values: float) -> th.Tensor:

@@ -16,9 +16,9 @@ from torch import nn
 from ua2c_helpers import ACT, FAST, OBS, rollout_actions
 
 from sb3_ua2c import UA2C, UA2CPolicy
+from sb3_ua2c.actors import VelocityField
 from sb3_ua2c.buffers import ChunkReplayBuffer
 from sb3_ua2c.config import ExecutionRule
-from sb3_ua2c.actors import VelocityField
 from sb3_ua2c.critics import ChunkCritics, MLPChunkCritics, critic_defaults
 from sb3_ua2c.defaults import defaults as resolved_defaults
 

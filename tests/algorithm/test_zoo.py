@@ -573,7 +573,6 @@ def test_search_space_fields_are_constructor_arguments():
     """The sampler's names are UA2C's (or, into ``policy_kwargs``, UA2CPolicy's): none is declared anew."""
     from sb3_ua2c import UA2C, UA2CPolicy
     from sb3_ua2c.config import policy_kwargs_names
-
     from sb3_ua2c.critics import critic_defaults
 
     known = set(inspect.signature(UA2C.__init__).parameters) | set(policy_kwargs_names(UA2CPolicy, UA2C))
