@@ -11,11 +11,11 @@ from typing import Any
 
 import torch as th
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.save_util import load_from_pkl, load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer
-from sb3_ua2c.compat import LEGACY_RULE_NAMES
+from sb3_ua2c.compat import LEGACY_RULE_NAMES, legacy_critic_kwargs
 
 
 class Checkpoints(OffPolicyAlgorithm):
@@ -54,8 +54,15 @@ class Checkpoints(OffPolicyAlgorithm):
         loading: ``n_elite=m`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`; SB3 would store it as an unused
         attribute), ``flow_steps`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_flow_steps`) and the execution rule's
         fields by UA2C's argument names, ``execution_rule``, ``entropy_threshold``, ... (the saved rule
-        with those fields replaced, :meth:`~sb3_ua2c.ua2c.UA2C.set_execution_rule`).
+        with those fields replaced, :meth:`~sb3_ua2c.ua2c.UA2C.set_execution_rule`). A ``policy_kwargs``
+        given (as rl-zoo3 passes its YAML's when continuing) must equal the saved one, as in SB3, after both
+        are read in the current layout (:func:`~sb3_ua2c.compat.legacy_critic_kwargs`).
         """
+        if "policy_kwargs" in kwargs and isinstance(path, str | pathlib.Path):
+            data, _, _ = load_from_zip_file(path, load_data=True, device="cpu", print_system_info=False)
+            saved = (data or {}).get("policy_kwargs")
+            if legacy_critic_kwargs(saved) == legacy_critic_kwargs(kwargs["policy_kwargs"]):
+                kwargs.pop("policy_kwargs")  # the same networks, saved in an earlier layout
         n_elite, flow_steps = kwargs.pop("n_elite", None), kwargs.pop("flow_steps", None)
         rule_fields = {field: kwargs.pop(name) for name, field in LEGACY_RULE_NAMES.items() if name in kwargs}
         model = super().load(

@@ -207,4 +207,11 @@ def test_the_shipped_checkpoint_of_the_earlier_layout_loads():
     assert "execution" not in saved and saved["entropy_threshold"] == 0.0  # the earlier layout
     model = UA2C.load(SHIPPED, device="cpu")
     assert model.execution == model.policy.execution == ExecutionRule()
+    # its flat critic arguments: critic_kwargs of the Transformer; the same networks when given as now
+    assert saved["policy_kwargs"] == {"critic_embed_dim": 64, "critic_n_layers": 1, "net_arch": [256, 256, 256]}
+    assert model.policy.critic_kwargs == {"embed_dim": 64, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
+    now = {"net_arch": [256, 256, 256], "critic_kwargs": {"embed_dim": 64, "n_layers": 1}}
+    assert UA2C.load(SHIPPED, device="cpu", policy_kwargs=now).policy.critic_kwargs == model.policy.critic_kwargs
+    with pytest.raises(ValueError, match="policy kwargs"):
+        UA2C.load(SHIPPED, device="cpu", policy_kwargs={**now, "critic_kwargs": {"embed_dim": 32}})
     assert (model.chunk_size, model.history_len) == (saved["chunk_size"], saved["history_len"])

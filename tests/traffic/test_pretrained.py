@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from sb3_ua2c import UA2C, zoo
+from sb3_ua2c.compat import legacy_critic_kwargs
 
 REPO = Path(__file__).resolve().parents[2]
 FOLDER = REPO / "rl-trained-agents"
@@ -80,6 +81,9 @@ def test_config_matches_the_zoo_config():
     with open(REPO / "zoo_configs" / "ua2c.yml") as f:
         entry = yaml.safe_load(f)[ENV_ID]
     saved = _saved_hyperparams()
+    # the checkpoint was trained with the critic's flat arguments of the earlier layout: the same networks
+    saved_kwargs = legacy_critic_kwargs(eval(saved.pop("policy_kwargs"), {"dict": dict}))
+    assert saved_kwargs == eval(entry.pop("policy_kwargs"), {"dict": dict})
     assert {k: saved.get(k) for k in SHARED_KEYS} == {k: entry.get(k) for k in SHARED_KEYS}
     # the check `train -i` runs before loading: the zoo config keeps the checkpoint's shapes
     zoo.check_checkpoint_compatible(str(CHECKPOINT), {k: entry[k] for k in zoo.SHAPE_ARGUMENTS})
