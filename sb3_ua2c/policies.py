@@ -97,7 +97,7 @@ class UA2CPolicy(ExecutionRuleState):
     the adaptive-chunk planner (Eq. 7) used by ``predict``.
 
     The execution rule and its state are a part of it in :class:`~sb3_ua2c.execution.ExecutionRuleState`.
-    The class stays over 300 lines for its 27 documented constructor arguments, each checked by name and
+    The class stays over 300 lines for its 23 documented constructor arguments, each checked by name and
     saved by name (:meth:`_get_constructor_parameters`): no table looks them up at run time.
 
     :param observation_space: Box observation space
