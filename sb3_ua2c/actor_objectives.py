@@ -1,17 +1,21 @@
-"""The actor objectives of UA2C on a batch, one per ``actor_type`` of the policy: the paper's Eq. 2
-(:func:`flow_objective`) and QC-FQL's one-step policy (:func:`one_step_objective`). Both see the
-histories with their past actions dropped by ``past_action_dropout`` (:func:`~sb3_ua2c.flow.drop_past_actions`)
-and value their chunks, clipped to the bounds, with the frozen critics. The maths is in :mod:`sb3_ua2c.flow`.
+"""The actor objectives of UA2C on a batch, one per actor class (:data:`~sb3_ua2c.actors.ACTORS`): the
+paper's Eq. 2 (:func:`flow_objective`) and QC-FQL's one-step policy (:func:`one_step_objective`). Both
+see the histories with their past actions dropped by ``past_action_dropout``
+(:func:`~sb3_ua2c.flow.drop_past_actions`) and value their chunks, clipped to the bounds, with the
+frozen critics. The maths is in :mod:`sb3_ua2c.flow`.
 
-``UA2C`` trains with :func:`actor_objective`; the diagnostics (:func:`~sb3_ua2c.diagnostics.value_term_strength`)
-evaluate the same objective with their own random generator and with ``q_weight = 0``.
+An objective takes its inputs explicitly: the networks (:class:`ActorInputs`), the batch and the
+weights (:class:`ActorWeights`). ``UA2C`` trains with :func:`~sb3_ua2c.actors.actor_objective`; the
+diagnostics (:func:`~sb3_ua2c.diagnostics.value_term_strength`) evaluate the same objective with their
+own random generator and with ``q_weight = 0``.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import torch as th
+from torch import nn
 
 from sb3_ua2c.chunking import pessimistic_q
 from sb3_ua2c.flow import (
@@ -24,11 +28,6 @@ from sb3_ua2c.flow import (
     one_step_actor_loss,
 )
 
-if TYPE_CHECKING:  # UA2C imports this module: its annotations name the base class (no import cycle)
-    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm as UA2C
-
-    from sb3_ua2c.buffers import ChunkReplaySamples
-
 
 class ActorObjective(NamedTuple):
     """An actor objective on a batch."""
@@ -39,6 +38,66 @@ class ActorObjective(NamedTuple):
     info: dict[str, float]
     #: the chunks the value term values, before clipping, ``(B, k, A)``: x̂1 (``"flow"``) or ``mu(h, z)``
     chunks: th.Tensor
+
+
+class ActorBatch(Protocol):
+    """The batch tensors an actor objective reads (a :class:`~sb3_ua2c.buffers.ChunkReplaySamples` has them)."""
+
+    #: ``(B, ℓ, obs_dim)``
+    observation_history: th.Tensor
+    #: ``(B, ℓ, action_dim)``
+    action_history: th.Tensor
+    #: the logged chunks ``x1``, ``(B, k, action_dim)``
+    chunks: th.Tensor
+    #: valid positions of ``chunks``, ``(B, k)`` (``None``: all)
+    chunk_mask: th.Tensor | None
+
+
+class ActorInputs(NamedTuple):
+    """The networks an actor objective reads, and how the actors read a history (``UA2CPolicy.actor_inputs``)."""
+
+    #: the velocity field of Eq. 2 (the policy's ``actor``), trained by flow matching under every actor kind
+    flow: nn.Module
+    #: the network the value term trains: the velocity field itself, or the actor kind's own network
+    actor: nn.Module
+    #: the online critics, ``(B, ℓ*obs_dim), (B, C, k, A) -> (n, B, C)`` (frozen inside the objective)
+    critic: nn.Module
+    #: the actors read the past actions of a history (``actor_past_actions``)
+    past_actions: bool
+    #: the continuous action dims (the smoothness term's)
+    continuous_dims: list[int]
+    #: Euler steps of the flow's sample that the one-step policy is distilled to (``flow_steps``)
+    flow_steps: int
+
+
+class ActorWeights(NamedTuple):
+    """The weights of an actor objective (UA2C's arguments of the same names)."""
+
+    #: ``λ``, the value term's
+    q_weight: float
+    #: ``mu``, the in-chunk smoothness term's
+    smooth_weight: float
+    #: divide the value term by the batch mean ``|Q|``
+    normalize_q: bool
+    #: ``alpha``, the distillation's (one-step policy only)
+    distill_weight: float
+    #: ``p`` of the history dropout
+    past_action_dropout: float
+
+
+def actor_history(obs_history: th.Tensor, action_history: th.Tensor, past_actions: bool) -> th.Tensor:
+    """
+    The actors' input: ``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> ``(B, ℓ*(obs_dim+action_dim))``,
+    or ``(B, ℓ*obs_dim)`` without the past actions.
+
+    :param obs_history: ``(B, ℓ, obs_dim)``
+    :param action_history: ``(B, ℓ, action_dim)``
+    :param past_actions: include the past actions (``actor_past_actions``)
+    """
+    b = obs_history.shape[0]
+    if not past_actions:
+        return obs_history.reshape(b, -1)
+    return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
 
 
 def _normal(like: th.Tensor, generator: th.Generator | None) -> th.Tensor:
@@ -53,54 +112,56 @@ def _uniform(n: int, like: th.Tensor, generator: th.Generator | None) -> th.Tens
     return th.rand(n, generator=generator).to(like.device)
 
 
-def _frozen_q(model: UA2C, obs_flat: th.Tensor, chunks: th.Tensor) -> th.Tensor:
+def _frozen_q(critic: nn.Module, obs_flat: th.Tensor, chunks: th.Tensor) -> th.Tensor:
     """``min_j Q_j(h, clip(chunks))`` with the critics frozen (the value term does not train them):
     ``(B, ℓ*obs_dim), (B, k, A) -> (B,)``; clipped as FQL / Q-chunking clip before Q (no gradient outside)."""
-    model.critic.requires_grad_(False)
+    critic.requires_grad_(False)
     try:
-        q = model.critic(obs_flat, chunks.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
+        q = critic(obs_flat, chunks.clamp(-1.0, 1.0).unsqueeze(1))[:, :, 0]  # (n, B, 1) -> (n, B)
     finally:
-        model.critic.requires_grad_(True)
+        critic.requires_grad_(True)
     return pessimistic_q(q)  # (n, B) -> (B,)
 
 
 def _flow_matching(
-    model: UA2C, data: ChunkReplaySamples, generator: th.Generator | None
+    inputs: ActorInputs, data: ActorBatch, dropout: float, generator: th.Generator | None
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-    """Noise, flow times, dropped past actions and the velocity field's prediction on the batch:
-    ``x0 (B, k, A), tau (B,), x_tau (B, k, A), velocity (B, k, A), action_history (B, ℓ, A)``."""
+    """Noise, flow times, the actors' (dropped) histories and the velocity field's prediction on the batch:
+    ``x0 (B, k, A), tau (B,), x_tau (B, k, A), velocity (B, k, A), history (B, history_dim)``."""
     x1 = data.chunks
     x0 = _normal(x1, generator)
     tau = _uniform(x1.shape[0], x1, generator)
-    actions = drop_past_actions(data.action_history, model.past_action_dropout, generator)
+    actions = drop_past_actions(data.action_history, dropout, generator)
+    history = actor_history(data.observation_history, actions, inputs.past_actions)
     x_tau = interpolate(x0, x1, tau)
-    velocity = model.actor(x_tau, tau, model.policy.condition(data.observation_history, actions))
-    return x0, tau, x_tau, velocity, actions
+    velocity = inputs.flow(x_tau, tau, inputs.flow.condition(history))
+    return x0, tau, x_tau, velocity, history
 
 
 def flow_objective(
-    model: UA2C, data: ChunkReplaySamples, q_weight: float, generator: th.Generator | None = None
+    inputs: ActorInputs, data: ActorBatch, weights: ActorWeights, generator: th.Generator | None
 ) -> ActorObjective:
     """
     Eq. 2 (``actor_type="flow"``): flow matching on the batch's chunks (masked on window padding) and
     ``-λ Q`` of the one-step terminal estimate x̂1 (:func:`~sb3_ua2c.flow.actor_loss`).
 
-    :param model: the model (actor, critics, ``smooth_weight``, ``normalize_q``, ``past_action_dropout``)
+    :param inputs: the velocity field and the critics
     :param data: the batch
-    :param q_weight: ``λ``
+    :param weights: ``q_weight``, ``smooth_weight``, ``normalize_q``, ``past_action_dropout``
     :param generator: the random stream of ``x0``, ``tau`` and the dropout (``None``: torch's global one)
     """
-    x0, tau, x_tau, velocity, _ = _flow_matching(model, data, generator)
+    x0, tau, x_tau, velocity, _ = _flow_matching(inputs, data, weights.past_action_dropout, generator)
     x_hat = estimate_terminal(x_tau, tau, velocity)
-    q = _frozen_q(model, data.observation_history.flatten(1), x_hat)
-    roughness = chunk_roughness(x_hat, model.policy.continuous_dims) if model.smooth_weight > 0.0 else None
-    loss, info = actor_loss(velocity, x0, data.chunks, q, q_weight, roughness, model.smooth_weight,
-                            data.chunk_mask, model.normalize_q)
+    q = _frozen_q(inputs.critic, data.observation_history.flatten(1), x_hat)
+    mu = weights.smooth_weight
+    roughness = chunk_roughness(x_hat, inputs.continuous_dims) if mu > 0.0 else None
+    loss, info = actor_loss(velocity, x0, data.chunks, q, weights.q_weight, mu, weights.normalize_q,
+                            roughness, data.chunk_mask)
     return ActorObjective(loss, info, x_hat)
 
 
 def one_step_objective(
-    model: UA2C, data: ChunkReplaySamples, q_weight: float, generator: th.Generator | None = None
+    inputs: ActorInputs, data: ActorBatch, weights: ActorWeights, generator: th.Generator | None
 ) -> ActorObjective:
     """
     QC-FQL (``actor_type="one_step"``): the flow by flow matching alone, the one-step policy
@@ -108,41 +169,25 @@ def one_step_objective(
     from the same ``z`` and ``-λ Q(h, clip(mu(h, z)))`` (:func:`~sb3_ua2c.flow.one_step_actor_loss`;
     with ``smooth_weight > 0``, plus the roughness of ``mu(h, z)``).
 
-    :param model: the model
+    :param inputs: the velocity field, the one-step policy (``inputs.actor``) and the critics
     :param data: the batch
-    :param q_weight: ``λ``
+    :param weights: all of :class:`ActorWeights`
     :param generator: the random stream of ``x0``, ``tau``, the dropout and ``z`` (``None``: torch's global one)
     """
-    policy = model.policy
-    x0, _, _, velocity, actions = _flow_matching(model, data, generator)
+    x0, _, _, velocity, history = _flow_matching(inputs, data, weights.past_action_dropout, generator)
     flow = flow_matching_loss(velocity, x0, data.chunks, data.chunk_mask)
     z = _normal(data.chunks, generator)  # (B, k, A)
     with th.no_grad():
-        target = policy.flow_sample(data.observation_history, actions, z, policy.flow_steps)  # (B, k, A)
-    mu = policy.one_step_actor(policy.flatten_history(data.observation_history, actions), z)  # (B, k, A)
-    q = _frozen_q(model, data.observation_history.flatten(1), mu)
-    loss, info = one_step_actor_loss(flow, mu, target, q, q_weight, model.distill_weight, model.normalize_q)
-    if model.smooth_weight > 0.0:
-        roughness = chunk_roughness(mu, policy.continuous_dims)
-        loss = loss + model.smooth_weight * roughness
+        target = inputs.flow.sample(history, z, inputs.flow_steps)  # (B, k, A)
+    mu = inputs.actor.sample(history, z, inputs.flow_steps)  # (B, k, A)
+    q = _frozen_q(inputs.critic, data.observation_history.flatten(1), mu)
+    loss, info = one_step_actor_loss(flow, mu, target, q, weights.q_weight, weights.distill_weight,
+                                     weights.normalize_q)
+    if weights.smooth_weight > 0.0:
+        roughness = chunk_roughness(mu, inputs.continuous_dims)
+        loss = loss + weights.smooth_weight * roughness
         info["roughness"] = roughness.item()
     return ActorObjective(loss, info, mu)
 
 
-#: the actor objective of each ``actor_type``
-OBJECTIVES = {"flow": flow_objective, "one_step": one_step_objective}
-
-
-def actor_objective(
-    model: UA2C, data: ChunkReplaySamples, q_weight: float | None = None, generator: th.Generator | None = None
-) -> ActorObjective:
-    """
-    The actor objective of the model's ``actor_type`` on a batch.
-
-    :param model: the model
-    :param data: the batch (histories, chunks, ``chunk_mask``)
-    :param q_weight: ``λ`` (``None``: the model's ``q_weight``)
-    :param generator: the random stream (``None``: torch's global one, as in training)
-    """
-    weight = model.q_weight if q_weight is None else q_weight
-    return OBJECTIVES[model.policy.actor_type](model, data, weight, generator)
+__all__ = ["ActorBatch", "ActorInputs", "ActorObjective", "ActorWeights", "actor_history", "flow_objective", "one_step_objective"]

@@ -4,16 +4,18 @@ errors for checkpoints that do not fit (the conversion of earlier layouts is :mo
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import pathlib
 from typing import Any
 
 import torch as th
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.save_util import load_from_pkl, load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer
+from sb3_ua2c.compat import LEGACY_RULE_NAMES, legacy_critic_kwargs
 
 
 class Checkpoints(OffPolicyAlgorithm):
@@ -48,11 +50,21 @@ class Checkpoints(OffPolicyAlgorithm):
     ) -> Any:
         """
         SB3's ``load``; keyword arguments override the saved attributes as in SB3
-        (``UA2C.load(path, flow_steps=2)``), and ``n_elite=m`` sets the elite mean of the loaded
-        policy (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`). Without that, SB3 would store ``n_elite`` as an unused
-        attribute and the policy would go on acting with its saved ``m``.
+        (``UA2C.load(path, gradient_steps=2)``). The acting settings go through their one setter after
+        loading: ``n_elite=m`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`; SB3 would store it as an unused
+        attribute), ``flow_steps`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_flow_steps`) and the execution rule's
+        fields by UA2C's argument names, ``execution_rule``, ``entropy_threshold``, ... (the saved rule
+        with those fields replaced, :meth:`~sb3_ua2c.ua2c.UA2C.set_execution_rule`). A ``policy_kwargs``
+        given (as rl-zoo3 passes its YAML's when continuing) must equal the saved one, as in SB3, after both
+        are read in the current layout (:func:`~sb3_ua2c.compat.legacy_critic_kwargs`).
         """
-        n_elite = kwargs.pop("n_elite", None)
+        if "policy_kwargs" in kwargs and isinstance(path, str | pathlib.Path):
+            data, _, _ = load_from_zip_file(path, load_data=True, device="cpu", print_system_info=False)
+            saved = (data or {}).get("policy_kwargs")
+            if legacy_critic_kwargs(saved) == legacy_critic_kwargs(kwargs["policy_kwargs"]):
+                kwargs.pop("policy_kwargs")  # the same networks, saved in an earlier layout
+        n_elite, flow_steps = kwargs.pop("n_elite", None), kwargs.pop("flow_steps", None)
+        rule_fields = {field: kwargs.pop(name) for name, field in LEGACY_RULE_NAMES.items() if name in kwargs}
         model = super().load(
             path,
             env=env,
@@ -62,8 +74,12 @@ class Checkpoints(OffPolicyAlgorithm):
             force_reset=force_reset,
             **kwargs,
         )
+        if rule_fields:
+            model.set_execution_rule(dataclasses.replace(model.execution, **rule_fields))
         if n_elite is not None:
             model.set_n_elite(n_elite)
+        if flow_steps is not None:
+            model.set_flow_steps(flow_steps)
         return model
 
     def set_parameters(

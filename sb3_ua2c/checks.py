@@ -26,3 +26,11 @@ def check_bool(name: str, value: Any) -> None:
     """Raise ``ValueError`` naming ``name`` unless ``value`` is a ``bool`` (NumPy bools accepted)."""
     if not isinstance(value, bool | np.bool_):
         raise ValueError(f"{name} must be a bool, got {value!r}")
+
+
+def check_net_arch(name: str, value: Any) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is a non-empty list of positive integers."""
+    if isinstance(value, str) or not hasattr(value, "__len__") or not value or any(
+        isinstance(h, bool) or not isinstance(h, int | float | np.number) or int(h) != h or h < 1 for h in value
+    ):
+        raise ValueError(f"{name} must be a non-empty list of positive integers, got {value!r}")

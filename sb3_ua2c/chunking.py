@@ -67,7 +67,8 @@ def chunk_entropy(
     samples: th.Tensor,
     discrete_dims: Mapping[int, int] | None = None,
     eps: float = ENTROPY_EPS,
-    discrete: bool = True,
+    *,
+    discrete: bool,
 ) -> th.Tensor:
     """
     Per-position entropy ``H_u`` of the sampled actions (Eq. 7), over the S candidates.
@@ -80,7 +81,7 @@ def chunk_entropy(
     :param samples: candidate chunks, shape ``(*batch, S, k, action_dim)``
     :param discrete_dims: ``{dim: n_categories}`` for categorical dims (see :func:`~sb3_ua2c.config.normalize_discrete_dims`)
     :param eps: variance floor of the Gaussian entropy
-    :param discrete: add the entropies of the categorical dims
+    :param discrete: add the entropies of the categorical dims (the policy's ``discrete_entropy``)
     :return: ``H_u`` for ``u = 1..k``, shape ``(*batch, k)``
     """
     discrete_dims = dict(discrete_dims or {})
@@ -98,7 +99,7 @@ def chunk_entropy(
 def select_chunk(
     candidates: th.Tensor,
     values: th.Tensor,
-    n_elite: int = 1,
+    n_elite: int,
     discrete_dims: Mapping[int, int] | None = None,
 ) -> th.Tensor:
     """
@@ -112,7 +113,7 @@ def select_chunk(
 
     :param candidates: clipped candidate chunks, shape ``(m, S, k, action_dim)``
     :param values: their values, shape ``(m, S)``
-    :param n_elite: number of best candidates averaged, in ``[1, S]``
+    :param n_elite: number of best candidates averaged, in ``[1, S]`` (the policy's ``n_elite``)
     :param discrete_dims: ``{dim: n_categories}`` of categorical dims
     :return: selected chunks, shape ``(m, k, action_dim)``
     """

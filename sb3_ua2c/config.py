@@ -18,7 +18,9 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 
-from sb3_ua2c.checks import check_bool, check_int
+from sb3_ua2c.actors import ACTORS
+from sb3_ua2c.checks import check_bool, check_int, check_net_arch
+from sb3_ua2c.critics import CRITICS
 
 #: values of ``ExecutionRule.rule`` (UA2C's ``execution_rule``): how ``L_t`` is set from the entropies ``H_u``
 EXECUTION_RULES = ("threshold", "quantile", "growth")
@@ -27,15 +29,8 @@ DEFAULT_ENTROPY_QUANTILE = 0.75
 #: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
 DEFAULT_ENTROPY_GROWTH = 0.5
 
-#: values of ``actor_type`` (:class:`~sb3_ua2c.policies.UA2CPolicy`): the paper's flow actor, or QC-FQL's
-#: one-step policy distilled from it
-ACTOR_TYPES = ("flow", "one_step")
-
 #: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
-#: the critic architectures (``critic_arch``): the paper's per-token Transformer, or an MLP over the
-#: flattened history and chunk (see :mod:`sb3_ua2c.networks`)
-CRITIC_ARCHS = ("transformer", "mlp")
 
 #: arguments of a policy class that are not hyperparameters (the spaces, and what SB3 passes itself)
 _POLICY_PLUMBING = ("self", "observation_space", "action_space", "lr_schedule")
@@ -73,7 +68,7 @@ def _learning_rate(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a finite number >= 0 or a schedule, got {value!r}")
 
 
-def _one_of(choices: Sequence[str]) -> Callable[[str, Any], None]:
+def _one_of(choices: Sequence[str] | Mapping[str, Any]) -> Callable[[str, Any], None]:
     def check(name: str, value: Any) -> None:
         if not isinstance(value, str) or value not in choices:
             raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
@@ -82,10 +77,8 @@ def _one_of(choices: Sequence[str]) -> Callable[[str, Any], None]:
 
 
 def _net_arch(name: str, value: Any) -> None:
-    if value is None:
-        return
-    if not isinstance(value, Sequence) or not value or any(not _is_number(h) or int(h) != h or h < 1 for h in value):
-        raise ValueError(f"{name} must be a non-empty list of positive integers, got {value!r}")
+    if value is not None:
+        check_net_arch(name, value)
 
 
 def _must_be_false(name: str, value: Any) -> None:
@@ -139,15 +132,10 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     # UA2CPolicy's networks and acting rule
     "n_elite": _positive_int,
     "net_arch": _net_arch,
-    "actor_type": _one_of(ACTOR_TYPES),
+    "actor_type": _one_of(ACTORS),  # the registries as they are when checked
     "actor_past_actions": check_bool,
-    "critic_arch": _one_of(CRITIC_ARCHS),
-    "critic_embed_dim": _positive_int,
-    "critic_n_layers": _positive_int,
-    "critic_n_heads": _positive_int,
-    "critic_ff_dim": _positive_int,
-    "critic_net_arch": _net_arch,
-    "critic_layer_norm": check_bool,
+    "critic_arch": _one_of(CRITICS),
+    "critic_kwargs": _optional_dict,  # checked by the critic class (:func:`~sb3_ua2c.critics.make_critic`)
     "n_critics": _positive_int,
     "activation_fn": _subclass_of(th.nn.Module),
     "optimizer_class": _subclass_of(th.optim.Optimizer),
@@ -163,9 +151,8 @@ def check_arguments(**arguments: Any) -> None:
     constructors spell them) and the constraints between those given together. A bad value raises a
     ``ValueError`` that names the parameter.
 
-    Constraints between arguments: ``n_elite <= n_candidates``; ``critic_net_arch`` only with
-    ``critic_arch="mlp"``; ``critic_n_heads`` divides ``critic_embed_dim``. The execution rule checks
-    itself (:class:`ExecutionRule`).
+    Constraints between arguments: ``n_elite <= n_candidates``. The execution rule checks itself
+    (:class:`ExecutionRule`), a critic class its ``critic_kwargs``.
 
     :param arguments: hyperparameters by name (any subset of the constructors' arguments)
     """
@@ -175,15 +162,6 @@ def check_arguments(**arguments: Any) -> None:
         _CHECKS[name](name, value)
     if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
         raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
-    if arguments.get("critic_net_arch") is not None and arguments.get("critic_arch", "transformer") != "mlp":
-        raise ValueError(
-            f"critic_net_arch applies to critic_arch='mlp' only, got it with critic_arch="
-            f"{arguments.get('critic_arch', 'transformer')!r}"
-        )
-    if "critic_embed_dim" in arguments and arguments["critic_embed_dim"] % arguments.get("critic_n_heads", 1):
-        raise ValueError(
-            f"critic_n_heads={arguments['critic_n_heads']} must divide critic_embed_dim={arguments['critic_embed_dim']}"
-        )
 
 
 def normalize_discrete_dims(
@@ -329,12 +307,13 @@ class ExecutionRule:
     def _check_rule_parameters(self) -> None:
         """A rule's parameter set (not at its default) under another rule is an error."""
         other_rules = (
-            ("threshold", "entropy_threshold", self.entropy_threshold, 0.0),
-            ("threshold", "target_plan_length", self.target_plan_length, None),
-            ("quantile", "entropy_quantile", self.entropy_quantile, None),
-            ("growth", "entropy_growth", self.entropy_growth, None),
+            ("threshold", "entropy_threshold"),
+            ("threshold", "target_plan_length"),
+            ("quantile", "entropy_quantile"),
+            ("growth", "entropy_growth"),
         )
-        for rule, name, value, unset in other_rules:
+        for rule, name in other_rules:
+            value, unset = getattr(self, name), ExecutionRule.__dataclass_fields__[name].default
             if rule != self.rule and value != unset:
                 raise ValueError(
                     f"{name} applies to execution_rule={rule!r} only, got {name}={value!r} with "
@@ -367,6 +346,28 @@ class ExecutionRule:
         return DEFAULT_ENTROPY_GROWTH if self.entropy_growth is None else self.entropy_growth
 
 
+def make_execution_rule(execution_rule: str | ExecutionRule | None, **fields: Any) -> ExecutionRule:
+    """
+    The :class:`ExecutionRule` of UA2C's arguments: ``execution_rule`` itself when it is one, else a rule
+    of that name (``None``: the rule's default) with the fields given; a ``None`` field stands for the
+    :class:`ExecutionRule`'s default, the one home of each.
+
+    :param execution_rule: an :class:`ExecutionRule`, a name of :data:`EXECUTION_RULES`, or ``None``
+    :param fields: ``entropy_threshold``, ``target_plan_length``, ``entropy_quantile``, ``entropy_growth``
+        (``None``: not given); any of them given with an :class:`ExecutionRule` raises a ``ValueError``
+        naming it
+    :return: the rule (checked)
+    """
+    given = {name: value for name, value in fields.items() if value is not None}
+    if isinstance(execution_rule, ExecutionRule):
+        if given:
+            name = sorted(given)[0]
+            raise ValueError(f"{name}={given[name]!r} cannot be given with execution_rule=ExecutionRule(...): "
+                             f"set it in the ExecutionRule")
+        return execution_rule
+    return ExecutionRule(**given) if execution_rule is None else ExecutionRule(execution_rule, **given)
+
+
 __all__ = [
     "DEFAULT_ENTROPY_GROWTH",
     "DEFAULT_ENTROPY_QUANTILE",
@@ -376,6 +377,7 @@ __all__ = [
     "check_arguments",
     "check_policy_kwargs",
     "check_spaces",
+    "make_execution_rule",
     "normalize_discrete_dims",
     "policy_kwargs_names",
 ]

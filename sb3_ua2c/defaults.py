@@ -3,7 +3,8 @@
 Each default is written once: in the constructor signature of :class:`~sb3_ua2c.ua2c.UA2C` or
 :class:`~sb3_ua2c.policies.UA2CPolicy`, or, where the signature says ``None`` ("the default"), in the
 one constant or dataclass that argument documents (:data:`~sb3_ua2c.policies.DEFAULT_N_ELITE`,
-:class:`~sb3_ua2c.config.ExecutionRule`, ...). Presets, the zoo's YAML files and the research
+:class:`~sb3_ua2c.config.ExecutionRule`, ...), and for a critic's own arguments (``critic_kwargs``) in
+the signature of its class (:data:`~sb3_ua2c.critics.CRITICS`). Presets, the zoo's YAML files and the research
 harnesses take a default from :func:`defaults` instead of writing it again, and the tests compare
 every configuration that states a value against it.
 """
@@ -29,7 +30,7 @@ def defaults() -> dict[str, Any]:
     The value every hyperparameter of UA2C takes when it is not given: ``UA2C``'s constructor
     arguments by name, and ``policy_kwargs`` as the dict of :class:`~sb3_ua2c.policies.UA2CPolicy`'s
     own arguments. An argument whose signature default is ``None`` but stands for a value (``n_elite``,
-    ``net_arch``, the execution rule's fields, ...) is given that value, as
+    ``net_arch``, ``critic_kwargs``, the execution rule's fields, ...) is given that value, as
     :func:`~sb3_ua2c.policies.resolved_policy_defaults` and :class:`~sb3_ua2c.config.ExecutionRule` resolve it.
 
     :return: a fresh dict (changing it changes nothing else)

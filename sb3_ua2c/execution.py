@@ -299,11 +299,12 @@ class ExecutionRuleState(BasePolicy):
     entropy_window: EntropyWindow | None
     calibrated_thresholds: th.Tensor | None
 
-    def set_execution_rule(self, execution: ExecutionRule) -> None:
+    def _set_execution_rule(self, execution: ExecutionRule) -> None:
         """
-        Set the execution rule (execution only: the losses do not read it), e.g. to evaluate one checkpoint
-        under several rules. ``entropy_threshold="auto"`` keeps the current window, or starts an empty one;
-        ``"quantile"`` keeps calibrated thresholds, or starts uncalibrated ones.
+        Set the execution rule (the implementation of :meth:`UA2C.set_execution_rule
+        <sb3_ua2c.ua2c.UA2C.set_execution_rule>`, the one setter). ``entropy_threshold="auto"`` keeps the
+        current window, or starts an empty one; ``"quantile"`` keeps calibrated thresholds, or starts
+        uncalibrated ones.
 
         :param execution: the new rule (its ``target_plan_length`` must not exceed ``chunk_size``)
         """

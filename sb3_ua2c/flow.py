@@ -145,10 +145,10 @@ def actor_loss(
     x1: th.Tensor,
     q_values: th.Tensor,
     q_weight: float,
+    smooth_weight: float,
+    normalize_q: bool,
     roughness: th.Tensor | None = None,
-    smooth_weight: float = 0.0,
     mask: th.Tensor | None = None,
-    normalize_q: bool = True,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
     Actor objective of Eq. 2: ``E||v - (x1 - x0)||^2 - lambda * E[min_j Q_j(o-history, x̂1)]``,
@@ -165,11 +165,11 @@ def actor_loss(
     :param x1: data chunks, same shape
     :param q_values: ``min_j Q_j(o-history, x̂1)`` (critics frozen), shape ``(batch,)``
     :param q_weight: ``lambda`` (>= 0)
-    :param roughness: :func:`chunk_roughness` of ``x̂1`` (scalar), needed when ``smooth_weight > 0``
     :param smooth_weight: ``mu`` (>= 0)
+    :param normalize_q: divide the value term by the batch mean ``|Q|`` (:func:`value_term`)
+    :param roughness: :func:`chunk_roughness` of ``x̂1`` (scalar), needed when ``smooth_weight > 0``
     :param mask: valid chunk positions of ``x1``, shape ``(batch, k)`` (:func:`flow_matching_loss`);
         ``None`` = all valid
-    :param normalize_q: divide the value term by the batch mean ``|Q|`` (:func:`value_term`)
     :return: scalar loss and a dict of logged floats (``flow_loss``, ``q_term``, ``q_scale``, and
         ``roughness`` when ``mu > 0``)
     """
@@ -185,7 +185,7 @@ def actor_loss(
     return loss, info
 
 
-def value_term(q_values: th.Tensor, normalize_q: bool = True) -> tuple[th.Tensor, th.Tensor]:
+def value_term(q_values: th.Tensor, normalize_q: bool) -> tuple[th.Tensor, th.Tensor]:
     """
     The value term of the actor objectives, ``-E[Q]``, divided by the detached batch mean ``|Q|`` with
     ``normalize_q`` (TD3+BC's normalisation, Fujimoto & Gu, 2021), raw without it (FQL's and
@@ -220,7 +220,7 @@ def one_step_actor_loss(
     q_values: th.Tensor,
     q_weight: float,
     distill_weight: float,
-    normalize_q: bool = True,
+    normalize_q: bool,
 ) -> tuple[th.Tensor, dict[str, float]]:
     """
     QC-FQL's actor objective (``actor_type="distill-ddpg"`` of Q-chunking, Li et al., 2025): the flow

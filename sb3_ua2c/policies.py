@@ -1,4 +1,4 @@
-"""The policy of UA2C: the flow-matching chunk actor and the twin chunk critics (:mod:`sb3_ua2c.networks`)
+"""The policy of UA2C: the chunk actor (:mod:`sb3_ua2c.actors`) and the twin chunk critics (:mod:`sb3_ua2c.critics`)
 with their Polyak targets, and the adaptive-chunk planner (Eq. 7) that ``predict`` runs.
 
 Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
@@ -20,6 +20,8 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
+from sb3_ua2c.actor_objectives import ActorInputs, actor_history
+from sb3_ua2c.actors import ACTORS, actor_class
 from sb3_ua2c.chunking import (
     chunk_entropy,
     commit_through_switch,
@@ -27,10 +29,10 @@ from sb3_ua2c.chunking import (
     pessimistic_q,
     select_chunk,
 )
-from sb3_ua2c.compat import legacy_execution_rule
+from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
+from sb3_ua2c.critics import critic_defaults, make_critic
 from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
-from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, OneStepActor, VelocityField
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
@@ -67,16 +69,14 @@ DEFAULT_NET_ARCH: tuple[int, ...] = (512, 512, 512)
 #: Candidates averaged into the executed chunk when ``n_elite`` is not given (chosen on validation;
 #: the paper's best candidate, 1, is :data:`sb3_ua2c.presets.PAPER`'s), or all of them when fewer.
 DEFAULT_N_ELITE = 8
-#: Hidden sizes of the MLP critics (``critic_arch="mlp"``) when ``critic_net_arch`` is not given: SAC's.
-DEFAULT_CRITIC_NET_ARCH: tuple[int, ...] = (256, 256)
 
 
 def resolved_policy_defaults(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
     """
     ``policy_kwargs`` with the arguments whose ``None`` stands for a default given that default:
-    ``n_elite`` (:data:`DEFAULT_N_ELITE`),
-    and ``net_arch`` (:data:`DEFAULT_NET_ARCH`); ``critic_net_arch`` stays ``None`` (it applies to
-    ``critic_arch="mlp"`` only, where ``None`` is :data:`DEFAULT_CRITIC_NET_ARCH`). Used by :func:`sb3_ua2c.defaults.defaults`.
+    ``n_elite`` (:data:`DEFAULT_N_ELITE`), ``net_arch`` (:data:`DEFAULT_NET_ARCH`) and ``critic_kwargs``
+    (the signature defaults of the ``critic_arch``'s class, :func:`~sb3_ua2c.critics.critic_defaults`).
+    Used by :func:`sb3_ua2c.defaults.defaults`.
 
     :param policy_kwargs: the policy's arguments by name
     :return: a new dict
@@ -86,6 +86,8 @@ def resolved_policy_defaults(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
         out["n_elite"] = DEFAULT_N_ELITE
     if out.get("net_arch", 0) is None:
         out["net_arch"] = list(DEFAULT_NET_ARCH)
+    if out.get("critic_kwargs", 0) is None and "critic_arch" in out:
+        out["critic_kwargs"] = critic_defaults(out["critic_arch"])
     return out
 
 
@@ -95,7 +97,7 @@ class UA2CPolicy(ExecutionRuleState):
     the adaptive-chunk planner (Eq. 7) used by ``predict``.
 
     The execution rule and its state are a part of it in :class:`~sb3_ua2c.execution.ExecutionRuleState`.
-    The class stays over 300 lines for its 27 documented constructor arguments, each checked by name and
+    The class stays over 300 lines for its 23 documented constructor arguments, each checked by name and
     saved by name (:meth:`_get_constructor_parameters`): no table looks them up at run time.
 
     :param observation_space: Box observation space
@@ -118,23 +120,20 @@ class UA2CPolicy(ExecutionRuleState):
     :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
         selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
     :param net_arch: hidden sizes of the velocity-field MLP (and of the one-step policy's)
-    :param actor_type: ``"flow"`` (the paper's Eq. 2: candidates are Euler samples of the velocity
-        field, which the value term trains) or ``"one_step"`` (QC-FQL's one-step policy, Li et al., 2025:
-        an MLP ``mu(h, z)`` (:class:`~sb3_ua2c.networks.OneStepActor`) distilled from the flow and trained
-        against Q; the flow learns by flow matching alone. Candidates, for acting and for the targets,
-        are ``mu``'s: one network call per replanning; see :meth:`sample_chunks`)
+    :param actor_type: a key of :data:`~sb3_ua2c.actors.ACTORS`: ``"flow"`` (the paper's Eq. 2: candidates
+        are Euler samples of the velocity field, which the value term trains) or ``"one_step"`` (QC-FQL's
+        one-step policy, Li et al., 2025: an MLP ``mu(h, z)`` (:class:`~sb3_ua2c.actors.OneStepActor`)
+        distilled from the flow and trained against Q; the flow learns by flow matching alone. Candidates,
+        for acting and for the targets, are ``mu``'s: one network call per replanning; see :meth:`sample_chunks`)
     :param actor_past_actions: condition the actor on the past actions of the history (the paper's
         ``h_t``); ``False``: on the observations only, against copycat behaviour cloning (Wen et al.,
         NeurIPS 2020; de Haan et al., NeurIPS 2019). The critics never see past actions.
-    :param critic_arch: ``"transformer"`` (the paper's per-token critic, :class:`~sb3_ua2c.networks.ChunkCritics`)
-        or ``"mlp"`` (an MLP over the flattened history and chunk, :class:`~sb3_ua2c.networks.MLPChunkCritics`)
-    :param critic_embed_dim: token width of the Transformer critics
-    :param critic_n_layers: Transformer blocks per critic
-    :param critic_n_heads: attention heads
-    :param critic_ff_dim: feed-forward width of the Transformer critics
-    :param critic_net_arch: hidden sizes of the MLP critics (``None`` = :data:`DEFAULT_CRITIC_NET_ARCH`;
-        only with ``critic_arch="mlp"``)
-    :param critic_layer_norm: a layer norm before each hidden activation of the MLP critics
+    :param critic_arch: a key of :data:`~sb3_ua2c.critics.CRITICS`: ``"transformer"`` (the paper's per-token
+        critic, :class:`~sb3_ua2c.critics.ChunkCritics`) or ``"mlp"`` (an MLP over the flattened history
+        and chunk, :class:`~sb3_ua2c.critics.MLPChunkCritics`)
+    :param critic_kwargs: the own arguments of the ``critic_arch``'s class (``None``: its signature's
+        defaults): ``embed_dim``, ``n_layers``, ``n_heads``, ``ff_dim`` of the Transformer; ``net_arch``,
+        ``layer_norm`` of the MLP
     :param n_critics: number of critics
     :param activation_fn: activation class for actor and critics
     :param optimizer_class: optimizer class
@@ -164,12 +163,7 @@ class UA2CPolicy(ExecutionRuleState):
         actor_type: str = "flow",
         actor_past_actions: bool = True,
         critic_arch: str = "transformer",
-        critic_embed_dim: int = 32,
-        critic_n_layers: int = 1,
-        critic_n_heads: int = 1,
-        critic_ff_dim: int = 64,
-        critic_net_arch: list[int] | None = None,
-        critic_layer_norm: bool = True,
+        critic_kwargs: dict[str, Any] | None = None,
         n_critics: int = 2,
         activation_fn: type[nn.Module] = nn.SiLU,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
@@ -193,7 +187,7 @@ class UA2CPolicy(ExecutionRuleState):
         self.history_len = history_len
         self.flow_steps = flow_steps
         self.n_candidates = n_candidates
-        #: the execution rule (replaced only by :meth:`set_execution_rule`, which checks it)
+        #: the execution rule (replaced only by :meth:`_set_execution_rule`, which checks it)
         self.execution = ExecutionRule() if execution is None else execution
         self.discrete_action_dims = discrete_action_dims
         self.discrete_entropy = discrete_entropy
@@ -203,12 +197,6 @@ class UA2CPolicy(ExecutionRuleState):
         self.actor_type = actor_type
         self.actor_past_actions = actor_past_actions
         self.critic_arch = critic_arch
-        self.critic_embed_dim = critic_embed_dim
-        self.critic_n_layers = critic_n_layers
-        self.critic_n_heads = critic_n_heads
-        self.critic_ff_dim = critic_ff_dim
-        self.critic_net_arch = critic_net_arch
-        self.critic_layer_norm = critic_layer_norm
         self.n_critics = n_critics
         self.activation_fn = activation_fn
         self.torch_compile = torch_compile
@@ -216,13 +204,13 @@ class UA2CPolicy(ExecutionRuleState):
             chunk_size=chunk_size, history_len=history_len, flow_steps=flow_steps, n_candidates=n_candidates,
             discrete_action_dims=discrete_action_dims, discrete_entropy=discrete_entropy,
             commit_discrete=commit_discrete, n_elite=self.n_elite, net_arch=net_arch, actor_type=actor_type,
-            actor_past_actions=actor_past_actions, critic_arch=critic_arch,
-            critic_embed_dim=critic_embed_dim, critic_n_layers=critic_n_layers, critic_n_heads=critic_n_heads,
-            critic_ff_dim=critic_ff_dim, critic_net_arch=critic_net_arch, critic_layer_norm=critic_layer_norm,
+            actor_past_actions=actor_past_actions, critic_arch=critic_arch, critic_kwargs=critic_kwargs,
             n_critics=n_critics, activation_fn=activation_fn, optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs, normalize_images=normalize_images, torch_compile=torch_compile,
         )
         self._check_execution(self.execution)
+        #: the critic class's own arguments, its signature's defaults filled in (saved with the policy)
+        self.critic_kwargs = {**critic_defaults(critic_arch), **(critic_kwargs or {})}
         self.obs_dim = int(np.prod(observation_space.shape))
         self.action_dim = int(np.prod(action_space.shape))
         #: ``{action index: n_categories}`` of the categorical action dims, and the other (continuous) dims
@@ -244,14 +232,16 @@ class UA2CPolicy(ExecutionRuleState):
     def _build(self, lr_schedule: Schedule) -> None:
         history_dim = self.history_len * (self.obs_dim + (self.action_dim if self.actor_past_actions else 0))
         actor_args = (history_dim, self.chunk_size, self.action_dim, list(self.net_arch), self.activation_fn)
-        self.actor = VelocityField(*actor_args)
+        #: the velocity field of Eq. 2, learnt by flow matching under every ``actor_type``
+        self.actor = ACTORS["flow"](*actor_args)
         self.critic, self.critic_target = self._make_critics(), self._make_critics()
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.critic_target.train(False)
-        #: QC-FQL's one-step policy ``mu(h, z)`` (``actor_type="one_step"``), ``None`` for ``"flow"``
-        self.one_step_actor = OneStepActor(*actor_args) if self.actor_type == "one_step" else None
-        # one optimizer for both actors: their objective is one sum over disjoint parameters
+        kind = actor_class(self.actor_type)
+        if kind.attribute != "actor":  # an actor of its own beside the flow (``one_step_actor``)
+            self.add_module(kind.attribute, kind(*actor_args))
+        # one optimizer for all actors: their objective is one sum over disjoint parameters
         actor_params = [p for net in self.actor_networks() for p in net.parameters()]
         self.actor.optimizer = self.optimizer_class(  # type: ignore[assignment]
             actor_params, lr=lr_schedule(1), **self.optimizer_kwargs
@@ -260,20 +250,10 @@ class UA2CPolicy(ExecutionRuleState):
             self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
 
-    def _make_critics(self) -> ChunkCritics | MLPChunkCritics:
+    def _make_critics(self) -> nn.Module:
         """The twin critics of ``critic_arch``, ``(B, ℓ*obs_dim), (B, C, k, a) -> (n_critics, B, C)``."""
-        args = (self.history_len * self.obs_dim, self.chunk_size, self.action_dim, self.n_critics)
-        if self.critic_arch == "mlp":
-            net_arch = DEFAULT_CRITIC_NET_ARCH if self.critic_net_arch is None else self.critic_net_arch
-            return MLPChunkCritics(*args, list(net_arch), self.critic_layer_norm, self.activation_fn)
-        return ChunkCritics(
-            *args,
-            embed_dim=self.critic_embed_dim,
-            n_layers=self.critic_n_layers,
-            n_heads=self.critic_n_heads,
-            ff_dim=self.critic_ff_dim,
-            activation_fn=self.activation_fn,
-        )
+        return make_critic(self.critic_arch, self.history_len * self.obs_dim, self.chunk_size, self.action_dim,
+                           self.n_critics, self.activation_fn, self.critic_kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()  # spaces and normalize_images
@@ -293,12 +273,7 @@ class UA2CPolicy(ExecutionRuleState):
             "actor_type": self.actor_type,
             "actor_past_actions": self.actor_past_actions,
             "critic_arch": self.critic_arch,
-            "critic_embed_dim": self.critic_embed_dim,
-            "critic_n_layers": self.critic_n_layers,
-            "critic_n_heads": self.critic_n_heads,
-            "critic_ff_dim": self.critic_ff_dim,
-            "critic_net_arch": self.critic_net_arch,
-            "critic_layer_norm": self.critic_layer_norm,
+            "critic_kwargs": self.critic_kwargs,
             "n_critics": self.n_critics,
             "activation_fn": self.activation_fn,
             "optimizer_class": self.optimizer_class,
@@ -310,15 +285,15 @@ class UA2CPolicy(ExecutionRuleState):
     def load(cls, path: str | io.BufferedIOBase | pathlib.Path, device: th.device | str = "auto") -> UA2CPolicy:
         """
         SB3's ``BasePolicy.load``; a policy saved before the execution rule became one
-        :class:`~sb3_ua2c.config.ExecutionRule` (its five arguments saved one by one) loads as well
-        (:func:`~sb3_ua2c.compat.legacy_execution_rule`).
+        :class:`~sb3_ua2c.config.ExecutionRule` (its five arguments saved one by one), or before the
+        critics' arguments became ``critic_kwargs``, loads as well (:mod:`sb3_ua2c.compat`).
 
         :param path: the file :meth:`save` wrote
         :param device: device to load the policy on
         """
         device = get_device(device)
         saved = th.load(path, map_location=device, weights_only=False)
-        data = dict(saved["data"])
+        data = legacy_critic_kwargs(saved["data"])
         data["execution"] = legacy_execution_rule(data, data.get("execution"))
         policy = cls(**data)
         policy.load_state_dict(saved["state_dict"])
@@ -340,10 +315,17 @@ class UA2CPolicy(ExecutionRuleState):
         self.critic.compile(dynamic=False)
         self.critic_target.compile(dynamic=False)
 
-    def set_n_elite(self, n_elite: int) -> None:
-        """Validate and set how many best candidates a replanning averages (1 = best-of-S)."""
+    def _set_n_elite(self, n_elite: int) -> None:
+        """Validate and set how many best candidates a replanning averages (the implementation of
+        :meth:`UA2C.set_n_elite <sb3_ua2c.ua2c.UA2C.set_n_elite>`, the one setter)."""
         check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
         self.n_elite = n_elite
+
+    def _set_flow_steps(self, flow_steps: int) -> None:
+        """Validate and set the Euler steps when acting (the implementation of
+        :meth:`UA2C.set_flow_steps <sb3_ua2c.ua2c.UA2C.set_flow_steps>`, the one setter)."""
+        check_arguments(flow_steps=flow_steps)
+        self.flow_steps = flow_steps
 
     def sample_candidates(
         self, obs_history: th.Tensor, action_history: th.Tensor, n_samples: int,
@@ -364,30 +346,32 @@ class UA2CPolicy(ExecutionRuleState):
         self.training = mode
 
     # ------------------------------------------------------------------ maths on tensors
-    def actor_networks(self) -> list[nn.Module]:
-        """The velocity field, and the one-step policy with ``actor_type="one_step"``."""
-        return [self.actor] if self.one_step_actor is None else [self.actor, self.one_step_actor]
-
     def value_trained_actor(self) -> nn.Module:
-        """The network the value term trains: the velocity field (``"flow"``, Eq. 2) or the one-step policy."""
-        return self.actor if self.one_step_actor is None else self.one_step_actor
+        """The network that acts and that the value term trains: the ``actor_type``'s (the velocity field
+        itself for ``"flow"``, Eq. 2; ``one_step_actor`` for ``"one_step"``)."""
+        return getattr(self, actor_class(self.actor_type).attribute)
+
+    def actor_networks(self) -> list[nn.Module]:
+        """The velocity field, and the ``actor_type``'s own network when it has one."""
+        acting = self.value_trained_actor()
+        return [self.actor] if acting is self.actor else [self.actor, acting]
+
+    def actor_inputs(self) -> ActorInputs:
+        """What the actor objectives read of the policy (:mod:`sb3_ua2c.actor_objectives`)."""
+        return ActorInputs(self.actor, self.value_trained_actor(), self.critic, self.actor_past_actions,
+                           self.continuous_dims, self.flow_steps)
 
     def flatten_history(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
-        """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> actor input ``(B, ℓ*(obs_dim+action_dim))``,
-        or ``(B, ℓ*obs_dim)`` with ``actor_past_actions=False``."""
-        b = obs_history.shape[0]
-        if not self.actor_past_actions:
-            return obs_history.reshape(b, -1)
-        return th.cat([obs_history.reshape(b, -1), action_history.reshape(b, -1)], dim=1)
+        """``(B, ℓ, obs_dim)`` and ``(B, ℓ, action_dim)`` -> the actors' input ``(B, history_dim)``
+        (:func:`~sb3_ua2c.actor_objectives.actor_history`)."""
+        return actor_history(obs_history, action_history, self.actor_past_actions)
 
     def condition(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
         """
-        The actor's features of histories: the one path from histories to the flow sampler (acting,
-        targets) and to the flow-matching loss.
+        The velocity field's history features: ``(B, ℓ, obs_dim), (B, ℓ, action_dim) -> (B, hidden)``.
 
         :param obs_history: ``(B, ℓ, obs_dim)``
         :param action_history: ``(B, ℓ, action_dim)``
-        :return: ``(B, hidden)``
         """
         return self.actor.condition(self.flatten_history(obs_history, action_history))
 
@@ -402,8 +386,8 @@ class UA2CPolicy(ExecutionRuleState):
     ) -> th.Tensor:
         """
         The one path from histories to candidate chunks (acting, targets, diagnostics): ``n_samples``
-        chunks per history from Gaussian noise, by ``n_steps`` Euler steps of the flow
-        (``actor_type="flow"``) or by one call of the one-step policy ``mu(h, z)`` (``"one_step"``;
+        chunks per history from Gaussian noise, by the ``actor_type``'s ``sample``: ``n_steps`` Euler steps
+        of the flow (``"flow"``) or one call of the one-step policy ``mu(h, z)`` (``"one_step"``;
         ``n_steps`` is not used).
 
         :param obs_history: ``(B, ℓ, obs_dim)``
@@ -418,24 +402,7 @@ class UA2CPolicy(ExecutionRuleState):
         if x0 is None:
             shape = (obs_history.shape[0], n_samples, self.chunk_size, self.action_dim)
             x0 = th.randn(shape, generator=generator, device=obs_history.device, dtype=obs_history.dtype)
-        if self.one_step_actor is not None:
-            return self.one_step_actor(self.flatten_history(obs_history, action_history), x0)
-        return self.flow_sample(obs_history, action_history, x0, n_steps)
-
-    def flow_sample(
-        self, obs_history: th.Tensor, action_history: th.Tensor, x0: th.Tensor, n_steps: int
-    ) -> th.Tensor:
-        """
-        Euler samples of the flow from the noise ``x0`` (the candidates of ``actor_type="flow"``, the
-        distillation target of ``"one_step"``).
-
-        :param obs_history: ``(B, ℓ, obs_dim)``
-        :param action_history: ``(B, ℓ, action_dim)``
-        :param x0: ``(B, *extra, k, action_dim)``
-        :param n_steps: Euler steps
-        :return: unclipped chunks, the shape of ``x0``
-        """
-        return self.actor.sample(x0, self.condition(obs_history, action_history), n_steps)
+        return self.value_trained_actor().sample(self.flatten_history(obs_history, action_history), x0, n_steps)
 
     def plan_tensors(
         self,

@@ -32,35 +32,35 @@ from typing import Any
 #: - ``policy_kwargs``: ``actor_type`` "flow" (the velocity field of Eq. 2 acts and is trained by the
 #:   value term), ``actor_past_actions`` True (``h_t`` holds observations and past actions, §3.1),
 #:   ``n_elite`` 1 (the best candidate by ``min_j Q_j``), ``net_arch`` [128, 128] (the velocity field's
-#:   MLP), ``critic_arch`` "transformer" with ``critic_embed_dim`` 32, ``critic_n_layers`` 1,
-#:   ``critic_n_heads`` 1, ``critic_ff_dim`` 64 (the per-token Transformer critic of §3.1) and
-#:   ``n_critics`` 2 (the twin critics of Eq. 3, clipped double Q)
+#:   MLP), ``critic_arch`` "transformer" with ``critic_kwargs`` ``embed_dim`` 32, ``n_layers`` 1,
+#:   ``n_heads`` 1, ``ff_dim`` 64 (the per-token Transformer critic of §3.1) and ``n_critics`` 2 (the
+#:   twin critics of Eq. 3, clipped double Q)
+#:
+#: Where a value is also this release's default, its line says so (``# same as default:``): the preset
+#: states the paper's value so that it stays the paper's when a default changes.
 PAPER: dict[str, Any] = {
     "q_weight": 1.0,
-    "normalize_q": True,
-    "smooth_weight": 0.0,
-    "past_action_dropout": 0.0,
-    "flow_steps": 10,
-    "n_candidates": 32,
-    "target_flow_steps": 2,
-    "n_target_candidates": 2,
-    "execution_rule": "threshold",
-    "entropy_threshold": 0.0,
-    "train_freq": 1,
+    "normalize_q": True,  # same as default: the paper's
+    "smooth_weight": 0.0,  # same as default: the paper's
+    "past_action_dropout": 0.0,  # same as default: the paper's
+    "flow_steps": 10,  # same as default: the paper's
+    "n_candidates": 32,  # same as default: the paper's
+    "target_flow_steps": 2,  # same as default: the paper's
+    "n_target_candidates": 2,  # same as default: the paper's
+    "execution_rule": "threshold",  # same as default: the paper's
+    "entropy_threshold": 0.0,  # same as default: the paper's
+    "train_freq": 1,  # same as default: the paper's
     "gradient_steps": -1,
-    "offline_ratio": 0.5,
-    "online_targets": "auto",
+    "offline_ratio": 0.5,  # same as default: the paper's
+    "online_targets": "auto",  # same as default: the paper's
     "policy_kwargs": {
-        "actor_type": "flow",
-        "actor_past_actions": True,
+        "actor_type": "flow",  # same as default: the paper's
+        "actor_past_actions": True,  # same as default: the paper's
         "n_elite": 1,
         "net_arch": [128, 128],
-        "critic_arch": "transformer",
-        "critic_embed_dim": 32,
-        "critic_n_layers": 1,
-        "critic_n_heads": 1,
-        "critic_ff_dim": 64,
-        "n_critics": 2,
+        "critic_arch": "transformer",  # same as default: the paper's
+        "critic_kwargs": {"embed_dim": 32, "n_layers": 1, "n_heads": 1, "ff_dim": 64},  # same as default: the paper's
+        "n_critics": 2,  # same as default: the paper's
     },
 }
 

@@ -20,12 +20,19 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import polyak_update
 
-from sb3_ua2c.actor_objectives import actor_objective
+from sb3_ua2c.actor_objectives import ActorWeights
+from sb3_ua2c.actors import actor_objective
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples
 from sb3_ua2c.checkpoints import Checkpoints
 from sb3_ua2c.chunking import bootstrap_value, chunk_critic_loss, chunk_target
-from sb3_ua2c.compat import legacy_execution_rule
-from sb3_ua2c.config import ExecutionRule, check_arguments, check_policy_kwargs, check_spaces
+from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule, reject_legacy_policy_kwargs
+from sb3_ua2c.config import (
+    ExecutionRule,
+    check_arguments,
+    check_policy_kwargs,
+    check_spaces,
+    make_execution_rule,
+)
 from sb3_ua2c.diagnostics import training_stats
 from sb3_ua2c.execution import AdaptiveChunkExecutor
 from sb3_ua2c.offline_training import OfflineTraining
@@ -87,11 +94,12 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     :param n_candidates: chunks ``S`` sampled per replanning
     :param n_target_candidates: candidate chunks ``Q`` in the target max (Eq. 4 / 8)
     :param execution_rule: how the executed length ``L_t`` follows from the per-position entropies ``H_u``
-        of a replanning's candidates: ``"threshold"`` (default, Eq. 7), ``"quantile"`` or ``"growth"``
-        (not in the paper). This and the next four arguments make up the policy's
-        :class:`~sb3_ua2c.config.ExecutionRule` (:attr:`execution`; its ``rule`` and fields, documented
-        there); ``learn`` calibrates ``"quantile"`` from the replay buffer when needed
-        (:meth:`calibrate_execution`)
+        of a replanning's candidates: an :class:`~sb3_ua2c.config.ExecutionRule`, or the name of its
+        ``rule``: ``"threshold"`` (Eq. 7), ``"quantile"`` or ``"growth"`` (not in the paper). A name and the
+        next four arguments make up the policy's :class:`~sb3_ua2c.config.ExecutionRule` (:attr:`execution`;
+        its fields and their defaults are documented there, ``None`` here stands for them; given with an
+        ``ExecutionRule``, any of the four raises a ``ValueError``); ``learn`` calibrates ``"quantile"``
+        from the replay buffer when needed (:meth:`calibrate_execution`)
     :param entropy_threshold: ``delta`` of Eq. 7 in nats (``math.inf`` = the whole chunk), or ``"auto"``
     :param target_plan_length: with ``entropy_threshold="auto"`` only: the target mean ``L_t`` in ``[1, k]``
     :param entropy_quantile: with ``execution_rule="quantile"`` only: ``q`` in ``[0, 1]``
@@ -136,9 +144,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``actor_type``,
-        ``actor_past_actions``, ``n_elite``, ``critic_arch``, ``critic_net_arch``, ``critic_embed_dim``,
-        ``critic_n_layers``, ``critic_n_heads``, ``critic_ff_dim``, ``n_critics``, ``activation_fn``,
-        ``optimizer_class``, ``optimizer_kwargs``, ``torch_compile``: see :class:`UA2CPolicy`)
+        ``actor_past_actions``, ``n_elite``, ``critic_arch``, ``critic_kwargs``, ``n_critics``,
+        ``activation_fn``, ``optimizer_class``, ``optimizer_kwargs``, ``torch_compile``: see :class:`UA2CPolicy`)
     :param verbose: verbosity level: 0 no output, 1 info, 2 debug
     :param seed: seed for the pseudo random generators
     :param device: device (cpu, cuda, ...) on which the code should be run
@@ -170,8 +177,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         target_flow_steps: int = 2,
         n_candidates: int = 32,
         n_target_candidates: int = 2,
-        execution_rule: str = "threshold",
-        entropy_threshold: float | str = 0.0,
+        execution_rule: str | ExecutionRule | None = None,
+        entropy_threshold: float | str | None = None,
         target_plan_length: float | None = None,
         entropy_quantile: float | None = None,
         entropy_growth: float | None = None,
@@ -197,6 +204,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
             raise ValueError(
                 f"replay_buffer_class must be None or ChunkReplayBuffer, got {replay_buffer_class!r}"
             )
+        reject_legacy_policy_kwargs(policy_kwargs)
         env = maybe_make_env(env, verbose)
         if env is not None:
             check_spaces(env.observation_space, env.action_space)
@@ -231,8 +239,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         self.n_candidates = n_candidates
         self.n_target_candidates = n_target_candidates
         #: the execution rule the policy acts with (change it with :meth:`set_execution_rule`)
-        self.execution = ExecutionRule(
-            rule=execution_rule,
+        self.execution = make_execution_rule(
+            execution_rule,
             entropy_threshold=entropy_threshold,
             target_plan_length=target_plan_length,
             entropy_quantile=entropy_quantile,
@@ -255,6 +263,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
     def _setup_model(self) -> None:
         # a checkpoint of the earlier layout, or load(path, entropy_threshold=...): into the one rule
         self.execution = legacy_execution_rule(self.__dict__, self.execution)
+        self.policy_kwargs = legacy_critic_kwargs(self.policy_kwargs) or {}
         # the policy and the replay buffer check the arguments they take; UA2C checks the others
         check_arguments(
             learning_rate=self.learning_rate,
@@ -322,11 +331,12 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         checkpoint under several rules: ``model.set_execution_rule(ExecutionRule("growth", entropy_growth=0.2))``
         or ``dataclasses.replace(model.execution, entropy_threshold=math.inf)``. ``"quantile"`` keeps
         calibrated thresholds (or needs :meth:`calibrate_execution`), ``"auto"`` keeps the entropy window
-        (or starts an empty one). Kept by :meth:`save`.
+        (or starts an empty one). Kept by :meth:`save`. This is the one setter of the rule: ``load``'s
+        overrides and the evaluation helpers call it.
 
         :param execution: the new rule (:class:`~sb3_ua2c.config.ExecutionRule`)
         """
-        self.policy.set_execution_rule(execution)
+        self.policy._set_execution_rule(execution)
         self.execution = execution
 
     def set_n_elite(self, n_elite: int) -> None:
@@ -336,7 +346,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
 
         :param n_elite: in ``[1, n_candidates]``
         """
-        self.policy.set_n_elite(n_elite)
+        self.policy._set_n_elite(n_elite)
         # a new dict: ``policy_kwargs`` may be the caller's own (SB3 keeps the reference)
         self.policy_kwargs = {**self.policy_kwargs, "n_elite": self.policy.n_elite}
 
@@ -347,11 +357,11 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
 
         :param flow_steps: >= 1
         """
-        check_arguments(flow_steps=flow_steps)
-        self.flow_steps = self.policy.flow_steps = flow_steps
+        self.policy._set_flow_steps(flow_steps)
+        self.flow_steps = flow_steps
 
     # ------------------------------------------------------------------ training
-    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+    def train(self, gradient_steps: int, batch_size: int) -> None:  # type: ignore[override]
         """
         ``gradient_steps`` updates of the critics (Eq. 3 with targets Eq. 4 / 8), the actor (Eq. 2)
         and the Polyak targets, each on ``batch_size`` chunk transitions.
@@ -414,9 +424,18 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
 
     def _actor_loss(self, data: ChunkReplaySamples) -> tuple[th.Tensor, dict[str, float]]:
         """The actor objective of the policy's ``actor_type`` on the batch (Eq. 2 or QC-FQL's one-step
-        policy, :func:`~sb3_ua2c.actor_objectives.actor_objective`)."""
-        objective = actor_objective(self, data)
+        policy, :func:`~sb3_ua2c.actors.actor_objective`)."""
+        objective = actor_objective(self.policy.actor_type, self.policy.actor_inputs(), data, self.actor_weights())
         return objective.loss, objective.info
+
+    def actor_weights(self, q_weight: float | None = None) -> ActorWeights:
+        """
+        The weights of the actor objective (:class:`~sb3_ua2c.actor_objectives.ActorWeights`).
+
+        :param q_weight: ``λ`` (``None``: the model's ``q_weight``)
+        """
+        weight = self.q_weight if q_weight is None else q_weight
+        return ActorWeights(weight, self.smooth_weight, self.normalize_q, self.distill_weight, self.past_action_dropout)
 
     def learn(
         self: SelfUA2C,

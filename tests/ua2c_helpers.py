@@ -10,7 +10,7 @@ from sb3_ua2c.policies import UA2CPolicy
 OBS = spaces.Box(-np.inf, np.inf, (1,), np.float32)
 ACT = spaces.Box(-1.0, 1.0, (1,), np.float32)
 #: tiny networks
-TINY = dict(net_arch=[32, 32], critic_embed_dim=16, critic_ff_dim=32)
+TINY = dict(net_arch=[32, 32], critic_kwargs=dict(embed_dim=16, ff_dim=32))
 #: tiny networks, short warm-up, few candidates
 FAST = dict(
     policy_kwargs=TINY,
@@ -25,6 +25,8 @@ FAST = dict(
 
 def tiny_policy(n_candidates: int = 6, **kwargs) -> UA2CPolicy:
     """A policy with 3-dim observations, 2-dim actions in [-1, 1], k = 3, ℓ = 2 and tiny networks."""
+    if kwargs.get("critic_arch", "transformer") == "transformer":
+        kwargs.setdefault("critic_kwargs", dict(embed_dim=8, ff_dim=16))
     return UA2CPolicy(
         spaces.Box(-5.0, 5.0, (3,), dtype=np.float32),
         spaces.Box(-1.0, 1.0, (2,), dtype=np.float32),
@@ -34,8 +36,6 @@ def tiny_policy(n_candidates: int = 6, **kwargs) -> UA2CPolicy:
         n_candidates=n_candidates,
         flow_steps=2,
         net_arch=[16],
-        critic_embed_dim=8,
-        critic_ff_dim=16,
         **kwargs,
     )
 
@@ -51,3 +51,11 @@ def rollout_actions(model, n: int = 12, deterministic: bool = True) -> np.ndarra
         obs, *_ = env.step(action)
         start = np.array([False])
     return np.array(out)
+
+
+def model_objective(model, data, q_weight=None, generator=None):
+    """The actor objective a model trains with, on ``data`` (``q_weight=None``: the model's)."""
+    from sb3_ua2c.actors import actor_objective
+
+    policy = model.policy
+    return actor_objective(policy.actor_type, policy.actor_inputs(), data, model.actor_weights(q_weight), generator)

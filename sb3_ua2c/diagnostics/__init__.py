@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import torch as th
 
-from sb3_ua2c.actor_objectives import ActorObjective, actor_objective
+from sb3_ua2c.actor_objectives import ActorObjective
+from sb3_ua2c.actors import actor_objective
 from sb3_ua2c.chunking import bootstrap_value, chunk_target, pessimistic_q, select_chunk
 
 if TYPE_CHECKING:
@@ -210,7 +211,7 @@ def value_term_strength(model: UA2C, data: ChunkReplaySamples, generator: th.Gen
                         shift: bool = True) -> dict[str, float]:
     """
     Does the value term move the actor? On one batch, the actor objective of the model's
-    ``actor_type`` as training computes it (:func:`~sb3_ua2c.actor_objectives.actor_objective`; Eq. 2:
+    ``actor_type`` as training computes it (:func:`~sb3_ua2c.actors.actor_objective`; Eq. 2:
     masked flow term, x̂1 clipped before the critics; ``"one_step"``: the one-step policy's distillation
     and value terms), differentiated w.r.t. the network the value term trains (the velocity field, or
     the one-step policy): the gradient norms of the value term ``λ · Q term`` (``q_grad_norm``) and of
@@ -229,13 +230,14 @@ def value_term_strength(model: UA2C, data: ChunkReplaySamples, generator: th.Gen
     :param generator: draws the objective's noise (``x0``, ``tau``, and ``z`` / the dropout when used)
     :param shift: compute ``x_hat_shift`` (skipped during training)
     """
-    net = model.policy.value_trained_actor()
+    policy = model.policy
+    net = policy.value_trained_actor()
     params = [p for p in net.parameters() if p.requires_grad]
     start = generator.get_state()
 
     def objective(q_weight: float) -> ActorObjective:
         generator.set_state(start)  # the same noise for every evaluation
-        return actor_objective(model, data, q_weight, generator)
+        return actor_objective(policy.actor_type, policy.actor_inputs(), data, model.actor_weights(q_weight), generator)
 
     imitation, total = objective(0.0), objective(model.q_weight)
     g_flow = th.autograd.grad(imitation.loss, params)

@@ -62,7 +62,7 @@ def test_chunk_entropy_mixed_discrete_and_continuous():
     samples[:, 0, 1] = th.tensor([-0.9, 0.0, 0.9, 0.9])  # p = (1/4, 1/4, 1/2)
     samples[:, 1, 0] = 0.5  # zero variance
     samples[:, 1, 1] = 0.0  # one category
-    h = chunk_entropy(samples, {1: 3})
+    h = chunk_entropy(samples, {1: 3}, discrete=True)
     expected0 = 0.5 * (LOG_2PIE + math.log(4 / 3 + ENTROPY_EPS)) + 1.5 * math.log(2.0)
     expected1 = 0.5 * (LOG_2PIE + math.log(ENTROPY_EPS))
     assert h.shape == (2,)
@@ -74,7 +74,7 @@ def test_chunk_entropy_mixed_discrete_and_continuous():
 
 def test_chunk_entropy_sums_continuous_dims_and_batches():
     samples = th.tensor([0.0, 2.0]).reshape(2, 1, 1).expand(2, 1, 3)  # 3 identical dims
-    h = chunk_entropy(samples.unsqueeze(0).expand(5, 2, 1, 3))  # batch of 5
+    h = chunk_entropy(samples.unsqueeze(0).expand(5, 2, 1, 3), discrete=True)  # batch of 5
     assert h.shape == (5, 1)
     assert th.allclose(h, th.full((5, 1), 1.5 * (LOG_2PIE + math.log(2.0 + ENTROPY_EPS))))
 
@@ -205,7 +205,7 @@ def test_select_chunk_best_and_elite_mean_hand_computed():
         [[[[0.2, 1.0], [0.4, 1.0]], [[0.6, -1.0], [0.0, -1.0]], [[-0.8, 0.0], [-0.8, 0.0]]]]
     )
     values = th.tensor([[1.0, 3.0, 2.0]])  # best: candidate 1, then 2
-    assert th.equal(select_chunk(candidates, values), candidates[0, 1].unsqueeze(0))
+    assert th.equal(select_chunk(candidates, values, 1), candidates[0, 1].unsqueeze(0))
     elite = select_chunk(candidates, values, n_elite=2, discrete_dims={1: 3})
     # continuous dim: mean of candidates 1 and 2 -> (0.6 - 0.8) / 2 = -0.1, (0.0 - 0.8) / 2 = -0.4;
     # categorical dim: the best candidate's lane change (-1), never an average

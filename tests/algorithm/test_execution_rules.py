@@ -56,8 +56,8 @@ def known_spreads(rng: np.random.Generator, spreads: np.ndarray, s: int = 64) ->
 
 def lengths_under(samples: th.Tensor, calibration: th.Tensor) -> dict[str, list[int]]:
     """``L_t`` of every row under the three rules (quantile thresholds measured on ``calibration``)."""
-    entropy = chunk_entropy(samples)
-    thresholds = quantile_entropy_thresholds(chunk_entropy(calibration), 0.5)
+    entropy = chunk_entropy(samples, discrete=True)
+    thresholds = quantile_entropy_thresholds(chunk_entropy(calibration, discrete=True), 0.5)
     return {
         "growth": entropy_growth_length(entropy, 0.3).tolist(),
         "quantile": executable_prefix_length(entropy, thresholds).tolist(),

@@ -6,6 +6,7 @@ import pytest
 import torch as th
 from torch import nn
 
+from sb3_ua2c.actors import VelocityField
 from sb3_ua2c.flow import (
     actor_loss,
     chunk_roughness,
@@ -16,7 +17,6 @@ from sb3_ua2c.flow import (
     interpolate,
     target_velocity,
 )
-from sb3_ua2c.networks import VelocityField
 
 
 def chunk(*values: float) -> th.Tensor:
@@ -98,15 +98,15 @@ def test_velocity_field_sample_is_euler_over_forward():
     x0 = th.randn(4, 5, 3, 2)  # (B, S=5, k, A)
     with th.no_grad():
         reference = euler_sample(lambda x, tau: field(x, tau, cond), x0, 7)
-        assert th.equal(field.sample(x0, cond, 7), reference)
+        assert th.equal(field.integrate(x0, cond, 7), reference)
         # the velocity of one chunk does not depend on the other candidates of its history
-        assert th.allclose(field.sample(x0[:, :1], cond, 7), reference[:, :1], atol=1e-6)
+        assert th.allclose(field.integrate(x0[:, :1], cond, 7), reference[:, :1], atol=1e-6)
 
 
 def test_actor_loss_hand_computed():
     v, x0, x1 = chunk(1.0, 2.0), chunk(0.0, 0.0), chunk(1.0, 1.0)
     q = th.tensor([-2.0, -4.0])
-    loss, info = actor_loss(v, x0, x1, q, q_weight=0.5)
+    loss, info = actor_loss(v, x0, x1, q, q_weight=0.5, smooth_weight=0.0, normalize_q=True)
     # flow 0.5 ; q_scale = mean|q| = 3 ; q_term = -mean(q) / 3 = 1 ; loss = 0.5 + 0.5 * 1
     assert info["flow_loss"] == pytest.approx(0.5)
     assert info["q_scale"] == pytest.approx(3.0)
@@ -131,7 +131,7 @@ def test_actor_loss_adds_the_smoothness_term():
     v, x0, x1 = chunk(1.0, 2.0), chunk(0.0, 0.0), chunk(1.0, 1.0)
     q = th.tensor([-2.0, -4.0])
     x_hat = chunk(0.0, 0.5).requires_grad_(True)
-    loss, info = actor_loss(v, x0, x1, q, 0.5, chunk_roughness(x_hat, [0]), smooth_weight=4.0)
+    loss, info = actor_loss(v, x0, x1, q, 0.5, 4.0, True, chunk_roughness(x_hat, [0]))
     # 1.0 of the hand-computed Eq. 2 above + 4 * 0.5^2
     assert info["roughness"] == pytest.approx(0.25)
     assert loss.item() == pytest.approx(2.0)
@@ -139,16 +139,16 @@ def test_actor_loss_adds_the_smoothness_term():
     # d/dx of 4 * (x1 - x0)^2 = 8 * (x1 - x0) * (+-1) = -+4
     assert th.allclose(x_hat.grad, chunk(-4.0, 4.0))
     # mu = 0 is Eq. 2 exactly, with or without a roughness
-    plain, plain_info = actor_loss(v, x0, x1, q, 0.5)
+    plain, plain_info = actor_loss(v, x0, x1, q, 0.5, 0.0, True)
     assert plain.item() == pytest.approx(1.0) and "roughness" not in plain_info
     with pytest.raises(ValueError, match="smooth_weight"):
-        actor_loss(v, x0, x1, q, 0.5, None, smooth_weight=1.0)
+        actor_loss(v, x0, x1, q, 0.5, 1.0, True, None)
 
 
 def test_actor_loss_value_gradient_only_through_q():
     v = chunk(0.0).requires_grad_(True)
     q = th.tensor([2.0, 6.0], requires_grad=True)
-    loss, _ = actor_loss(v, chunk(0.0), chunk(0.0), q, q_weight=2.0)
+    loss, _ = actor_loss(v, chunk(0.0), chunk(0.0), q, q_weight=2.0, smooth_weight=0.0, normalize_q=True)
     loss.backward()
     # d/dq_i of -2 * mean(q) / 4 = -2 / (2 * 4) = -0.25 (the scale is detached)
     assert th.allclose(q.grad, th.tensor([-0.25, -0.25]))
@@ -174,7 +174,7 @@ def test_flow_matching_loss_masks_the_padding():
 def test_actor_loss_mask_leaves_the_padding_without_gradient():
     v = chunk(1.0, 2.0, 5.0).requires_grad_(True)
     loss, info = actor_loss(v, chunk(0.0, 0.0, 0.0), chunk(1.0, 1.0, 1.0), th.tensor([-2.0, -4.0]), 0.5,
-                            mask=th.tensor([[1.0, 1.0, 0.0]]))
+                            0.0, True, mask=th.tensor([[1.0, 1.0, 0.0]]))
     # flow (0 + 1) / 2 = 0.5 ; the value term as in test_actor_loss_hand_computed: 0.5 * 1
     assert info["flow_loss"] == pytest.approx(0.5)
     assert loss.item() == pytest.approx(1.0)

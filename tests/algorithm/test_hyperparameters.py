@@ -16,9 +16,11 @@ from torch import nn
 from ua2c_helpers import ACT, FAST, OBS, rollout_actions
 
 from sb3_ua2c import UA2C, UA2CPolicy
+from sb3_ua2c.actors import VelocityField
 from sb3_ua2c.buffers import ChunkReplayBuffer
 from sb3_ua2c.config import ExecutionRule
-from sb3_ua2c.networks import ChunkCritics, MLPChunkCritics, VelocityField
+from sb3_ua2c.critics import ChunkCritics, MLPChunkCritics, critic_defaults
+from sb3_ua2c.defaults import defaults as resolved_defaults
 
 REPO = Path(__file__).resolve().parents[2]
 SHIPPED = REPO / "rl-trained-agents" / "ua2c" / "MixedTraffic-v0_1" / "MixedTraffic-v0.zip"
@@ -63,6 +65,8 @@ def test_a_bad_field_of_the_rule_raises_naming_it(fields, match):
     with pytest.raises(ValueError, match=match):
         ExecutionRule(**fields)
     arguments = {name: fields[field] for name, field in RULE_ARGUMENTS.items() if field in fields}
+    if None in arguments.values():
+        return  # UA2C's None stands for the rule's default
     with pytest.raises(ValueError, match=match):
         UA2C("MlpPolicy", "Pendulum-v1", **arguments)
 
@@ -101,9 +105,23 @@ def test_policy_kwargs_may_not_set_what_the_model_passes(key):
 def test_the_rule_defaults_are_the_models():
     model = defaults(UA2C.__init__)
     rule = {f.name: f.default for f in dataclasses.fields(ExecutionRule)}
-    assert {name: model[name] for name in RULE_ARGUMENTS} == {name: rule[f] for name, f in RULE_ARGUMENTS.items()}
+    assert {name: model[name] for name in RULE_ARGUMENTS} == dict.fromkeys(RULE_ARGUMENTS)  # None: the rule's
     assert rule == {"rule": "threshold", "entropy_threshold": 0.0, "target_plan_length": None,
                     "entropy_quantile": None, "entropy_growth": None}
+    resolved = resolved_defaults()
+    assert {name: resolved[name] for name in RULE_ARGUMENTS} == {name: rule[f] for name, f in RULE_ARGUMENTS.items()}
+    assert UA2C("MlpPolicy", "Pendulum-v1", **FAST).execution == ExecutionRule()
+
+
+def test_the_model_takes_an_execution_rule():
+    rule = ExecutionRule("growth", entropy_growth=0.2)
+    model = UA2C("MlpPolicy", "Pendulum-v1", execution_rule=rule, **FAST)
+    assert model.execution is model.policy.execution is rule
+    for name in ("entropy_threshold", "target_plan_length", "entropy_quantile", "entropy_growth"):
+        with pytest.raises(ValueError, match=rf"{name}=0.5 cannot be given with execution_rule=ExecutionRule"):
+            UA2C("MlpPolicy", "Pendulum-v1", execution_rule=rule, **{name: 0.5}, **FAST)
+    flat = UA2C("MlpPolicy", "Pendulum-v1", execution_rule="growth", entropy_growth=0.2, **FAST)
+    assert flat.execution == rule
 
 
 def test_structural_arguments_have_no_default_below_the_model():
@@ -111,10 +129,13 @@ def test_structural_arguments_have_no_default_below_the_model():
     policy, buffer = defaults(UA2CPolicy.__init__), defaults(ChunkReplayBuffer.__init__)
     assert [policy[n] for n in ("chunk_size", "history_len", "flow_steps", "n_candidates")] == [empty] * 4
     assert [buffer[n] for n in ("chunk_size", "history_len", "offline_ratio", "online_targets")] == [empty] * 4
+    # a critic's shared arguments come from the policy; its own have their one default in its signature
     critics = defaults(ChunkCritics.__init__)
-    assert [critics[n] for n in ("n_critics", "embed_dim", "n_layers", "n_heads", "ff_dim", "activation_fn")] == [empty] * 6
+    assert [critics[n] for n in ("n_critics", "activation_fn")] == [empty] * 2
+    assert [critics[n] for n in ("embed_dim", "n_layers", "n_heads", "ff_dim")] == [32, 1, 1, 64]
     mlp = defaults(MLPChunkCritics.__init__)
-    assert [mlp[n] for n in ("n_critics", "net_arch", "layer_norm", "activation_fn")] == [empty] * 4
+    assert [mlp[n] for n in ("n_critics", "activation_fn")] == [empty] * 2
+    assert [mlp[n] for n in ("net_arch", "layer_norm")] == [(256, 256), True]
     assert defaults(VelocityField.__init__)["activation_fn"] is empty
     with pytest.raises(TypeError, match="chunk_size"):
         ChunkReplayBuffer(32, OBS, ACT, history_len=2, offline_ratio=0.5, online_targets="auto")
@@ -128,8 +149,9 @@ def test_the_arguments_the_model_shares_have_its_defaults():
     assert policy["execution"] is None  # ExecutionRule(), the model's defaults (above)
     # the critics the policy builds by default: the policy's widths (32, 64), not others
     built = UA2C("MlpPolicy", "Pendulum-v1", **{k: v for k, v in FAST.items() if k != "policy_kwargs"}).policy
-    assert (policy["critic_embed_dim"], policy["critic_ff_dim"], policy["critic_n_layers"]) == (32, 64, 1)
-    want = ChunkCritics(4 * 3, 5, 1, n_critics=2, embed_dim=32, n_layers=1, n_heads=1, ff_dim=64, activation_fn=nn.SiLU)
+    assert policy["critic_kwargs"] is None and built.critic_kwargs == critic_defaults("transformer")
+    assert critic_defaults("transformer") == {"embed_dim": 32, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
+    want = ChunkCritics(4 * 3, 5, 1, n_critics=2, activation_fn=nn.SiLU, embed_dim=32, n_layers=1, n_heads=1, ff_dim=64)
     assert [p.shape for p in built.critic.parameters()] == [p.shape for p in want.parameters()]
     assert built.activation_fn is nn.SiLU
 
@@ -185,4 +207,11 @@ def test_the_shipped_checkpoint_of_the_earlier_layout_loads():
     assert "execution" not in saved and saved["entropy_threshold"] == 0.0  # the earlier layout
     model = UA2C.load(SHIPPED, device="cpu")
     assert model.execution == model.policy.execution == ExecutionRule()
+    # its flat critic arguments: critic_kwargs of the Transformer; the same networks when given as now
+    assert saved["policy_kwargs"] == {"critic_embed_dim": 64, "critic_n_layers": 1, "net_arch": [256, 256, 256]}
+    assert model.policy.critic_kwargs == {"embed_dim": 64, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
+    now = {"net_arch": [256, 256, 256], "critic_kwargs": {"embed_dim": 64, "n_layers": 1}}
+    assert UA2C.load(SHIPPED, device="cpu", policy_kwargs=now).policy.critic_kwargs == model.policy.critic_kwargs
+    with pytest.raises(ValueError, match="policy kwargs"):
+        UA2C.load(SHIPPED, device="cpu", policy_kwargs={**now, "critic_kwargs": {"embed_dim": 32}})
     assert (model.chunk_size, model.history_len) == (saved["chunk_size"], saved["history_len"])

@@ -126,8 +126,7 @@ def batch_policy(chunk_size: int) -> UA2CPolicy:
         flow_steps=2,
         execution=ExecutionRule(entropy_threshold=2.41),
         net_arch=[16],
-        critic_embed_dim=8,
-        critic_ff_dim=16,
+        critic_kwargs=dict(embed_dim=8, ff_dim=16),
     )
 
 

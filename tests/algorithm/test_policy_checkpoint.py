@@ -61,7 +61,7 @@ def pendulum_policy() -> UA2CPolicy:
     """A UA2C policy trained for a few steps on Pendulum, acting with the elite mean of 2."""
     model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, chunk_size=4, history_len=3, entropy_threshold=1.32, **FAST)
     model.learn(100)
-    model.policy.set_n_elite(2)
+    model.set_n_elite(2)
     return model.policy
 
 
@@ -81,9 +81,7 @@ def lane_change_policy() -> UA2CPolicy:
         n_elite=3,
         commit_discrete=True,
         net_arch=[16, 8],
-        critic_embed_dim=8,
-        critic_n_heads=2,
-        critic_ff_dim=16,
+        critic_kwargs=dict(embed_dim=8, n_heads=2, ff_dim=16),
         n_critics=3,
         activation_fn=nn.Tanh,
         optimizer_class=th.optim.AdamW,
@@ -127,8 +125,8 @@ def test_policy_checkpoint_keeps_the_acting_rule(tmp_path):
     assert got == {"chunk_size": 3, "history_len": 2, "flow_steps": 5, "n_candidates": 6}
     assert (loaded.execution, loaded.n_elite, loaded.discrete_dims) == (ExecutionRule(entropy_threshold=1.3), 3, {1: 3})
     assert (loaded.discrete_entropy, loaded.commit_discrete, loaded.net_arch) == (False, True, [16, 8])
-    critic = ("n_critics", "critic_embed_dim", "critic_n_layers", "critic_n_heads", "critic_ff_dim", "activation_fn")
-    assert [getattr(loaded, name) for name in critic] == [3, 8, 1, 2, 16, nn.Tanh]
+    assert (loaded.n_critics, loaded.activation_fn) == (3, nn.Tanh)
+    assert loaded.critic_kwargs == {"embed_dim": 8, "n_layers": 1, "n_heads": 2, "ff_dim": 16}
     assert loaded.action_space == policy.action_space and loaded.observation_space == policy.observation_space
     assert loaded.normalize_images is False
     assert isinstance(loaded.actor.optimizer, th.optim.AdamW)

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.noise import ActionNoise
-from ua2c_helpers import FAST, TINY, rollout_actions, tiny_policy
+from ua2c_helpers import FAST, TINY, model_objective, rollout_actions, tiny_policy
 
 from sb3_ua2c import UA2C, UA2CPolicy
-from sb3_ua2c.actor_objectives import actor_objective
 from sb3_ua2c.diagnostics import METRICS, diagnose, plan_sensitivity, policy_gap, value_term_strength
 from sb3_ua2c.flow import actor_loss, distillation_loss, drop_past_actions, one_step_actor_loss, value_term
 from sb3_ua2c.policies import DEFAULT_NET_ARCH
@@ -70,12 +69,12 @@ def test_one_step_actor_loss_hand_computed(normalize_q, q_term, loss):
 
 def test_value_term_with_and_without_normalisation():
     q = th.tensor([-2.0, -4.0], requires_grad=True)
-    term, scale = value_term(q, normalize_q=False)
+    term, scale = value_term(q, False)
     assert (term.item(), scale.item()) == (3.0, 3.0)  # -mean(Q), and mean |Q| logged either way
     term.backward()
     assert q.grad.tolist() == [-0.5, -0.5]  # d(-mean Q)/dQ_i = -1/B
     q.grad = None
-    term, _ = value_term(q, normalize_q=True)
+    term, _ = value_term(q, True)
     assert term.item() == pytest.approx(1.0)  # divided by 3, a detached scale
     term.backward()
     assert q.grad.tolist() == pytest.approx([-1 / 6, -1 / 6])
@@ -85,7 +84,7 @@ def test_actor_loss_without_normalisation_hand_computed():
     v, x0, x1 = chunks([1.0, 2.0]), chunks([0.0, 0.0]), chunks([1.0, 1.0])
     q = th.tensor([-2.0, -4.0])
     # flow 0.5 ; raw q_term = -mean(q) = 3 ; loss = 0.5 + 0.5 * 3 (normalised: 0.5 + 0.5 * 1)
-    loss, info = actor_loss(v, x0, x1, q, q_weight=0.5, normalize_q=False)
+    loss, info = actor_loss(v, x0, x1, q, q_weight=0.5, smooth_weight=0.0, normalize_q=False)
     assert loss.item() == pytest.approx(2.0)
     assert info["q_term"] == pytest.approx(3.0)
 
@@ -112,7 +111,7 @@ def test_defaults_leave_training_bit_identical():
     assert state_hash(plain) == state_hash(explicit)
     for key, value in plain.policy.state_dict().items():
         assert th.equal(value, explicit.policy.state_dict()[key]), key
-    assert plain.policy.one_step_actor is None
+    assert plain.policy.value_trained_actor() is plain.actor and not hasattr(plain.policy, "one_step_actor")
 
 
 def test_defaults_are_the_documented_ones():
@@ -142,12 +141,12 @@ def test_dropout_p1_is_the_objective_on_histories_without_past_actions():
     data = model.replay_buffer.sample(8)
     zeroed = data._replace(action_history=th.zeros_like(data.action_history))
     model.past_action_dropout = 1.0
-    dropped = actor_objective(model, data, generator=th.Generator().manual_seed(1))
+    dropped = model_objective(model, data, generator=th.Generator().manual_seed(1))
     model.past_action_dropout = 0.0
-    plain = actor_objective(model, zeroed, generator=th.Generator().manual_seed(1))
+    plain = model_objective(model, zeroed, generator=th.Generator().manual_seed(1))
     # x0 and tau are drawn first: the same draws, then every history loses its past actions
     assert dropped.loss.item() == plain.loss.item()
-    assert actor_objective(model, data, generator=th.Generator().manual_seed(1)).loss.item() != plain.loss.item()
+    assert model_objective(model, data, generator=th.Generator().manual_seed(1)).loss.item() != plain.loss.item()
 
 
 def test_dropout_training_is_seeded():
@@ -188,7 +187,7 @@ def test_one_step_value_term_trains_mu_only():
     data = model.replay_buffer.sample(8)
 
     def grads(q_weight: float) -> tuple[list[th.Tensor], list[th.Tensor]]:
-        loss = actor_objective(model, data, q_weight, th.Generator().manual_seed(2)).loss
+        loss = model_objective(model, data, q_weight, th.Generator().manual_seed(2)).loss
         flow = th.autograd.grad(loss, list(model.actor.parameters()), retain_graph=True)
         return flow, th.autograd.grad(loss, list(model.policy.one_step_actor.parameters()))
 
@@ -212,14 +211,14 @@ def test_one_step_objective_recomputed_from_its_draws(normalize_q):
     z = th.randn(x1.shape, generator=generator)
     with th.no_grad():
         x_tau = (1 - tau[:, None, None]) * x0 + tau[:, None, None] * x1
-        error = (model.actor(x_tau, tau, policy.condition(obs, act)) - (x1 - x0)).pow(2) * data.chunk_mask[..., None]
+        error = (model.actor(x_tau, tau, policy.actor.condition(policy.flatten_history(obs, act))) - (x1 - x0)).pow(2) * data.chunk_mask[..., None]
         flow = error.sum() / (data.chunk_mask.sum() * x1.shape[-1])
         mu = policy.one_step_actor(policy.flatten_history(obs, act), z)
-        distill = (mu - policy.flow_sample(obs, act, z, policy.flow_steps)).pow(2).mean()
+        distill = (mu - policy.actor.sample(policy.flatten_history(obs, act), z, policy.flow_steps)).pow(2).mean()
         q = model.critic(obs.flatten(1), mu.clamp(-1, 1).unsqueeze(1))[:, :, 0].min(dim=0).values
         q_term = -q.mean() / q.abs().mean() if normalize_q else -q.mean()
         expected = flow + 7.0 * distill + 3.0 * q_term
-    objective = actor_objective(model, data, generator=th.Generator().manual_seed(4))
+    objective = model_objective(model, data, generator=th.Generator().manual_seed(4))
     assert objective.loss.item() == pytest.approx(expected.item(), rel=1e-5)
     assert th.allclose(objective.chunks, mu)
 
@@ -238,10 +237,10 @@ def test_one_step_model_trains_saves_and_loads(tmp_path, critic_arch):
     kwargs = dict(steps=300, past_action_dropout=0.2, normalize_q=False, distill_weight=10.0,
                   policy_kwargs=dict(ONE_STEP, critic_arch=critic_arch, actor_past_actions=False))
     if critic_arch == "mlp":
-        kwargs["policy_kwargs"].update(critic_embed_dim=32, critic_ff_dim=64, critic_net_arch=[32, 32])
+        kwargs["policy_kwargs"].update(critic_kwargs=dict(net_arch=[32, 32]))
     model = trained(**kwargs)
     assert state_hash(model) == state_hash(trained(**kwargs))  # seeded: bit-identical
-    info = actor_objective(model, model.replay_buffer.sample(8), generator=th.Generator().manual_seed(0)).info
+    info = model_objective(model, model.replay_buffer.sample(8), generator=th.Generator().manual_seed(0)).info
     assert info["distill_loss"] > 0.0 and set(info) == {"flow_loss", "distill_loss", "q_term", "q_scale"}
     actions = rollout_actions(model)
     model.save(tmp_path / "model")

@@ -30,7 +30,7 @@ def test_save_load_same_actions_and_hyperparameters(tmp_path):
     loaded = UA2C.load(tmp_path / "ua2c.zip")
     assert (loaded.chunk_size, loaded.history_len, loaded.execution.entropy_threshold) == (4, 3, -0.5)
     assert loaded.smooth_weight == 2.5
-    assert loaded.policy.critic_embed_dim == 16
+    assert loaded.policy.critic_kwargs == {"embed_dim": 16, "n_layers": 1, "n_heads": 1, "ff_dim": 32}
     for k, v in params(model).items():
         assert th.equal(v, loaded.policy.state_dict()[k]), k
     np.testing.assert_array_equal(rollout_actions(loaded), before)
@@ -174,8 +174,9 @@ def test_offline_episodes_and_pretrain_without_env_interaction():
         (dict(discrete_action_dims={3: [-1, 0, 1]}), "discrete_action_dims"),
         (dict(batch_size=0), "batch_size"),
         (dict(gamma=1.5), "gamma"),
-        (dict(policy_kwargs=dict(critic_embed_dim=0)), "critic_embed_dim"),
-        (dict(policy_kwargs=dict(critic_embed_dim=30, critic_n_heads=4)), "critic_n_heads"),
+        (dict(policy_kwargs=dict(critic_kwargs=dict(embed_dim=0))), r"critic_kwargs\['embed_dim'\]"),
+        (dict(policy_kwargs=dict(critic_kwargs=dict(embed_dim=30, n_heads=4))), r"critic_kwargs\['n_heads'\]"),
+        (dict(policy_kwargs=dict(critic_embed_dim=32)), "use critic_kwargs="),
         (dict(policy_kwargs=dict(n_layers=2)), "n_layers"),
         (dict(policy_kwargs=dict(chunk_size=2)), "chunk_size"),
         (dict(replay_buffer_class=dict), "replay_buffer_class"),
@@ -270,7 +271,7 @@ def test_set_flow_steps_changes_the_sampler_and_is_saved(tmp_path):
         got = policy._predict(obs, deterministic=True)  # (1, action_dim), first action of the plan
         # by hand: one Euler step x1 = x0 + v(x0, 0 | h), then best-of-S by min_j Q_j
         history = obs.reshape(1, 1, -1).expand(-1, policy.history_len, -1)
-        cond = policy.condition(history, th.zeros(1, policy.history_len, 1))
+        cond = policy.actor.condition(policy.flatten_history(history, th.zeros(1, policy.history_len, 1)))
         x0 = history_noise(history, th.zeros(1, policy.history_len, 1), 4, policy.chunk_size)  # (1, S, k, 1)
         x1 = (x0 + policy.actor(x0, th.zeros(()), cond)).clamp(-1.0, 1.0)
         q = policy.critic(history.reshape(1, -1), x1).min(dim=0).values  # (1, S)

@@ -203,8 +203,8 @@ def test_behaviour_takeover_holds_its_acceleration_for_perturb_steps() -> None:
 TINY = {
     "chunk_size": 3, "history_len": 2, "n_candidates": 4, "n_target_candidates": 2, "flow_steps": 2,
     "batch_size": 16,
-    "policy_kwargs": {"net_arch": [32, 32], "critic_embed_dim": 16, "critic_n_layers": 1, "critic_n_heads": 2,
-                      "critic_ff_dim": 32},
+    "policy_kwargs": {"net_arch": [32, 32], "critic_kwargs": {"embed_dim": 16, "n_layers": 1, "n_heads": 2,
+                                                                     "ff_dim": 32}},
 }
 
 
