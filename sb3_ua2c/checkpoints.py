@@ -18,6 +18,13 @@ from sb3_ua2c.buffers import ChunkReplayBuffer
 from sb3_ua2c.compat import LEGACY_RULE_NAMES, legacy_critic_kwargs
 
 
+
+class CheckpointMismatchError(ValueError, RuntimeError):
+    """A checkpoint whose networks do not fit the model it is loaded into. A ``ValueError`` for callers;
+    also a ``RuntimeError``, because SB3's ``load`` re-raises a ``RuntimeError`` of ``set_parameters`` as it
+    is, where it would turn a plain ``ValueError`` into a ``KeyError`` of its DQN-checkpoint patch."""
+
+
 class Checkpoints(OffPolicyAlgorithm):
     """
     Saving and loading of :class:`~sb3_ua2c.ua2c.UA2C` (a part of it, not an algorithm of its own).
@@ -91,7 +98,8 @@ class Checkpoints(OffPolicyAlgorithm):
         """
         SB3's ``set_parameters``; a checkpoint whose networks do not fit this model (other sizes,
         or the layer-norm critics of early development versions, whose ``norm*.bias`` entries the
-        RMS-norm critics no longer have) raises a ``ValueError`` that says so.
+        RMS-norm critics no longer have) raises a :class:`CheckpointMismatchError` (a ``ValueError``) that
+        says so.
         """
         try:
             super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
@@ -104,7 +112,7 @@ class Checkpoints(OffPolicyAlgorithm):
                     " The checkpoint has layer-norm biases in its critics: it was saved by an early"
                     " development version (the critics now use RMS norms); retrain it."
                 )
-            raise ValueError(
+            raise CheckpointMismatchError(
                 f"the checkpoint's networks do not match this UA2C model (chunk_size, history_len, "
                 f"policy_kwargs and the spaces must be those it was trained with).{hint}\n{error}"
             ) from error
@@ -125,4 +133,4 @@ class Checkpoints(OffPolicyAlgorithm):
         self.replay_buffer = buffer
 
 
-__all__ = ["Checkpoints"]
+__all__ = ["CheckpointMismatchError", "Checkpoints"]

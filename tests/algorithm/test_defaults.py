@@ -204,7 +204,7 @@ def scan_yaml(text: str, names: dict[str, list[Any]], where: str = "<yaml>") -> 
 TREES = {"sb3_ua2c": "*.py", "experiments": "*.py", "zoo_configs": "ua2c*.yml"}
 #: trees that still write defaults again, until their own change of the same issue takes them from
 #: ``defaults()``: their scan is expected to fail (and passes silently once they do)
-PENDING = {"experiments", "zoo_configs"}
+PENDING = {"experiments"}
 
 
 @pytest.mark.parametrize(

@@ -465,11 +465,6 @@ def test_two_workers_share_one_study_in_a_journal_file(tmp_path):
     assert model.policy.net_arch == list(zoo.NET_ARCHS[trials[1].params["net_arch"]])
 
 
-@pytest.mark.xfail(
-    strict=True, raises=KeyError,
-    reason="SB3's load catches the ValueError of Checkpoints.set_parameters to try a DQN patch and raises "
-    "KeyError('policy.optimizer') instead (the ValueError is its __context__): to fix in sb3_ua2c/checkpoints.py",
-)  # fmt: skip
 def test_continue_rejects_a_chunk_size_that_differs_from_the_checkpoint(tmp_path):
     _train(tmp_path, "ua2c", "-n", "150", "--seed", "1", *_params())
     first = tmp_path / "ua2c" / "Pendulum-v1_1" / "Pendulum-v1.zip"
