@@ -247,7 +247,6 @@ def _profiled_step(model: UA2C, data, timer: _PartTimer) -> None:
     """``UA2C._gradient_step`` cut into timed parts (the same calls in the same order)."""
     from stable_baselines3.common.utils import polyak_update
 
-    from sb3_ua2c.actor_objectives import actor_objective
     from sb3_ua2c.chunking import bootstrap_value, chunk_critic_loss, chunk_target
     from sb3_ua2c.diagnostics import training_stats
 
@@ -266,13 +265,37 @@ def _profiled_step(model: UA2C, data, timer: _PartTimer) -> None:
     model.critic.optimizer.zero_grad()
     timer.part("critic: backward", critic_loss.backward)
     timer.part("critic: Adam", model.critic.optimizer.step)
-    objective = timer.part("actor: forward (flow loss + value term)", lambda: actor_objective(model, data))
+    loss, _ = timer.part("actor: forward (flow loss + value term)", lambda: model._actor_loss(data))
     model.actor.optimizer.zero_grad()
-    timer.part("actor: backward", objective.loss.backward)
+    timer.part("actor: backward", loss.backward)
     timer.part("actor: Adam", model.actor.optimizer.step)
     timer.part("Polyak", lambda: polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau))
     timer.part("logged stats", lambda: training_stats(model, data, q.detach(), target))
     timer.next_row()
+
+
+def _profile_config(env_id: str, ua2c_kwargs: dict, repeats: int) -> dict[str, float]:
+    """The parts of a gradient step and of a replanning of one configuration (thread CPU ms)."""
+    model = UA2C("MlpPolicy", env_id, seed=0, **ua2c_kwargs)
+    model.learn(model.learning_starts + 200)
+    model.env.close()
+    model.policy.set_training_mode(True)
+    timer = _PartTimer()
+    for _ in range(repeats + 3):
+        _profiled_step(model, model.replay_buffer.sample(model.batch_size), timer)
+    timer.rows = timer.rows[3:]
+    parts = timer.medians()
+    step_flops = flops(lambda: model._gradient_step(model.replay_buffer.sample(model.batch_size)))
+    model.policy.set_training_mode(False)
+    policy, data = model.policy, model.replay_buffer.sample(1)
+    obs_t, act_t = data.observation_history, data.action_history
+    with th.inference_mode():
+        plan = cpu_ms(lambda: policy.plan_tensors(obs_t, act_t), repeats * 10)
+        plan_parts = _plan_parts(policy, obs_t, act_t, repeats * 10)
+    row = {**parts, "gradient step (sum)": sum(parts.values()), "GFLOP": step_flops / 1e9, "replanning": plan,
+           **{f"replanning: {k}": v for k, v in plan_parts.items()}}
+    print({k: round(v, 2) for k, v in row.items()}, flush=True)
+    return row
 
 
 def profile(env_id: str, repeats: int, names: list[str]) -> None:
@@ -280,29 +303,7 @@ def profile(env_id: str, repeats: int, names: list[str]) -> None:
     :data:`PROFILE_CONFIGS` after a warm-up on ``env_id`` (thread CPU ms, medians of ``repeats`` steps),
     next to SAC's gradient step and ``predict`` measured in the same run."""
     print(f"env {env_id}, thread CPU ms, medians of {repeats} steps")
-    table: dict[str, dict[str, float]] = {}
-    for name in names:
-        model = UA2C("MlpPolicy", env_id, seed=0, **PROFILE_CONFIGS[name])
-        model.learn(model.learning_starts + 200)
-        model.env.close()
-        model.policy.set_training_mode(True)
-        timer = _PartTimer()
-        for _ in range(repeats + 3):
-            data = model.replay_buffer.sample(model.batch_size)
-            _profiled_step(model, data, timer)
-        timer.rows = timer.rows[3:]
-        parts = timer.medians()
-        step_flops = flops(lambda: model._gradient_step(model.replay_buffer.sample(model.batch_size)))
-        model.policy.set_training_mode(False)
-        policy = model.policy
-        data = model.replay_buffer.sample(1)
-        obs_t, act_t = data.observation_history, data.action_history
-        with th.inference_mode():
-            plan = cpu_ms(lambda: policy.plan_tensors(obs_t, act_t), repeats * 10)
-            plan_parts = _plan_parts(policy, obs_t, act_t, repeats * 10)
-        table[name] = {**parts, "gradient step (sum)": sum(parts.values()), "GFLOP": step_flops / 1e9,
-                       "replanning": plan, **{f"replanning: {k}": v for k, v in plan_parts.items()}}
-        print(name, {k: round(v, 2) for k, v in table[name].items()}, flush=True)
+    table = {name: _profile_config(env_id, PROFILE_CONFIGS[name], repeats) for name in names}
     sac = SAC("MlpPolicy", env_id, seed=0)
     sac.learn(sac.learning_starts + 200)
     obs = sac.env.reset()

@@ -18,7 +18,6 @@ from sb3_ua2c.buffers import ChunkReplayBuffer
 from sb3_ua2c.compat import LEGACY_RULE_NAMES, legacy_critic_kwargs
 
 
-
 class CheckpointMismatchError(ValueError, RuntimeError):
     """A checkpoint whose networks do not fit the model it is loaded into. A ``ValueError`` for callers;
     also a ``RuntimeError``, because SB3's ``load`` re-raises a ``RuntimeError`` of ``set_parameters`` as it
