@@ -32,7 +32,8 @@ def own_defaults(cls: type) -> dict[str, Any]:
     :return: ``{name: default}``, in the signature's order
     """
     params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
-    return {name: p.default for name, p in params.items() if name != "self"}
+    named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)  # not object's *args
+    return {name: p.default for name, p in params.items() if name != "self" and p.kind in named}
 
 
 def build(registry: Mapping[str, type], name: Any, kwargs: Mapping[str, Any] | None, param: str) -> Any:
