@@ -40,8 +40,8 @@ def defaults() -> dict[str, Any]:
     """
     from sb3_ua2c.config import ExecutionRule, policy_kwargs_names
     from sb3_ua2c.options import OPTIONS
-    from sb3_ua2c.registry import resolved_kwargs
     from sb3_ua2c.policies import UA2CPolicy, resolved_policy_defaults
+    from sb3_ua2c.registry import resolved_kwargs
     from sb3_ua2c.ua2c import UA2C
 
     out = _signature_defaults(UA2C, ("self", "policy", "env", "policy_kwargs"))

@@ -7,7 +7,7 @@ weights the flow matching of the data's chunks by their advantage under the in-s
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import torch as th
 
@@ -16,9 +16,6 @@ from sb3_ua2c.actors import actor_objective
 from sb3_ua2c.checks import check_number
 from sb3_ua2c.chunking import pessimistic_q
 from sb3_ua2c.in_sample import advantage_weights
-
-if TYPE_CHECKING:
-    from sb3_ua2c.policies import UA2CPolicy
 
 
 class ValueTermExtraction:
@@ -31,10 +28,10 @@ class ValueTermExtraction:
     actor_types: ClassVar[tuple[str, ...] | None] = None
 
     def objective(
-        self, policy: UA2CPolicy, data: Any, weights: ActorWeights, generator: th.Generator | None = None
+        self, policy: Any, data: Any, weights: ActorWeights, generator: th.Generator | None = None
     ) -> ActorObjective:
         """
-        :param policy: the policy (its actors and critics)
+        :param policy: the policy (:class:`~sb3_ua2c.policies.UA2CPolicy`: its actors and critics)
         :param data: the batch
         :param weights: the objective's weights (``UA2C.actor_weights``)
         :param generator: the random stream (``None``: torch's global one, as in training)
@@ -69,10 +66,11 @@ class AdvantageWeightedExtraction:
         self.max_weight = float(max_weight)
 
     def objective(
-        self, policy: UA2CPolicy, data: Any, weights: ActorWeights, generator: th.Generator | None = None
+        self, policy: Any, data: Any, weights: ActorWeights, generator: th.Generator | None = None
     ) -> ActorObjective:
         """
-        :param policy: the policy (its velocity field, ``critic_target`` and ``value``)
+        :param policy: the policy (:class:`~sb3_ua2c.policies.UA2CPolicy`: its velocity field,
+            ``critic_target`` and ``value``)
         :param data: the batch
         :param weights: ``smooth_weight`` and ``past_action_dropout`` are read
         :param generator: the random stream (``None``: torch's global one, as in training)

@@ -7,14 +7,12 @@ Mixed Traffic", §3.2 (Eq. 4, 8).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import torch as th
 
 from sb3_ua2c.chunking import bootstrap_value
-
-if TYPE_CHECKING:
-    from sb3_ua2c.targets import TargetInputs
+from sb3_ua2c.targets.base import TargetInputs
 
 
 class CandidateTarget:

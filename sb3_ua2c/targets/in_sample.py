@@ -7,7 +7,7 @@ al., 2025). No target queries a chunk the data lacks, and no actor candidate is 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import torch as th
 from torch import nn
@@ -15,9 +15,7 @@ from torch import nn
 from sb3_ua2c.checks import check_bool, check_net_arch, check_number
 from sb3_ua2c.chunking import pessimistic_q
 from sb3_ua2c.in_sample import expectile_loss
-
-if TYPE_CHECKING:
-    from sb3_ua2c.targets import TargetInputs
+from sb3_ua2c.targets.base import TargetInputs
 
 
 class ChunkValue(nn.Module):
