@@ -78,7 +78,7 @@ class AdvantageWeightedExtraction:
         """
         obs_flat = data.observation_history.flatten(1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
         with th.no_grad():
-            q = pessimistic_q(policy.critic_target(obs_flat, data.chunks.unsqueeze(1)))[:, 0]  # (B, 1) -> (B,)
+            q = pessimistic_q(policy.critic_target(obs_flat, data.chunks.unsqueeze(1)))[:, 0]  # (n, B, 1) -> (B,)
             w = advantage_weights(q, policy.value(obs_flat), self.temperature, self.max_weight)  # (B,)
         out = advantage_weighted_objective(policy.actor_inputs(), data, weights, w, generator)
         out.info.update(awr_weight_mean=w.mean().item(), awr_weight_max=w.max().item())

@@ -18,7 +18,11 @@ from sb3_ua2c.registry import build, resolved_kwargs
 from sb3_ua2c.targets import CRITIC_TARGETS, TargetInputs
 
 #: the options by UA2C's argument name, and their registries
-OPTIONS = {"critic_target": CRITIC_TARGETS, "actor_extraction": ACTOR_EXTRACTIONS, "exploration": EXPLORATIONS}
+OPTIONS = {
+    "critic_target": CRITIC_TARGETS,
+    "actor_extraction": ACTOR_EXTRACTIONS,
+    "exploration": EXPLORATIONS,
+}
 #: UA2C's argument names of the options and of their kwargs
 OPTION_ARGUMENTS = tuple(name for option in OPTIONS for name in (option, f"{option}_kwargs"))
 
@@ -27,14 +31,19 @@ class TrainingOptions(OffPolicyAlgorithm):
     """
     The options ``critic_target``, ``actor_extraction`` and ``exploration`` of
     :class:`~sb3_ua2c.ua2c.UA2C` (a part of it, not an algorithm of its own). ``model.critic_target``
-    stays the target critics (SB3's name); the bootstrap's name is :attr:`critic_target_name`.
+    stays the target critics (SB3's name); the bootstrap's name is ``critic_target_name``.
     """
 
     def _option_arguments(self) -> dict[str, Any]:
         """The options' names and (resolved) kwargs, by UA2C's argument names."""
-        return {"critic_target": self.critic_target_name, "critic_target_kwargs": self.critic_target_kwargs,
-                "actor_extraction": self.actor_extraction, "actor_extraction_kwargs": self.actor_extraction_kwargs,
-                "exploration": self.exploration, "exploration_kwargs": self.exploration_kwargs}
+        return {
+            "critic_target": self.critic_target_name,
+            "critic_target_kwargs": self.critic_target_kwargs,
+            "actor_extraction": self.actor_extraction,
+            "actor_extraction_kwargs": self.actor_extraction_kwargs,
+            "exploration": self.exploration,
+            "exploration_kwargs": self.exploration_kwargs,
+        }
 
     def _configure_options(self, with_policy: bool, **changes: Any) -> None:
         """
@@ -51,14 +60,20 @@ class TrainingOptions(OffPolicyAlgorithm):
         for option, registry in OPTIONS.items():
             args[f"{option}_kwargs"] = resolved_kwargs(registry, args[option], args[f"{option}_kwargs"])
         if with_policy:
-            self.policy._set_value(rules["critic_target"].value_arch, self.lr_schedule(self._current_progress_remaining))
-        self.critic_target_name, self.critic_target_kwargs = args["critic_target"], args["critic_target_kwargs"]
-        self.actor_extraction, self.actor_extraction_kwargs = args["actor_extraction"], args["actor_extraction_kwargs"]
-        self.exploration, self.exploration_kwargs = args["exploration"], args["exploration_kwargs"]
+            learning_rate = self.lr_schedule(self._current_progress_remaining)
+            self.policy._set_value(rules["critic_target"].value_arch, learning_rate)
+        self.critic_target_name = args["critic_target"]
+        self.critic_target_kwargs = args["critic_target_kwargs"]
+        self.actor_extraction = args["actor_extraction"]
+        self.actor_extraction_kwargs = args["actor_extraction_kwargs"]
+        self.exploration = args["exploration"]
+        self.exploration_kwargs = args["exploration_kwargs"]
         self._target_rule, self._extraction_rule = rules["critic_target"], rules["actor_extraction"]
         self._exploration_rule = rules["exploration"]
 
-    def set_critic_target(self, critic_target: str, critic_target_kwargs: dict[str, Any] | None = None) -> None:
+    def set_critic_target(
+        self, critic_target: str, critic_target_kwargs: dict[str, Any] | None = None
+    ) -> None:
         """
         Change the bootstrap of the critics' targets, e.g. after Phase 1:
         ``model.set_critic_target("in_sample", {"expectile": 0.9})``. ``"in_sample"`` builds the value
@@ -71,14 +86,18 @@ class TrainingOptions(OffPolicyAlgorithm):
         """
         self._configure_options(True, critic_target=critic_target, critic_target_kwargs=critic_target_kwargs)
 
-    def set_actor_extraction(self, actor_extraction: str, actor_extraction_kwargs: dict[str, Any] | None = None) -> None:
+    def set_actor_extraction(
+        self, actor_extraction: str, actor_extraction_kwargs: dict[str, Any] | None = None
+    ) -> None:
         """
         Change the actor's extraction (kept by ``save``; ``load(path, actor_extraction=...)`` calls it).
 
         :param actor_extraction: a key of :data:`~sb3_ua2c.extraction.ACTOR_EXTRACTIONS`
         :param actor_extraction_kwargs: its class's own arguments (``None``: its defaults)
         """
-        self._configure_options(True, actor_extraction=actor_extraction, actor_extraction_kwargs=actor_extraction_kwargs)
+        self._configure_options(
+            True, actor_extraction=actor_extraction, actor_extraction_kwargs=actor_extraction_kwargs
+        )
 
     def set_exploration(self, exploration: str, exploration_kwargs: dict[str, Any] | None = None) -> None:
         """

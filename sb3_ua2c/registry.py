@@ -57,7 +57,9 @@ def build(registry: Mapping[str, type], name: Any, kwargs: Mapping[str, Any] | N
     return cls(**(kwargs or {}))
 
 
-def resolved_kwargs(registry: Mapping[str, type], name: str, kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
+def resolved_kwargs(
+    registry: Mapping[str, type], name: str, kwargs: Mapping[str, Any] | None
+) -> dict[str, Any]:
     """``kwargs`` with the class's signature defaults filled in (what a model stores and saves)."""
     return {**own_defaults(registry[name]), **(kwargs or {})}
 

@@ -21,4 +21,11 @@ CRITIC_TARGETS: dict[str, type] = {
 }
 
 
-__all__ = ["CRITIC_TARGETS", "CandidateTarget", "ChunkValue", "CriticTarget", "InSampleTarget", "TargetInputs"]
+__all__ = [
+    "CRITIC_TARGETS",
+    "CandidateTarget",
+    "ChunkValue",
+    "CriticTarget",
+    "InSampleTarget",
+    "TargetInputs",
+]

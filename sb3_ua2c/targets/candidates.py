@@ -1,5 +1,5 @@
-"""The paper's bootstrap (Eq. 4 / 8), ``critic_target="candidates"`` (:data:`~sb3_ua2c.targets.CRITIC_TARGETS`):
-the best of ``n_target_candidates`` chunks that the current actor samples at the next history.
+"""The paper's bootstrap (Eq. 4 / 8), ``critic_target="candidates"``
+(:data:`~sb3_ua2c.targets.CRITIC_TARGETS`): the best of ``n_target_candidates`` chunks that the current actor samples at the next history.
 
 Paper: "UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online Decision-Making in
 Mixed Traffic", §3.2 (Eq. 4, 8).
@@ -31,7 +31,9 @@ class CandidateTarget:
         """No value network to fit: ``None``."""
         return None
 
-    def next_value(self, inputs: TargetInputs, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+    def next_value(
+        self, inputs: TargetInputs, obs_history: th.Tensor, action_history: th.Tensor
+    ) -> th.Tensor:
         """
         :param inputs: the policy and the targets' sampler settings
         :param obs_history: ``(M, ℓ, obs_dim)``
@@ -39,8 +41,9 @@ class CandidateTarget:
         :return: shape ``(M,)``
         """
         m = obs_history.shape[0]
-        candidates = inputs.policy.sample_chunks(obs_history, action_history, inputs.n_candidates, inputs.flow_steps)
-        next_q = inputs.policy.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
+        policy = inputs.policy
+        candidates = policy.sample_chunks(obs_history, action_history, inputs.n_candidates, inputs.flow_steps)
+        next_q = policy.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
         return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
 
 

@@ -66,7 +66,9 @@ class InSampleTarget:
     #: fits a value network ``V(h)`` (``actor_extraction="awr"`` reads it)
     fits_value: ClassVar[bool] = True
 
-    def __init__(self, expectile: float = 0.7, net_arch: Sequence[int] = (256, 256), layer_norm: bool = True) -> None:
+    def __init__(
+        self, expectile: float = 0.7, net_arch: Sequence[int] = (256, 256), layer_norm: bool = True
+    ) -> None:
         check_number("critic_target_kwargs['expectile']", expectile, 0.0, 1.0, open_low=True, open_high=True)
         check_net_arch("critic_target_kwargs['net_arch']", net_arch)
         check_bool("critic_target_kwargs['layer_norm']", layer_norm)
@@ -89,12 +91,15 @@ class InSampleTarget:
         """
         obs_flat = data.observation_history.flatten(1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
         with th.no_grad():
-            q = pessimistic_q(inputs.policy.critic_target(obs_flat, data.chunks.unsqueeze(1)))[:, 0]  # (B, 1) -> (B,)
+            q = pessimistic_q(inputs.policy.critic_target(obs_flat, data.chunks.unsqueeze(1)))  # (n, B, 1) -> (B, 1)
+            q = q[:, 0]  # (B, 1) -> (B,)
         v = inputs.policy.value(obs_flat)  # (B,)
         loss = expectile_loss(q, v, self.expectile)
         return loss, {"value_loss": loss.item(), "v_mean": v.mean().item()}
 
-    def next_value(self, inputs: TargetInputs, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
+    def next_value(
+        self, inputs: TargetInputs, obs_history: th.Tensor, action_history: th.Tensor
+    ) -> th.Tensor:
         """
         :param inputs: the policy (its ``value``)
         :param obs_history: ``(M, ℓ, obs_dim)``
