@@ -160,6 +160,36 @@ def flow_objective(
     return ActorObjective(loss, info, x_hat)
 
 
+def advantage_weighted_objective(
+    inputs: ActorInputs,
+    data: ActorBatch,
+    weights: ActorWeights,
+    sample_weights: th.Tensor,
+    generator: th.Generator | None,
+) -> ActorObjective:
+    """
+    Advantage-weighted flow matching (``actor_extraction="awr"``, not in the paper; AWR, Peng et al., 2019,
+    as IQL's extraction, Kostrikov et al., 2022, for a flow as IFQL, Park et al., 2025): the flow-matching
+    error of each data chunk weighted by ``sample_weights`` (:func:`~sb3_ua2c.flow.flow_matching_loss`,
+    mask honoured) and no value term; with ``smooth_weight > 0``, plus the roughness of x̂1.
+
+    :param inputs: the velocity field
+    :param data: the batch
+    :param weights: ``smooth_weight``, ``past_action_dropout`` (``q_weight`` and ``normalize_q`` are not read)
+    :param sample_weights: one weight per chunk, ``(B,)`` (:func:`~sb3_ua2c.in_sample.advantage_weights`)
+    :param generator: the random stream of ``x0``, ``tau`` and the dropout (``None``: torch's global one)
+    """
+    x0, tau, x_tau, velocity, _ = _flow_matching(inputs, data, weights.past_action_dropout, generator)
+    loss = flow_matching_loss(velocity, x0, data.chunks, data.chunk_mask, sample_weights)
+    info = {"flow_loss": loss.item()}
+    x_hat = estimate_terminal(x_tau, tau, velocity)
+    if weights.smooth_weight > 0.0:
+        roughness = chunk_roughness(x_hat, inputs.continuous_dims)
+        loss = loss + weights.smooth_weight * roughness
+        info["roughness"] = roughness.item()
+    return ActorObjective(loss, info, x_hat)
+
+
 def one_step_objective(
     inputs: ActorInputs, data: ActorBatch, weights: ActorWeights, generator: th.Generator | None
 ) -> ActorObjective:
@@ -190,4 +220,13 @@ def one_step_objective(
     return ActorObjective(loss, info, mu)
 
 
-__all__ = ["ActorBatch", "ActorInputs", "ActorObjective", "ActorWeights", "actor_history", "flow_objective", "one_step_objective"]
+__all__ = [
+    "ActorBatch",
+    "ActorInputs",
+    "ActorObjective",
+    "ActorWeights",
+    "actor_history",
+    "advantage_weighted_objective",
+    "flow_objective",
+    "one_step_objective",
+]

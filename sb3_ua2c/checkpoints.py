@@ -16,6 +16,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_ua2c.buffers import ChunkReplayBuffer
 from sb3_ua2c.compat import LEGACY_RULE_NAMES, legacy_critic_kwargs
+from sb3_ua2c.options import option_changes
 
 
 class CheckpointMismatchError(ValueError, RuntimeError):
@@ -38,10 +39,14 @@ class Checkpoints(OffPolicyAlgorithm):
             "_executor",
             "_plan_lengths",
             "_plan_entropy",
+            "_target_rule",
+            "_extraction_rule",
+            "_exploration_rule",
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
-        return ["policy", "actor.optimizer", "critic.optimizer"], []
+        value = [] if self.policy.value is None else ["policy.value.optimizer"]  # critic_target="in_sample"
+        return ["policy", "actor.optimizer", "critic.optimizer", *value], []
 
     @classmethod
     def load(  # type: ignore[override]
@@ -62,7 +67,10 @@ class Checkpoints(OffPolicyAlgorithm):
         fields by UA2C's argument names, ``execution_rule``, ``entropy_threshold``, ... (the saved rule
         with those fields replaced, :meth:`~sb3_ua2c.ua2c.UA2C.set_execution_rule`). A ``policy_kwargs``
         given (as rl-zoo3 passes its YAML's when continuing) must equal the saved one, as in SB3, after both
-        are read in the current layout (:func:`~sb3_ua2c.compat.legacy_critic_kwargs`).
+        are read in the current layout (:func:`~sb3_ua2c.compat.legacy_critic_kwargs`). The options
+        ``critic_target``, ``actor_extraction``, ``exploration`` and their ``*_kwargs`` are applied together
+        through the setters' one path (:meth:`~sb3_ua2c.options.TrainingOptions.set_critic_target`, ...): a
+        checkpoint without a value network gets one with ``critic_target="in_sample"``.
         """
         if "policy_kwargs" in kwargs and isinstance(path, str | pathlib.Path):
             data, _, _ = load_from_zip_file(path, load_data=True, device="cpu", print_system_info=False)
@@ -70,6 +78,7 @@ class Checkpoints(OffPolicyAlgorithm):
             if legacy_critic_kwargs(saved) == legacy_critic_kwargs(kwargs["policy_kwargs"]):
                 kwargs.pop("policy_kwargs")  # the same networks, saved in an earlier layout
         n_elite, flow_steps = kwargs.pop("n_elite", None), kwargs.pop("flow_steps", None)
+        options = option_changes(kwargs)
         rule_fields = {field: kwargs.pop(name) for name, field in LEGACY_RULE_NAMES.items() if name in kwargs}
         model = super().load(
             path,
@@ -80,6 +89,8 @@ class Checkpoints(OffPolicyAlgorithm):
             force_reset=force_reset,
             **kwargs,
         )
+        if options:
+            model._configure_options(True, **options)
         if rule_fields:
             model.set_execution_rule(dataclasses.replace(model.execution, **rule_fields))
         if n_elite is not None:

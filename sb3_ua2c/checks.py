@@ -34,3 +34,23 @@ def check_net_arch(name: str, value: Any) -> None:
         isinstance(h, bool) or not isinstance(h, int | float | np.number) or int(h) != h or h < 1 for h in value
     ):
         raise ValueError(f"{name} must be a non-empty list of positive integers, got {value!r}")
+
+
+def check_number(name: str, value: Any, low: float, high: float, *, open_low: bool, open_high: bool) -> None:
+    """
+    Raise ``ValueError`` naming ``name`` unless ``value`` is a real number (not a ``bool``, not NaN) in
+    the interval from ``low`` to ``high``.
+
+    :param name: the parameter's name as the user wrote it (e.g. ``"critic_target_kwargs['expectile']"``)
+    :param value: the value to check
+    :param low: lower bound
+    :param high: upper bound (``math.inf``: none)
+    :param open_low: ``low`` itself is refused
+    :param open_high: ``high`` itself is refused
+    """
+    ok = not isinstance(value, bool) and isinstance(value, int | float | np.number) and value == value
+    if ok:
+        ok = (low < value if open_low else low <= value) and (value < high if open_high else value <= high)
+    if not ok:
+        interval = f"{'(' if open_low else '['}{low}, {high}{')' if open_high else ']'}"
+        raise ValueError(f"{name} must be a number in {interval}, got {value!r}")

@@ -21,6 +21,9 @@ from gymnasium import spaces
 from sb3_ua2c.actors import ACTORS
 from sb3_ua2c.checks import check_bool, check_int, check_net_arch
 from sb3_ua2c.critics import CRITICS
+from sb3_ua2c.exploration import EXPLORATIONS
+from sb3_ua2c.extraction import ACTOR_EXTRACTIONS
+from sb3_ua2c.targets import CRITIC_TARGETS
 
 #: values of ``ExecutionRule.rule`` (UA2C's ``execution_rule``): how ``L_t`` is set from the entropies ``H_u``
 EXECUTION_RULES = ("threshold", "quantile", "growth")
@@ -129,6 +132,12 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "distill_weight": _non_negative_number,
     "offline_ratio": _fraction,
     "online_targets": _one_of(ONLINE_TARGETS),
+    "critic_target": _one_of(CRITIC_TARGETS),
+    "critic_target_kwargs": _optional_dict,  # checked by the target class (:func:`~sb3_ua2c.registry.build`)
+    "actor_extraction": _one_of(ACTOR_EXTRACTIONS),
+    "actor_extraction_kwargs": _optional_dict,  # checked by the extraction class
+    "exploration": _one_of(EXPLORATIONS),
+    "exploration_kwargs": _optional_dict,  # checked by the exploration class
     # UA2CPolicy's networks and acting rule
     "n_elite": _positive_int,
     "net_arch": _net_arch,
@@ -142,6 +151,7 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "optimizer_kwargs": _optional_dict,
     "torch_compile": check_bool,
     "normalize_images": _must_be_false,
+    "value_arch": _optional_dict,
 }
 
 
@@ -151,8 +161,10 @@ def check_arguments(**arguments: Any) -> None:
     constructors spell them) and the constraints between those given together. A bad value raises a
     ``ValueError`` that names the parameter.
 
-    Constraints between arguments: ``n_elite <= n_candidates``. The execution rule checks itself
-    (:class:`ExecutionRule`), a critic class its ``critic_kwargs``.
+    Constraints between arguments: ``n_elite <= n_candidates``; an ``actor_extraction`` that reads the
+    in-sample value (``"awr"``) needs a ``critic_target`` that fits one (``"in_sample"``) and an
+    ``actor_type`` it trains (``"flow"``). The execution rule checks itself (:class:`ExecutionRule`), a
+    critic, target, extraction or exploration class its ``*_kwargs``.
 
     :param arguments: hyperparameters by name (any subset of the constructors' arguments)
     """
@@ -162,6 +174,27 @@ def check_arguments(**arguments: Any) -> None:
         _CHECKS[name](name, value)
     if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
         raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
+    _check_extraction(arguments)
+
+
+def _check_extraction(arguments: Mapping[str, Any]) -> None:
+    """The constraints of ``actor_extraction`` with ``critic_target`` and ``actor_type``, when given together."""
+    if "actor_extraction" not in arguments:
+        return
+    extraction = ACTOR_EXTRACTIONS[arguments["actor_extraction"]]
+    target = arguments.get("critic_target")
+    if extraction.needs_value and target is not None and not CRITIC_TARGETS[target].fits_value:
+        raise ValueError(
+            f"actor_extraction={arguments['actor_extraction']!r} weights the data's chunks by their advantage "
+            f"over the in-sample value V, which critic_target={target!r} does not fit: use "
+            f"critic_target='in_sample'"
+        )
+    actor_type = arguments.get("actor_type")
+    if actor_type is not None and extraction.actor_types is not None and actor_type not in extraction.actor_types:
+        raise ValueError(
+            f"actor_extraction={arguments['actor_extraction']!r} trains actor_type in {list(extraction.actor_types)} "
+            f"only, got actor_type={actor_type!r} (its objective is a value term, which this extraction replaces)"
+        )
 
 
 def normalize_discrete_dims(
@@ -215,9 +248,10 @@ def check_spaces(observation_space: spaces.Space | None, action_space: spaces.Sp
 
 
 def _model_arguments(model_class: type) -> set[str]:
-    """What a model passes to its policy itself: its constructor's arguments, and ``execution`` (the
-    :class:`ExecutionRule` it builds from its execution-rule arguments)."""
-    return set(inspect.signature(model_class.__init__).parameters) | {"execution"}
+    """What a model passes to its policy itself: its constructor's arguments, ``execution`` (the
+    :class:`ExecutionRule` it builds from its execution-rule arguments) and ``value_arch`` (from its
+    ``critic_target``)."""
+    return set(inspect.signature(model_class.__init__).parameters) | {"execution", "value_arch"}
 
 
 def policy_kwargs_names(policy_class: type, model_class: type) -> tuple[str, ...]:

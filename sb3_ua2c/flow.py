@@ -62,7 +62,11 @@ def estimate_terminal(x_tau: th.Tensor, tau: th.Tensor, velocity: th.Tensor) -> 
 
 
 def flow_matching_loss(
-    velocity: th.Tensor, x0: th.Tensor, x1: th.Tensor, mask: th.Tensor | None = None
+    velocity: th.Tensor,
+    x0: th.Tensor,
+    x1: th.Tensor,
+    mask: th.Tensor | None = None,
+    sample_weights: th.Tensor | None = None,
 ) -> th.Tensor:
     """
     First term of Eq. 2, ``E ||v_theta(x_tau, tau | h_t) - (x1 - x0)||^2``.
@@ -78,9 +82,15 @@ def flow_matching_loss(
     :param x0: noise chunks, same shape
     :param x1: data chunks, same shape
     :param mask: 1 at the valid chunk positions, 0 at padding, shape ``(batch, k)``; ``None`` = all valid
+    :param sample_weights: a weight per chunk, shape ``(batch,)`` (no gradient; ``None`` = all 1): the
+        advantage weights of AWR / IQL's extraction (``actor_extraction="awr"``,
+        :func:`~sb3_ua2c.in_sample.advantage_weights`). The average still divides by the number of valid
+        entries, as IQL's ``mean(w * log_prob)``, not by the weights' sum
     :return: scalar loss (0 if no position is valid)
     """
     error = (velocity - target_velocity(x0, x1)).pow(2)  # (batch, k, action_dim)
+    if sample_weights is not None:
+        error = error * sample_weights.detach().reshape(-1, *([1] * (error.ndim - 1)))  # (batch,) -> (batch, 1, 1)
     if mask is None:
         return error.mean()
     weights = mask.to(error.dtype).unsqueeze(-1).expand_as(error)  # (batch, k) -> (batch, k, action_dim)

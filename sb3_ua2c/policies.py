@@ -33,6 +33,8 @@ from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
 from sb3_ua2c.critics import critic_defaults, make_critic
 from sb3_ua2c.execution import EntropyWindow, ExecutionRuleState, PlanResult, resume_and_act
+from sb3_ua2c.exploration import ChunkSelector
+from sb3_ua2c.targets import ChunkValue
 
 #: key of the hash that seeds the candidate noise ``x_0`` of ``predict(..., deterministic=True)``
 DETERMINISTIC_NOISE_KEY = b"sb3-ua2c"
@@ -143,6 +145,10 @@ class UA2CPolicy(ExecutionRuleState):
         not bit for bit; see :meth:`compile_networks`)
     :param normalize_images: must be ``False``: observations are flattened as they are (SB3's
         argument, kept so that ``UA2CPolicy.load`` rebuilds the policy like SB3's policies)
+    :param value_arch: the arguments (``net_arch``, ``layer_norm``) of the in-sample value ``V(h)``
+        (:class:`~sb3_ua2c.targets.ChunkValue`, held as :attr:`value` with an optimizer of its own, built
+        after the other networks); ``None``: no value network. Set by UA2C from its ``critic_target``
+        (``"in_sample"``: the :class:`~sb3_ua2c.targets.InSampleTarget`'s), not a ``policy_kwargs`` key
     """
 
     def __init__(
@@ -170,6 +176,7 @@ class UA2CPolicy(ExecutionRuleState):
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
         torch_compile: bool = False,
+        value_arch: dict[str, Any] | None = None,
     ) -> None:
         check_spaces(observation_space, action_space)
         if optimizer_kwargs is None and optimizer_class in (th.optim.Adam, th.optim.AdamW):
@@ -207,6 +214,7 @@ class UA2CPolicy(ExecutionRuleState):
             actor_past_actions=actor_past_actions, critic_arch=critic_arch, critic_kwargs=critic_kwargs,
             n_critics=n_critics, activation_fn=activation_fn, optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs, normalize_images=normalize_images, torch_compile=torch_compile,
+            value_arch=value_arch,
         )
         self._check_execution(self.execution)
         #: the critic class's own arguments, its signature's defaults filled in (saved with the policy)
@@ -226,6 +234,11 @@ class UA2CPolicy(ExecutionRuleState):
         self.last_plan_lengths: np.ndarray = np.zeros(0, dtype=np.int64)
         self.last_plan_entropy: np.ndarray = np.zeros((0, chunk_size), dtype=np.float32)
         self._build(lr_schedule)
+        #: the in-sample value ``V(h)`` (``None`` without one), built after the other networks so that a
+        #: policy without it draws the same random numbers as before it existed
+        self.value: ChunkValue | None = None
+        self.value_arch: dict[str, Any] | None = None
+        self._set_value(value_arch, lr_schedule(1))
         if self.torch_compile:
             self.compile_networks()
 
@@ -249,6 +262,27 @@ class UA2CPolicy(ExecutionRuleState):
         self.critic.optimizer = self.optimizer_class(  # type: ignore[assignment]
             self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
         )
+
+    def _set_value(self, value_arch: dict[str, Any] | None, learning_rate: float) -> None:
+        """
+        Build, keep or drop the value network (the implementation of
+        :meth:`UA2C.set_critic_target <sb3_ua2c.ua2c.UA2C.set_critic_target>`): a ``V`` of the same
+        ``value_arch`` is kept (and its optimizer), another replaces it, ``None`` removes it.
+
+        :param value_arch: :class:`~sb3_ua2c.targets.ChunkValue`'s ``net_arch`` and ``layer_norm``, or ``None``
+        :param learning_rate: the new optimizer's learning rate
+        """
+        if value_arch == self.value_arch and (value_arch is None) == (self.value is None):
+            return
+        self.value_arch = None if value_arch is None else dict(value_arch)
+        if value_arch is None:
+            self.value = None
+            return
+        value = ChunkValue(self.history_len * self.obs_dim, self.activation_fn, **value_arch).to(self.device)
+        value.optimizer = self.optimizer_class(  # type: ignore[assignment]
+            value.parameters(), lr=learning_rate, **self.optimizer_kwargs
+        )
+        self.value = value
 
     def _make_critics(self) -> nn.Module:
         """The twin critics of ``critic_arch``, ``(B, ℓ*obs_dim), (B, C, k, a) -> (n_critics, B, C)``."""
@@ -279,6 +313,7 @@ class UA2CPolicy(ExecutionRuleState):
             "optimizer_class": self.optimizer_class,
             "optimizer_kwargs": self.optimizer_kwargs,
             "torch_compile": self.torch_compile,
+            "value_arch": self.value_arch,
         }
 
     @classmethod
@@ -343,6 +378,8 @@ class UA2CPolicy(ExecutionRuleState):
         for actor in self.actor_networks():
             actor.train(mode)
         self.critic.train(mode)
+        if self.value is not None:
+            self.value.train(mode)
         self.training = mode
 
     # ------------------------------------------------------------------ maths on tensors
@@ -411,6 +448,7 @@ class UA2CPolicy(ExecutionRuleState):
         generator: th.Generator | None = None,
         deterministic: bool = False,
         record_entropy: bool = False,
+        selector: ChunkSelector | None = None,
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
         One replanning: sample S chunks, measure the per-position entropy of the S samples (clipped to
@@ -424,13 +462,16 @@ class UA2CPolicy(ExecutionRuleState):
         :param deterministic: start from each history's own noise (:func:`history_noise`) instead of fresh noise
         :param record_entropy: add the entropies to :attr:`entropy_window` (``entropy_threshold="auto"``
             only; training rollouts)
+        :param selector: how the executed chunk is chosen among the candidates (UA2C's ``exploration`` in
+            training rollouts, :mod:`sb3_ua2c.exploration`); ``None``: the elite mean of ``n_elite``
+            (:func:`~sb3_ua2c.chunking.select_chunk`), as ``predict`` always does
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
         if deterministic and m > 1:
             # one history at a time: its floats, and so the hash that seeds its noise, never depend on the batch
-            rows = [self.plan_tensors(obs_history[i : i + 1], action_history[i : i + 1], None, True, record_entropy)
-                    for i in range(m)]
+            rows = [self.plan_tensors(obs_history[i : i + 1], action_history[i : i + 1], None, True, record_entropy,
+                                      selector) for i in range(m)]
             return tuple(th.cat(parts) for parts in zip(*rows, strict=True))  # type: ignore[return-value]
         s = self.n_candidates
         x0 = history_noise(obs_history, action_history, s, self.chunk_size) if deterministic else None
@@ -439,7 +480,10 @@ class UA2CPolicy(ExecutionRuleState):
         obs_flat = obs_history.reshape(m, -1)
         q = self.critic(obs_flat, clipped)  # (n, m, S)
         lengths = self.plan_lengths(entropy)
-        chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+        if selector is None:
+            chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+        else:
+            chunks = selector.select(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
         if record_entropy and self.entropy_window is not None:
             self.entropy_window.add(entropy)
         if self.commit_discrete:
@@ -452,6 +496,7 @@ class UA2CPolicy(ExecutionRuleState):
         action_history: np.ndarray,
         deterministic: bool = False,
         record_entropy: bool = False,
+        selector: ChunkSelector | None = None,
     ) -> PlanResult:
         """
         NumPy front end of :meth:`plan_tensors` (a :data:`~sb3_ua2c.execution.Planner`).
@@ -460,12 +505,13 @@ class UA2CPolicy(ExecutionRuleState):
         itself (:func:`history_noise`), one history at a time: a row's plan is a function of its own
         history, bit for bit, whatever the batch it is planned in and its position there; the selection
         and the execution rule are unchanged. ``False``: fresh noise for every history, in one batch.
-        ``record_entropy``: see :meth:`plan_tensors` (``predict`` never records: it does not change δ).
+        ``record_entropy``, ``selector``: see :meth:`plan_tensors` (``predict`` never records: it does not
+        change δ, and it keeps the elite mean).
         """
         with th.inference_mode():
             obs_t = th.as_tensor(obs_history, device=self.device, dtype=th.float32)
             act_t = th.as_tensor(action_history, device=self.device, dtype=th.float32)
-            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, None, deterministic, record_entropy)
+            chunks, lengths, entropy = self.plan_tensors(obs_t, act_t, None, deterministic, record_entropy, selector)
         return PlanResult(chunks.cpu().numpy(), lengths.cpu().numpy(), entropy.cpu().numpy())
 
     # ------------------------------------------------------------------ SB3 interface

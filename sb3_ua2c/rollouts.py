@@ -82,7 +82,8 @@ class ChunkRollouts(OffPolicyAlgorithm):
         def policy_plan(obs_h: np.ndarray, act_h: np.ndarray) -> PlanResult:
             if self.policy.needs_calibration:
                 self.calibrate_execution()
-            return self.policy.plan(obs_h, act_h, deterministic=False, record_entropy=True)
+            return self.policy.plan(obs_h, act_h, deterministic=False, record_entropy=True,
+                                    selector=self._exploration_rule)
 
         callback.on_rollout_start()
         continue_training = True

@@ -21,10 +21,9 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import polyak_update
 
 from sb3_ua2c.actor_objectives import ActorWeights
-from sb3_ua2c.actors import actor_objective
 from sb3_ua2c.buffers import ChunkReplayBuffer, ChunkReplaySamples
 from sb3_ua2c.checkpoints import Checkpoints
-from sb3_ua2c.chunking import bootstrap_value, chunk_critic_loss, chunk_target
+from sb3_ua2c.chunking import chunk_critic_loss, chunk_target
 from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule, reject_legacy_policy_kwargs
 from sb3_ua2c.config import (
     ExecutionRule,
@@ -36,13 +35,14 @@ from sb3_ua2c.config import (
 from sb3_ua2c.diagnostics import training_stats
 from sb3_ua2c.execution import AdaptiveChunkExecutor
 from sb3_ua2c.offline_training import OfflineTraining
+from sb3_ua2c.options import TrainingOptions
 from sb3_ua2c.policies import MlpPolicy, UA2CPolicy
 from sb3_ua2c.rollouts import ChunkRollouts
 
 SelfUA2C = TypeVar("SelfUA2C", bound="UA2C")
 
 
-class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
+class UA2C(ChunkRollouts, OfflineTraining, TrainingOptions, Checkpoints):
     """
     UA2C: uncertainty-aware adaptive action chunking with a flow-matching chunk actor and twin
     Transformer chunk critics.
@@ -68,9 +68,10 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
 
     The class is UA2C's constructor, setup, setters and training step; its rollouts
     (:class:`~sb3_ua2c.rollouts.ChunkRollouts`), offline data and Phase 1
-    (:class:`~sb3_ua2c.offline_training.OfflineTraining`) and checkpoints
+    (:class:`~sb3_ua2c.offline_training.OfflineTraining`), the options beyond the paper
+    (:class:`~sb3_ua2c.options.TrainingOptions`) and checkpoints
     (:class:`~sb3_ua2c.checkpoints.Checkpoints`) are parts of it in modules of their own. It stays
-    over 300 lines for its 41 documented constructor arguments (SB3's and UA2C's).
+    over 300 lines for its 47 documented constructor arguments (SB3's and UA2C's).
 
     :param policy: the policy model to use (``"MlpPolicy"`` or :class:`UA2CPolicy`)
     :param env: the environment to learn from (if registered in Gym, can be str)
@@ -141,6 +142,35 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         the first online step is stored, ``"prefix"`` if the buffer holds offline episodes (and
         ``offline_ratio > 0``: offline-to-online, the paper's setting), ``"window"`` otherwise
         (online-only training); ``model.replay_buffer.active_online_targets`` says which
+    :param critic_target: the bootstrap ``V(h_{t+L})`` of the critics' targets, a key of
+        :data:`~sb3_ua2c.targets.CRITIC_TARGETS`: ``"candidates"`` (default, Eq. 4 / 8: the max over
+        ``n_target_candidates`` actor chunks) or ``"in_sample"`` (not in the paper; IQL, Kostrikov et al.,
+        ICLR 2022, as IFQL / SHARSA, Park et al., 2025, over chunks as Q-chunking's backup, Li et al.,
+        2025): a value network ``V(h)`` (the policy's ``value``) fitted by expectile regression to
+        ``min_j Q̄_j`` of the data's own chunks, so no target queries a chunk the data lacks and no
+        candidate is sampled (:class:`~sb3_ua2c.targets.InSampleTarget`). The target network keeps its
+        SB3 name, ``model.critic_target``; this argument is ``model.critic_target_name``. Change it with
+        :meth:`set_critic_target` (e.g. after Phase 1) or ``UA2C.load(path, critic_target=...)``
+    :param critic_target_kwargs: the own arguments of the ``critic_target``'s class (``None``: its
+        signature's defaults): ``expectile`` (0.7, d3rlpy's IQL), ``net_arch``, ``layer_norm`` of ``V``
+        for ``"in_sample"``; none for ``"candidates"``
+    :param actor_extraction: how the actor is extracted from the critics, a key of
+        :data:`~sb3_ua2c.extraction.ACTOR_EXTRACTIONS`: ``"value_term"`` (default, Eq. 2's ``-λ Q(x̂1)``,
+        or QC-FQL's objective for ``actor_type="one_step"``) or ``"awr"`` (not in the paper; AWR, Peng et
+        al., 2019, as IQL's extraction): the flow-matching error of each data chunk weighted by
+        ``min(exp(β (min_j Q̄_j(h, a) - V(h))), w_max)`` and no value term
+        (:class:`~sb3_ua2c.extraction.AdvantageWeightedExtraction`). ``"awr"`` needs
+        ``critic_target="in_sample"`` (its ``V``) and ``actor_type="flow"``: otherwise a ``ValueError``
+        naming ``actor_extraction``
+    :param actor_extraction_kwargs: the own arguments of the ``actor_extraction``'s class (``None``: its
+        defaults): ``temperature`` β (3.0) and ``max_weight`` (100, both d3rlpy's IQL) for ``"awr"``
+    :param exploration: which candidate a replanning of ``learn()``'s rollouts executes, a key of
+        :data:`~sb3_ua2c.exploration.EXPLORATIONS`: ``"plan"`` (default: as ``predict``, the elite mean)
+        or ``"softmax"`` (not in the paper; IDQL's resampling, Hansen-Estruch et al., 2023): one
+        candidate drawn with probability ``∝ exp(min_j Q_j / T)`` from torch's global random stream.
+        ``predict`` and ``evaluate_policy`` keep the elite mean; ``L_t`` follows the entropies as before
+    :param exploration_kwargs: the own arguments of the ``exploration``'s class (``None``: its
+        defaults): ``temperature`` ``T`` (1.0, in the critics' reward units) for ``"softmax"``
     :param stats_window_size: window size for the rollout logging
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
     :param policy_kwargs: additional arguments of the policy (``net_arch``, ``actor_type``,
@@ -192,6 +222,12 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         offline_ratio: float = 0.5,
         online_targets: str = "auto",
+        critic_target: str = "candidates",
+        critic_target_kwargs: dict[str, Any] | None = None,
+        actor_extraction: str = "value_term",
+        actor_extraction_kwargs: dict[str, Any] | None = None,
+        exploration: str = "plan",
+        exploration_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -256,6 +292,13 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         self.discrete_action_dims = discrete_action_dims
         self.offline_ratio = offline_ratio
         self.online_targets = online_targets
+        #: the name of the critics' bootstrap (``self.critic_target`` is the target critics, SB3's name)
+        self.critic_target_name = critic_target
+        self.critic_target_kwargs = critic_target_kwargs
+        self.actor_extraction = actor_extraction
+        self.actor_extraction_kwargs = actor_extraction_kwargs
+        self.exploration = exploration
+        self.exploration_kwargs = exploration_kwargs
         if _init_setup_model:
             self._setup_model()
 
@@ -281,6 +324,7 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         )
         check_spaces(self.observation_space, self.action_space)
         check_policy_kwargs(self.policy_kwargs, self.policy_class, UA2C)
+        self._configure_options(with_policy=False)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -295,9 +339,11 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
             discrete_action_dims=self.discrete_action_dims,
             discrete_entropy=self.discrete_entropy,
             commit_discrete=self.commit_discrete,
+            value_arch=self._target_rule.value_arch,
             **self.policy_kwargs,
         )
         self.policy = self.policy.to(self.device)
+        check_arguments(actor_extraction=self.actor_extraction, actor_type=self.policy.actor_type)
         if self.replay_buffer is None:
             self.replay_buffer = self._make_replay_buffer(self.buffer_size)
         self._create_aliases()
@@ -370,7 +416,8 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
         if n_online + n_offline == 0:
             return
         self.policy.set_training_mode(True)
-        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        value = [] if self.policy.value is None else [self.policy.value.optimizer]
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer, *value])
         logged: dict[str, list[float]] = {}  # {stat of _gradient_step: one value per update}
         for _ in range(gradient_steps):
             self._n_updates += 1
@@ -383,8 +430,10 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
             self.logger.record(f"train/{key}", float(np.mean(values)))
 
     def _gradient_step(self, data: ChunkReplaySamples) -> dict[str, float]:
-        """One update of the critics (Eq. 3 with the target of Eq. 4 / 8), the actor (Eq. 2) and the targets."""
+        """One update of the value network (``critic_target="in_sample"`` only), the critics (Eq. 3 with
+        the target of Eq. 4 / 8), the actor (Eq. 2 or ``actor_extraction``) and the targets."""
         obs_flat = data.observation_history.flatten(1)  # (B, ℓ, obs_dim) -> (B, ℓ*obs_dim)
+        value_info = self._value_step(data)
         with th.no_grad():
             next_value = self._next_values(data.next_observation_history, data.next_action_history)
             target = chunk_target(data.rewards, data.horizons, data.bootstrap, next_value, self.gamma)  # (B,)
@@ -402,30 +451,40 @@ class UA2C(ChunkRollouts, OfflineTraining, Checkpoints):
             "critic_loss": critic_loss.item(),
             "actor_loss": loss.item(),
             "q_mean": q.mean().item(),
+            **value_info,
             **info,
             **training_stats(self, data, q, target),  # td_rmse, twin_gap (+ more every DIAGNOSTICS_INTERVAL)
         }
 
+    def _value_step(self, data: ChunkReplaySamples) -> dict[str, float]:
+        """One update of the ``critic_target``'s value network on the batch, if it has one (``"in_sample"``:
+        expectile regression, :class:`~sb3_ua2c.targets.InSampleTarget`); ``{}`` and nothing drawn otherwise."""
+        out = self._target_rule.value_loss(self._target_inputs(), data)
+        if out is None:
+            return {}
+        loss, info = out
+        optimizer = self.policy.value.optimizer
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        return info
+
     def _next_values(self, obs_history: th.Tensor, action_history: th.Tensor) -> th.Tensor:
         """
-        ``V(h) = max_q min_j Q̄_j(h, â^(q))`` (:func:`~sb3_ua2c.chunking.bootstrap_value`) over
-        ``n_target_candidates`` chunks of the current actor.
+        The bootstrap ``V(h)`` of the ``critic_target`` (:mod:`sb3_ua2c.targets`): ``max_q min_j Q̄_j(h, â^(q))``
+        over ``n_target_candidates`` chunks of the current actor (``"candidates"``, Eq. 4 / 8), or the
+        in-sample value network (``"in_sample"``).
 
         :param obs_history: ``(M, ℓ, obs_dim)``
         :param action_history: ``(M, ℓ, action_dim)``
         :return: shape ``(M,)``
         """
-        m = obs_history.shape[0]
-        candidates = self.policy.sample_chunks(
-            obs_history, action_history, self.n_target_candidates, self.target_flow_steps
-        )
-        next_q = self.critic_target(obs_history.reshape(m, -1), candidates.clamp(-1.0, 1.0))  # (n, M, Q)
-        return bootstrap_value(next_q)  # (n, M, Q) -> (M,)
+        return self._target_rule.next_value(self._target_inputs(), obs_history, action_history)
 
     def _actor_loss(self, data: ChunkReplaySamples) -> tuple[th.Tensor, dict[str, float]]:
-        """The actor objective of the policy's ``actor_type`` on the batch (Eq. 2 or QC-FQL's one-step
-        policy, :func:`~sb3_ua2c.actors.actor_objective`)."""
-        objective = actor_objective(self.policy.actor_type, self.policy.actor_inputs(), data, self.actor_weights())
+        """The actor objective of the ``actor_extraction`` on the batch (:mod:`sb3_ua2c.extraction`): the
+        policy's ``actor_type``'s (Eq. 2 or QC-FQL's one-step policy), or advantage-weighted flow matching."""
+        objective = self._extraction_rule.objective(self.policy, data, self.actor_weights())
         return objective.loss, objective.info
 
     def actor_weights(self, q_weight: float | None = None) -> ActorWeights:

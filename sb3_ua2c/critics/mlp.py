@@ -25,7 +25,7 @@ class MLPChunkCritics(nn.Module):
     Each hidden layer is linear, then (optionally) a layer norm, then the activation; the value is a
     linear read-out. The first layer is split into a history part, computed once per history, and a
     chunk part, so that the ``C`` candidates of a history share the history's features. Same call as
-    :class:`ChunkCritics`.
+    :class:`~sb3_ua2c.critics.transformer.ChunkCritics`.
 
     :param obs_history_dim: ``ℓ * obs_dim``
     :param chunk_size: ``k``

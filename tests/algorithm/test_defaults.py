@@ -30,6 +30,8 @@ from sb3_ua2c import UA2C
 from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.critics import CRITICS, critic_defaults
 from sb3_ua2c.defaults import defaults
+from sb3_ua2c.options import OPTIONS
+from sb3_ua2c.registry import own_defaults
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the comment that allows a literal equal to a default; a reason must follow it
@@ -43,7 +45,12 @@ DECLARATIONS = {
     ("sb3_ua2c/config.py", "ExecutionRule"),
     ("sb3_ua2c/critics/transformer.py", "ChunkCritics.__init__"),
     ("sb3_ua2c/critics/mlp.py", "MLPChunkCritics.__init__"),
+    ("sb3_ua2c/targets/in_sample.py", "InSampleTarget.__init__"),
+    ("sb3_ua2c/extraction.py", "AdvantageWeightedExtraction.__init__"),
+    ("sb3_ua2c/exploration.py", "SoftmaxExploration.__init__"),
 }
+#: a constructor argument kept under another attribute name (``model.critic_target`` is SB3's target critics)
+ATTRIBUTE = {"critic_target": "critic_target_name"}
 
 
 # ---------------------------------------------------------------------------- (a) the defaults
@@ -58,6 +65,12 @@ def test_defaults_by_hand():
         8, [512, 512, 512], "flow", "transformer")
     assert policy["critic_kwargs"] == {"embed_dim": 32, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
     assert critic_defaults("mlp") == {"net_arch": (256, 256), "layer_norm": True}
+    assert (out["critic_target"], out["actor_extraction"], out["exploration"]) == ("candidates", "value_term", "plan")
+    assert (out["critic_target_kwargs"], out["actor_extraction_kwargs"], out["exploration_kwargs"]) == ({}, {}, {})
+    assert own_defaults(OPTIONS["critic_target"]["in_sample"]) == {
+        "expectile": 0.7, "net_arch": (256, 256), "layer_norm": True}
+    assert own_defaults(OPTIONS["actor_extraction"]["awr"]) == {"temperature": 3.0, "max_weight": 100.0}
+    assert own_defaults(OPTIONS["exploration"]["softmax"]) == {"temperature": 1.0}
     out["policy_kwargs"]["n_elite"] = 1
     assert defaults()["policy_kwargs"]["n_elite"] == 8  # a fresh dict
 
@@ -70,7 +83,7 @@ def test_defaults_are_what_a_model_built_without_arguments_has():
                "stats_window_size"}
     for name, value in out.items():
         if name not in skipped:
-            assert getattr(model, name) == value, name
+            assert getattr(model, ATTRIBUTE.get(name, name)) == value, name
     assert model.train_freq.frequency == out["train_freq"]
     assert model.replay_buffer.offline_ratio == out["offline_ratio"]
     assert model.execution == ExecutionRule(out["execution_rule"], out["entropy_threshold"])
@@ -91,7 +104,8 @@ def scanned_defaults() -> dict[str, list[Any]]:
     policy = out.pop("policy_kwargs")
     policy.pop("critic_kwargs")
     names: dict[str, list[Any]] = {}
-    for table in (out, policy, *(critic_defaults(arch) for arch in CRITICS)):
+    plugins = [own_defaults(cls) for registry in OPTIONS.values() for cls in registry.values()]
+    for table in (out, policy, *(critic_defaults(arch) for arch in CRITICS), *plugins):
         for name, value in table.items():
             if name not in NOT_SCANNED and value is not None and not isinstance(value, type):
                 names.setdefault(name, []).append(value)
