@@ -83,8 +83,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     env = make_traffic_env(**env_settings(load_dataset(args.dataset)))
     seeds = [1000 * args.eval_seed + i for i in range(args.episodes)]
     rules = {
-        "fixed (δ = inf)": dict(entropy_threshold=math.inf, commit_discrete=False),
-        f"Eq. 7 (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=False),
+        "fixed (δ = inf)": dict(entropy_threshold=math.inf, commit_discrete=False),  # same as default: vs commit
+        f"Eq. 7 (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=False),  # same as default: vs commit
         f"Eq. 7 + commit (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=True),
     }
     try:

@@ -161,8 +161,7 @@ def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str
     kwargs.setdefault("buffer_size", max(b.finetune_steps, 1))
     checkpoints = {"offline": pretrain(ds, root / "pretrained.zip", b.pretrain_steps, seed=seed, algo_kwargs=kwargs)}
     for rule in online_rules:  # the same cadence for every rule: one update per train_freq env steps
-        # same as default: one update per train_freq env steps for every rule, whatever UA2C's gradient_steps
-        overrides = {**RULES[rule], "train_freq": b.train_freq, "gradient_steps": 1}
+        overrides = {**RULES[rule], "train_freq": b.train_freq, "gradient_steps": 1}  # same as default: the cadence
         checkpoints[f"online_{rule}"] = finetune(checkpoints["offline"], root / f"online_{rule}.zip", b.finetune_steps,
                                                  dataset=ds, seed=seed, algo_overrides=overrides)
     record: dict[str, Any] = {"seed": seed, "task": task, "budget": b.to_dict(),

@@ -57,7 +57,7 @@ class Fig2Budget(Budget):
         at its own size, e.g. ``{"policy_kwargs": {"net_arch": [128, 128]}}`` next to a larger
         chunk actor in ``algo_kwargs``; empty = the same arguments as the chunk policy
     :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
-        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}`` or ``{"n_elite": 8}``; ``train_freq`` and ``gradient_steps``
+        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}`` or ``{"n_elite": 4}``; ``train_freq`` and ``gradient_steps``
         are set by the runner, see :func:`finetune_overrides`)
     :param online_seed_offset: Phase 2 of seed ``s`` runs with seed ``s + MAX_SEED · offset``
         (online scenarios, sampling noise, minibatches; the networks start from the same
@@ -199,8 +199,7 @@ def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
     up to ``k`` times the updates of the fixed arm for the same environment steps. The budget's
     ``finetune_kwargs`` come on top.
     """
-    # same as default: one update per chunk_size env steps whatever UA2C's gradient_steps
-    return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}
+    return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}  # same as default: the cadence
 
 
 #: The stages a seed's ``"style"`` part runs (:func:`experiments.fig2.units.run_all`); its ``"main"`` part runs the rest

@@ -228,7 +228,7 @@ def run_ogbench_unit(
                              budget.curve_episodes, seed)
         tuned = phase("finetune", lambda: finetune(
             ckpt, out / "finetuned.zip", budget.finetune_steps, dataset=ds, seed=seed, callback=curve,
-            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},
+            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},  # same as default: the cadence
         ))
         online_eval = phase("eval_online", lambda: evaluate_success(load_checkpoint(tuned, env), env,
                                                                      budget.eval_episodes, seed))

@@ -16,7 +16,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from experiments.common.budget import Budget, Check, integer, library_default, mapping, one_of, optional
+from experiments.common.budget import Budget, Check, integer, mapping, one_of, optional
 from experiments.common.names import SCENARIO_BASES
 from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finetune_overrides
 
@@ -78,8 +78,6 @@ REFERENCE_ARMS = ("behaviour", "bc")
 ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
 ARMS = (*UA2C_ARMS, *PEER_ARMS, *REFERENCE_ARMS)
 D3RLPY_ARMS = ("rlpd", "iql", "calql", "rebrac", "bc")
-#: d3rlpy arms without an online phase
-OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
     "ua2c": "UA2C (defaults)",
     "ua2c_paper": "UA2C as in the paper (preset)",
@@ -209,19 +207,8 @@ class PeersBudget(Budget):
             return {} if spec.config == "paper" else dict(self.ua2c.finetune_kwargs)
         overrides = finetune_overrides(self.ua2c)
         if spec.cadence == "per_step":
-            # same as default: the peers' cadence is one update per env step, whatever UA2C's defaults
-            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}
+            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}  # same as default: the peers' cadence
         return overrides
-
-    def steps_per_update(self, arm: str, plan_length: float) -> float:
-        """Online env steps per gradient step of a UA2C arm (``plan_length``: its mean plan length, what
-        ``gradient_steps=-1`` counts)."""
-        kwargs = {**_ua2c_schedule_defaults(), **self.pretrain_kwargs(arm), **self.finetune_overrides(arm)}
-        if kwargs["gradient_steps"] == -1:
-            return plan_length
-        freq = kwargs["train_freq"]
-        steps = freq if isinstance(freq, int) else freq[0] if freq[1] == "step" else steps_per_episode(self.ua2c)
-        return float(steps) / float(kwargs["gradient_steps"])
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
@@ -254,16 +241,6 @@ QUICK_PEERS_BUDGET = PeersBudget(
     sb3_hyperparams={"learning_starts": 10, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}},
     d3rlpy_batch_size=8,
 )
-
-
-def _ua2c_schedule_defaults() -> dict[str, Any]:
-    """UA2C's default ``train_freq`` and ``gradient_steps``."""
-    return {name: library_default(name) for name in ("train_freq", "gradient_steps")}
-
-
-def steps_per_episode(budget: Fig2Budget) -> float:
-    """Env steps of a full episode: ``time_limit / step_length`` (40 s / 0.2 s = 200 by default)."""
-    return float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
 
 
 def unit_steps(budget: PeersBudget, arm: str) -> float:

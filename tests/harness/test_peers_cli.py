@@ -278,12 +278,6 @@ def test_ua2c_arms_take_their_configuration_checkpoint_and_cadence_from_the_budg
     assert b.finetune_overrides("ua2c_adaptive") == {"n_elite": 4, "train_freq": 5, "gradient_steps": 1}
     assert b.finetune_overrides("ua2c_adaptive_per_step") == {"n_elite": 4, "train_freq": 1, "gradient_steps": 1}
     assert (b.delta("ua2c"), b.delta("ua2c_paper"), b.delta("ua2c_fixed")) == (0.0, None, float("inf"))
-    # env steps per update: the paper's one per plan (gradient_steps=-1) counts plans; the others their cadence
-    assert b.steps_per_update("ua2c_paper", 2.5) == 2.5 and b.steps_per_update("ua2c_adaptive", 2.5) == 5.0
-    assert b.steps_per_update("ua2c_adaptive_per_step", 2.5) == 1.0
-    every_other = b.with_overrides({"ua2c": {"algo_kwargs": {"train_freq": 4, "gradient_steps": 2,
-                                                                     "policy_kwargs": {"n_elite": 8}}}})
-    assert every_other.steps_per_update("ua2c", 2.5) == 2.0
 
 
 def test_headline_names_the_best_of_each_side():
