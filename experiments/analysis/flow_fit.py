@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.flow_fit DATASET_DIR [--net-arch 128,128 256,256,256] [--steps 6000]
+    python -m experiments flow-fit DATASET_DIR [--net-arch 128,128 256,256,256] [--steps 6000]
         [--chunk-size 5] [--flow-steps 10 2]
 
 For every ``net_arch`` it trains the velocity field of a fresh ``UA2C`` on the dataset's k-step

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.lane_change_timing CHECKPOINT.zip --dataset DATASET_DIR [--eval-seed 2002]
+    python -m experiments lane-change-timing CHECKPOINT.zip --dataset DATASET_DIR [--eval-seed 2002]
         [--episodes 6] [--delta 0]
 
 Runs one checkpoint on the same scenarios under three execution rules, side by side: fixed chunks

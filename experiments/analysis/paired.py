@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.paired X Y [--metric reward] [--offline] [--lower-is-better]
+    python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]
 
 ``X`` and ``Y`` each name one score per seed, in one of two forms:
 

@@ -1,4 +1,4 @@
-"""Command line of the Figure-2 runner (``python -m experiments.fig2``)."""
+"""Command line of the Figure-2 runner (``python -m experiments fig2``)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.fig2.compare_runs results/critic_work/transformer results/critic_work/mlp \
+    python -m experiments compare-runs results/critic_work/transformer results/critic_work/mlp \
         --labels transformer mlp [--out results/critic_development.md]
 
 For every method both reports hold (the offline chunk policy, the fine-tuned arms of every online phase,

@@ -148,7 +148,7 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
         lines += [f"| {LABELS.get(arm, arm)} | {format_length_shares(s['offline']['length_shares'])} "
                   f"| {format_length_shares(s['online'].get('length_shares', []))} |" for arm, s in shares]
     if not summary["improvement"]:
-        lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments.analysis.paired` "
+        lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments paired` "
                   "pairs its per-seed rates with another run's on the same seeds)."]
     else:
         lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "

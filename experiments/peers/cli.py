@@ -1,4 +1,4 @@
-"""Command line of the head-to-head: ``python -m experiments.peers`` (see ``docs/peers.md``)."""
+"""Command line of the head-to-head: ``python -m experiments peers`` (see ``docs/peers.md``)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The same small tuning budget for every method of the head-to-head: ``python -m experiments.peers.tuning``.
+"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
 
 Each tuned method (:data:`TUNED_ARMS`, UA2C included) has three configurations in :data:`GRID`: its
 published settings first, then two moves of the knob that matters most for it (its conservatism, its
@@ -13,7 +13,7 @@ a tie keeps the earlier one. ``<out>/selected.json`` holds the ``--budget`` over
 configurations, written once every method is chosen, for the test run on other seeds and the test
 scenarios::
 
-    python -m experiments.peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
+    python -m experiments peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
 
 The report, ``<out>/tuning.md`` / ``tuning.json``, gives every configuration's per-run scores.
 """

@@ -1,6 +1,6 @@
 """Build the pretrained Phase-1 UA2C checkpoint of ``MixedTraffic-v0`` in rl-zoo's trained-agents layout.
 
-``python -m experiments.pretrained.make_checkpoint --out rl-trained-agents`` (from the repository root)
+``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root)
 
 1. reads the ``MixedTraffic-v0`` entry of ``zoo_configs/ua2c.yml`` through rl-zoo3's own
    ``ExperimentManager`` and writes ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0/{config,args}.yml``

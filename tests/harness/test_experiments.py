@@ -576,7 +576,7 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     assert rebuilt["budget"]["pretrain_steps"] == 8
     # the rebuilt report keeps the command and date of the run that produced the results
     assert (rebuilt["command"], rebuilt["date"]) == (run_record["command"], run_record["date"])
-    assert rebuilt["command"].startswith("python -m experiments.fig2 --quick")
+    assert rebuilt["command"].startswith("python -m experiments fig2 --quick")
     # without the work directory (a fresh clone holds only results/), the run's budget and unit
     # timings come from fig2.json, so the compute table survives
     empty = quick_run / "no_work"
@@ -736,9 +736,9 @@ def test_explicit_default_net_arch_builds_the_same_networks() -> None:
 
 
 def test_command_line_is_quoted_for_the_shell() -> None:
-    assert command_line("python -m experiments.fig2", []) == "python -m experiments.fig2"
-    line = command_line("python -m experiments.fig2", ["--budget", '{"a": 1}', "--out", "r"])
-    assert line == """python -m experiments.fig2 --budget '{"a": 1}' --out r"""
+    assert command_line("python -m experiments fig2", []) == "python -m experiments fig2"
+    line = command_line("python -m experiments fig2", ["--budget", '{"a": 1}', "--out", "r"])
+    assert line == """python -m experiments fig2 --budget '{"a": 1}' --out r"""
 
 
 def test_the_cli_subcommand_names_itself(capsys) -> None:

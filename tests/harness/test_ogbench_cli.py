@@ -1,4 +1,4 @@
-"""``python -m experiments.ogbench``: the quick run end to end, resuming, the report's statistics on
+"""``python -m experiments ogbench``: the quick run end to end, resuming, the report's statistics on
 hand-made records, the cost estimate and bad input.
 
 Needs the ``ogbench`` extra (fails under ``CI=true`` without it, skips elsewhere), except for the
@@ -220,10 +220,10 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
     require("rliable")
     from experiments.ogbench.report import format_markdown, return_curve, summarize, write_report
 
-    summary = write_report(hand_records, tmp_path, command="python -m experiments.ogbench", reps=200)
+    summary = write_report(hand_records, tmp_path, command="python -m experiments ogbench", reps=200)
     text = (tmp_path / "ogbench.md").read_text()
     assert "| fixed chunks (k = 5, δ = inf) | 3 | 0.0 % | 0.0 % [0.0 %, 0.0 %] | 58.3 % | 58.3 %" in text
-    assert "| 100, 75, 0 |" in text and "Command: `python -m experiments.ogbench`" in text
+    assert "| 100, 75, 0 |" in text and "Command: `python -m experiments ogbench`" in text
     assert summary["ranking"]["agrees_with_qc"] is (summary["ranking"]["ours_online"] == "fixed chunks > one-step")
     assert (tmp_path / "ogbench_online_success.png").stat().st_size > 1000
     on_disk = json.loads((tmp_path / "ogbench.json").read_text(), parse_constant=pytest.fail)

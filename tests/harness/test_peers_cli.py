@@ -1,4 +1,4 @@
-"""The head-to-head command (``python -m experiments.peers``): end to end at the quick budget, resuming and
+"""The head-to-head command (``python -m experiments peers``): end to end at the quick budget, resuming and
 rerunning one unit, the report builders on hand-made records, the estimate, and bad input."""
 
 from __future__ import annotations

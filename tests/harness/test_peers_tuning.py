@@ -1,4 +1,4 @@
-"""The head-to-head's tuning (``python -m experiments.peers.tuning``): each method's configurations as budgets,
+"""The head-to-head's tuning (``python -m experiments peers-tuning``): each method's configurations as budgets,
 per-arm hyperparameters reaching the units, the choice on hand-made records, the ``--budget @FILE`` of the test
 run, and bad input."""
 
