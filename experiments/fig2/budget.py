@@ -202,6 +202,8 @@ def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
     return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}  # same as default: the cadence
 
 
+#: The stages of a run, in the order its report lists them
+STAGES = ("datasets", "pretrain", "finetune", "evaluate", "style", "style_ablation")
 #: The stages a seed's ``"style"`` part runs (:func:`experiments.fig2.units.run_all`); its ``"main"`` part runs the rest
 STYLE_STAGES = ("style", "style_ablation")
 

@@ -20,6 +20,7 @@ from experiments.common.names import (
     sampled_name,
 )
 from experiments.common.stats import t_confidence_interval
+from experiments.fig2.budget import STAGES
 from experiments.fig2.manifest import RunPaths
 from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
 from sb3_ua2c.execution import format_length_shares
@@ -349,7 +350,8 @@ def _compute_table(summary: Mapping[str, Any]) -> Lines:
         "| stage | measured [min] | estimated [min] |",
         "|---|---|---|",
     ]
-    for stage in (*[k for k in estimated if k != "total"], "total"):
+    listed = [k for k in STAGES if k in estimated] + [k for k in estimated if k not in (*STAGES, "total")]
+    for stage in (*listed, "total"):
         got = measured.get(stage)
         lines.append(
             f"| {stage} | {'n/a' if got is None else f'{got / 60:.1f}'} | {estimated.get(stage, math.nan) / 60:.1f} |"

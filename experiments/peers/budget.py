@@ -152,6 +152,9 @@ class PeersBudget(Budget):
         "scenarios": one_of(*SCENARIO_BASES), "peer_kwargs": _peer_kwargs,
     }
 
+    def validate(self) -> None:  # peer_kwargs in the arms' order, however given (a report prints them)
+        object.__setattr__(self, "peer_kwargs", {a: self.peer_kwargs[a] for a in (*PEER_ARMS, "bc") if a in self.peer_kwargs})
+
     @property
     def online_steps(self) -> int:
         """Online environment steps of every arm."""
