@@ -432,6 +432,7 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
         "adaptive",
         "fixed_adaptive",
         "adaptive_style",
+        "chunk_elite1",
         "chunk_elite2",
         "onestep_elite2",
         "chunk_flow2",
@@ -457,9 +458,9 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     work = quick_run / "fig2_work" / "seed0"
     units = json.loads((work / "unit_seconds.json").read_text())  # the seed's main part
     style = json.loads((work / "unit_seconds_style.json").read_text())  # its style part
-    # main: dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online
+    # main: dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 5 acting rules, finetune 2, online
     # evals 3, δ sweep 2, sampled evals 6, second online phase 2 + 2 evals + 2 sampled
-    assert len(units) == 35 and "seed0/pretrain/pretrain_k2" in units
+    assert len(units) == 39 and "seed0/pretrain/pretrain_k2" in units
     # style: collect, train, evaluate; the ablation's dataset, pre-training, fine-tuning, evaluation
     assert sorted(style) == [
         "seed0/dataset_style", "seed0/evaluate/adaptive_style", "seed0/finetune/adaptive_style",
@@ -477,8 +478,11 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert set(summary["sampled"]) == set(names.PAPER)
     assert (quick_run / "fig2_b_offline_jerk_sampled.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
-    # (N, m): the checkpoints' N = 10 with m = 2, then N = 2 with m = 1 and 2
-    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 2), (2, 1), (2, 2)]
+    # (N, m): the arms act with UA2C's m (the quick budget leaves n_elite out); the checkpoints' N = 10 with
+    # m = 1 and 2, then N = 2 with UA2C's m, 1 and 2
+    m0 = DEFAULT_ELITE
+    assert summary["acting_default"] == {"flow_steps": library_default("flow_steps"), "n_elite": m0}
+    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 1), (10, 2), (2, m0), (2, 1), (2, 2)]
     assert "Acting rule" in (quick_run / "fig2.md").read_text()
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
