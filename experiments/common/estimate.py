@@ -4,7 +4,7 @@ Every harness stores the CPU seconds of its units in its records (``results/**/p
 the ``seconds`` of ``fig2.json`` and of ``ogbench.json``'s run records). A harness names the *kind* of each
 unit it is about to run (an arm, a stage) and its *size* (its steps); :func:`seconds_per_size` pools the
 recorded seconds per unit of size of each kind, and :func:`estimate` scales them by the new sizes. A kind
-that no record holds takes the mean rate of the kinds that do. Units are priced on one core each; the wall
+that no record holds takes the median rate of the kinds that do. Units are priced on one core each; the wall
 time is their longest-first schedule on the workers (:func:`~experiments.common.runner.list_schedule_seconds`).
 """
 
@@ -14,6 +14,8 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from experiments.common.runner import list_schedule_seconds
 
@@ -41,8 +43,8 @@ def seconds_per_size(samples: Iterable[tuple[str, float, float]]) -> dict[str, f
 
 
 def estimate(rates: Mapping[str, float], sizes: Mapping[str, float]) -> dict[str, float]:
-    """Seconds of each kind at ``sizes`` (a kind without a rate: the mean rate of the others; 0 without any)."""
-    fallback = sum(rates.values()) / len(rates) if rates else 0.0
+    """Seconds of each kind at ``sizes`` (a kind without a rate: the median rate of the others; 0 without any)."""
+    fallback = float(np.median(list(rates.values()))) if rates else 0.0
     return {kind: rates.get(kind, fallback) * size for kind, size in sizes.items()}
 
 

@@ -247,8 +247,9 @@ QUICK_PEERS_BUDGET = PeersBudget(
 
 
 def unit_steps(budget: PeersBudget, arm: str) -> float:
-    """What one unit of ``arm`` costs in proportion to: its offline gradient steps and online env steps."""
-    return budget.offline_steps(arm) + budget.online_steps
+    """What one unit of ``arm`` costs in proportion to: its offline gradient steps and online env steps (a
+    reference row learns nothing online; the behaviour policy's unit is its evaluation alone: 1)."""
+    return max(budget.offline_steps(arm) + (0 if arm in REFERENCE_ARMS else budget.online_steps), 1)
 
 
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, workers: int,
@@ -261,7 +262,7 @@ def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, worke
     from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
 
     records = recorded("**/peers_raw/seed*/*.json") if records is None else records
-    rates = seconds_per_size((r["arm"], r["cpu_seconds"]["total"], r.get("offline_steps", 0) + r["online_steps"])
+    rates = seconds_per_size((r["arm"], r["cpu_seconds"]["total"], max(r.get("offline_steps", 0) + r["online_steps"], 1))
                              for r in records if "cpu_seconds" in r)
     per_unit = estimate(rates, {arm: unit_steps(budget, arm) for arm in arms})
     units = [s for s in per_unit.values() for _ in range(n_seeds)]

@@ -197,7 +197,7 @@ def test_estimate_scales_the_recorded_stage_times_by_the_budget() -> None:
     est = estimate_seconds(budget, n_seeds=3, reports=[report])
     assert est["pretrain"] == pytest.approx(3 * 20.0) and est["datasets"] == pytest.approx(3 * 4.0)
     assert est["style_ablation"] == 0.0 and est["total"] == pytest.approx(3 * (4 + 20 + 10 + 5 + 1))
-    # a stage no report measured takes the mean rate of the others
+    # a stage no report measured takes the median rate of the others
     partial = {**report, "seconds": {"measured": {"pretrain": 40.0, "finetune": 20.0}}}
     assert estimate_seconds(budget, 1, [partial])["evaluate"] == pytest.approx(0.1 * 20)  # 40 / 400 and 20 / 200
     # the committed reports: the default budget is about two hours of wall time on 2 cores

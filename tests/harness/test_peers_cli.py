@@ -252,7 +252,7 @@ def test_estimate_scales_the_recorded_unit_seconds_by_the_steps():
     est = estimate_units(at_10k, ["sac", "iql", "tqc"], 2, workers=2, records=records)
     assert est["per_unit"]["sac"] == pytest.approx(400.0)
     assert est["per_unit"]["iql"] == pytest.approx(110.0 / 11_000 * 16_000)
-    assert est["per_unit"]["tqc"] == pytest.approx((0.04 + 0.01) / 2 * 10_000)  # no record: the mean rate
+    assert est["per_unit"]["tqc"] == pytest.approx((0.04 + 0.01) / 2 * 10_000)  # no record: the median rate
     assert est["cpu"] == pytest.approx(2 * sum(est["per_unit"].values()))
     # longest first on 2 workers: 5 | 4, 3 -> 7 | 3 -> 8 | 3 -> 10
     assert list_schedule_seconds(sorted([3, 5, 3, 4, 3], reverse=True), 2) == 10
