@@ -132,14 +132,13 @@ class Budget:
         return type(self).from_dict({**self.to_dict(), **changes})
 
 
-
-
-
 def library_default(name: str) -> Any:
     """UA2C's default of hyperparameter ``name`` (``"policy_kwargs"``: the policy's defaults as a dict), from
     :func:`sb3_ua2c.defaults.defaults`: the harnesses never write a library default again."""
     from sb3_ua2c.defaults import defaults
 
     return defaults()[name]
+
+
 __all__ = ["Budget", "Check", "each", "finite", "flag", "integer", "library_default", "mapping", "one_of", "optional",
            "reserved_keys"]
