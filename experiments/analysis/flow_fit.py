@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.flow_fit DATASET_DIR [--net-arch 128,128 256,256,256] [--steps 6000]
+    python -m experiments flow-fit DATASET_DIR [--net-arch 128,128 256,256,256] [--steps 6000]
         [--chunk-size 5] [--flow-steps 10 2]
 
 For every ``net_arch`` it trains the velocity field of a fresh ``UA2C`` on the dataset's k-step
@@ -54,15 +54,15 @@ def fit(env, episodes, net_arch: list[int], chunk_size: int, steps: int, seed: i
     return model, loss.item(), time.perf_counter() - start
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("dataset", help="an offline dataset directory (sb3_ua2c.offline)")
     parser.add_argument("--net-arch", nargs="+", default=["128,128", "256,256,256"], help="comma-separated sizes")
     parser.add_argument("--steps", type=int, default=6000, help="gradient steps per velocity field")
     parser.add_argument("--chunk-size", type=int, default=5)
     parser.add_argument("--flow-steps", type=int, nargs="+", default=[10, 2], help="Euler steps N when sampling")
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     th.set_num_threads(1)
     ds = load_dataset(args.dataset)
     env = make_traffic_env(**env_settings(ds))
@@ -91,7 +91,3 @@ def main() -> None:
                   f" {first:10.4f} {d_first:7.4f} {first / d_first:6.2f}")
     finally:
         env.close()
-
-
-if __name__ == "__main__":
-    main()

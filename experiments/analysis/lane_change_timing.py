@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.lane_change_timing CHECKPOINT.zip --dataset DATASET_DIR [--eval-seed 2002]
+    python -m experiments lane-change-timing CHECKPOINT.zip --dataset DATASET_DIR [--eval-seed 2002]
         [--episodes 6] [--delta 0]
 
 Runs one checkpoint on the same scenarios under three execution rules, side by side: fixed chunks
@@ -71,20 +71,20 @@ def run_rule(model: UA2C, env, seeds: list[int]) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint")
     parser.add_argument("--dataset", required=True, help="the dataset the checkpoint was trained on (env settings)")
     parser.add_argument("--eval-seed", type=int, default=2002, help="scenarios 1000 * seed + i (fig2: 2000 + seed)")
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--delta", type=float, default=0.0)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     th.set_num_threads(1)
     env = make_traffic_env(**env_settings(load_dataset(args.dataset)))
     seeds = [1000 * args.eval_seed + i for i in range(args.episodes)]
     rules = {
-        "fixed (δ = inf)": dict(entropy_threshold=math.inf, commit_discrete=False),
-        f"Eq. 7 (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=False),
+        "fixed (δ = inf)": dict(entropy_threshold=math.inf, commit_discrete=False),  # same as default: vs commit
+        f"Eq. 7 (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=False),  # same as default: vs commit
         f"Eq. 7 + commit (δ = {args.delta:g})": dict(entropy_threshold=args.delta, commit_discrete=True),
     }
     try:
@@ -96,7 +96,3 @@ def main() -> None:
     print("|---" * (len(keys) + 1) + "|")
     for name, row in rows.items():
         print(f"| {name} | " + " | ".join(f"{row[k]:.2f}" for k in keys) + " |")
-
-
-if __name__ == "__main__":
-    main()

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.analysis.paired X Y [--metric reward] [--offline] [--lower-is-better]
+    python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]
 
 ``X`` and ``Y`` each name one score per seed, in one of two forms:
 
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,8 +136,8 @@ def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric:
             f"{ahead} {result['x_better_runs']} of {result['runs']} runs")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.analysis.paired",
+def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments paired") -> int:
+    parser = argparse.ArgumentParser(prog=prog,
                                      description="Paired per-seed difference X − Y of two arms or runs.")
     parser.add_argument("x", metavar="X", help="RAW_DIR:ARM or FILE.json:KEY.KEY...")
     parser.add_argument("y", metavar="Y", help="RAW_DIR:ARM or FILE.json:KEY.KEY...")
@@ -156,7 +155,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(exc))
     print(format_pair(x, y, result, args.metric, higher_is_better=not args.lower_is_better))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

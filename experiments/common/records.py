@@ -55,6 +55,18 @@ def command_line(prog: str, argv: Sequence[str]) -> str:
     return " ".join([prog, *map(shlex.quote, argv)])
 
 
+def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str,
+                 plots: Callable[[Path], Sequence[Path]] | None = None) -> list[Path]:
+    """The files of a harness's report: ``<name>.json`` (``summary`` as strict JSON), ``<name>.md`` (``markdown``)
+    and the figures ``plots(out)`` draws, in ``out``; returns their paths."""
+    from sb3_ua2c.pipeline import write_json
+
+    out.mkdir(parents=True, exist_ok=True)
+    files = [write_json(out / f"{name}.json", strict_json(summary)), out / f"{name}.md"]
+    files[1].write_text(markdown)
+    return [*files, *(plots(out) if plots is not None else [])]
+
+
 def check_budget_record(
     path: str | os.PathLike,
     budget: Mapping[str, Any],
@@ -94,4 +106,4 @@ def check_budget_record(
         write_json(path, now)
 
 
-__all__ = ["check_budget_record", "command_line", "recorded_path", "run_header", "strict_json"]
+__all__ = ["check_budget_record", "command_line", "recorded_path", "run_header", "strict_json", "write_report"]

@@ -238,24 +238,6 @@ def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) ->
     return float(np.sum(rets * lengths) / ends[-1])
 
 
-def _check_df(df: int) -> None:
-    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
-        raise ValueError(f"df must be an integer >= 1, got {df!r}")
-
-
-def student_t_two_sided_cdf(t: float, df: int) -> float:
-    """``P(|T| <= t) = 1 − 2 · P(T > t)`` for Student's t with integer ``df`` degrees of freedom
-    (:data:`scipy.stats.t`).
-
-    :param t: the bound, >= 0
-    :param df: degrees of freedom, >= 1
-    """
-    _check_df(df)
-    if not t >= 0:
-        raise ValueError(f"t must be >= 0, got {t!r}")
-    return float(1.0 - 2.0 * scipy.stats.t.sf(t, df))
-
-
 def student_t_quantile(confidence: float, df: int) -> float:
     """Two-sided critical value ``t`` with ``P(|T| <= t) = confidence``: the ``(1 + confidence) / 2``
     quantile of Student's t (:data:`scipy.stats.t`).
@@ -265,7 +247,8 @@ def student_t_quantile(confidence: float, df: int) -> float:
     """
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    _check_df(df)
+    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
+        raise ValueError(f"df must be an integer >= 1, got {df!r}")
     return float(scipy.stats.t.ppf((1.0 + confidence) / 2.0, df))
 
 
@@ -334,5 +317,5 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
 __all__ = [
     "LOWER_IS_BETTER", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
     "probability_of_improvement", "run_scores", "score_matrix", "verdict",
-    "compare", "relative_change_pct", "student_t_quantile", "student_t_two_sided_cdf", "t_confidence_interval",
+    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval",
 ]

@@ -1,12 +1,12 @@
-"""Command line of the execution-rule study: ``python -m experiments.execution``.
+"""Command line of the execution-rule study: ``python -m experiments execution``.
 
 Examples::
 
-    python -m experiments.execution --role development --seeds 0 1 2 --workers 2     # the screen (validation)
-    python -m experiments.execution --role confirmation --seeds 10 11 12 13 14 --online fixed growth0.5
-    python -m experiments.execution --quick --out /tmp/exe                             # end to end in seconds
-    python -m experiments.execution --role development --report-only                  # rebuild the report
-    python -m experiments.execution --env ogbench --role development --seeds 0 1 2    # OGBench pointmaze
+    python -m experiments execution --role development --seeds 0 1 2 --workers 2     # the screen (validation)
+    python -m experiments execution --role confirmation --seeds 10 11 12 13 14 --online fixed growth0.5
+    python -m experiments execution --quick --out /tmp/exe                             # end to end in seconds
+    python -m experiments execution --role development --report-only                  # rebuild the report
+    python -m experiments execution --env ogbench --role development --seeds 0 1 2    # OGBench pointmaze
 
 A development run evaluates on validation scenarios (seed base 3,000; OGBench: reset seeds 20,000,000 +
 1000 s + i) and is where rules are chosen; a confirmation run evaluates on test scenarios (seed base 4,000;
@@ -27,7 +27,7 @@ from experiments.common.names import SCENARIO_BASES
 from experiments.execution.controls import RULES
 from sb3_ua2c.checks import check_int
 
-PROG = "python -m experiments.execution"
+PROG = "python -m experiments execution"
 #: the scenarios of each role (:data:`~experiments.common.names.SCENARIO_BASES`)
 ROLES = {"development": "validation", "confirmation": "test"}
 #: per task: one evaluation episode (MixedTraffic-v0: 20 s of traffic, one replanning per step at worst; OGBench
@@ -42,8 +42,8 @@ ENVS = ("traffic", "ogbench")
 PARENT = harness_parent(seeds="0 1 2; --quick: 0 1", work="<out>/execution_work")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, parents=[PARENT], description="Execution rules against fixed chunks "
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, parents=[PARENT], description="Execution rules against fixed chunks "
                                      "and matched-length controls on MixedTraffic-v0 (make main's pipeline) or an "
                                      "OGBench task (the OGBench harness's budget), one run per seed.")
     parser.add_argument("--env", choices=ENVS, default="traffic",
@@ -90,21 +90,20 @@ def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, w
 
 def _setup(args: argparse.Namespace) -> dict[str, Any]:
     """What differs between the tasks: the run function, its budget, scenarios, score, report and work names."""
+    from experiments.execution import unit
+
     role = args.role
     if args.env == "traffic":
-        from experiments.execution import unit
-
         if args.task is not None:
             raise ValueError("--task is for --env ogbench")
         return {"run_seed": unit.run_traffic_study, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
                 "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
                 "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role, "secondary": None}
-    from experiments.execution import ogbench_unit
     from experiments.ogbench.runner import DEFAULT_TASK
     from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
 
     task = args.task or DEFAULT_TASK
-    return {"run_seed": ogbench_unit.run_ogbench_study, "budget": ogbench_unit.study_budget(task, args.quick).to_dict(),
+    return {"run_seed": unit.run_ogbench_study, "budget": unit.study_budget(task, args.quick).to_dict(),
             "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,
             "extra": {"task": task}, "task": task, "metric": "success", "digits": 2,
             "name": f"execution_ogbench_{role}", "work": f"ogbench_{role}",
@@ -112,11 +111,11 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
                           "that all reach the goal")}
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit code (2 on a bad argument, a missing extra or missing runs, 1 when runs
     failed)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
         _check(args)
@@ -127,10 +126,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             setup["budget"]["eval_episodes"] = args.episodes
     except ValueError as exc:
         parser.error(str(exc))
-    return run_command(lambda: _run(args, argv, seeds, setup))
+    return run_command(lambda: _run(args, argv, seeds, setup, prog))
 
 
-def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup: dict[str, Any]) -> int:
+def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup: dict[str, Any], prog: str) -> int:
     """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
     from experiments.common.records import command_line, run_header
     from experiments.common.runner import Unit, make_executor, run_units
@@ -151,12 +150,12 @@ def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup:
         todo = sum(not u.result_file.is_file() for u in units)  # stored runs are not run again
         minutes = estimate_minutes(todo, len(args.online), len(args.rules), setup["budget"]["eval_episodes"],
                                    args.workers, args.own_rule_only, args.env) if todo else 0.0
-        print(f"{PROG}: {args.role}, seeds {seeds}, online {args.online}, {len(args.rules)} rules; "
+        print(f"{prog}: {args.role}, seeds {seeds}, online {args.online}, {len(args.rules)} rules; "
               f"estimate {minutes:.0f} min wall on {args.workers} worker(s)", flush=True)
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
     name, metric = setup["name"], setup["metric"]
-    command, date = run_header(command_line(PROG, argv), out / f"{name}.json" if args.report_only else None)
+    command, date = run_header(command_line(prog, argv), out / f"{name}.json" if args.report_only else None)
     summary = report.summarize(records, metric)
     online = report.online_protocol(records, metric)
     header = [f"Command: `{command}`", f"Date: {date}",

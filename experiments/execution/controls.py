@@ -17,7 +17,7 @@ from sb3_ua2c.config import ExecutionRule
 #: The rules a screen compares, by arm name: UA2C's execution-rule arguments (``execution_rule`` and its parameters).
 RULES: dict[str, dict[str, Any]] = {
     "fixed": {"entropy_threshold": math.inf},
-    "delta0": {"entropy_threshold": 0.0},
+    "delta0": {"entropy_threshold": 0.0},  # same as default: the rule is δ = 0 by name
     "quantile0.5": {"execution_rule": "quantile", "entropy_quantile": 0.5},
     "quantile0.75": {"execution_rule": "quantile", "entropy_quantile": 0.75},
     "quantile0.9": {"execution_rule": "quantile", "entropy_quantile": 0.9},

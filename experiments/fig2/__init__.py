@@ -2,8 +2,8 @@
 
 One command runs the four panels and the sweeps that go beyond the paper::
 
-    python -m experiments.fig2                  # 5 seeds, full budget (estimate printed at start)
-    python -m experiments.fig2 --quick --seeds 1  # tiny budget, a smoke test (a minute or two)
+    python -m experiments fig2                  # 5 seeds, full budget (estimate printed at start)
+    python -m experiments fig2 --quick --seeds 1  # tiny budget, a smoke test (a minute or two)
 
 Per seed ``s`` the runner does, building on :mod:`sb3_ua2c.offline` and :mod:`sb3_ua2c.pipeline`:
 

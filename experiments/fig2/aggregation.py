@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common.budget import library_default
 from experiments.common.names import (
     CLAIM_COMPARISONS,
     MAIN_METHODS,
@@ -87,13 +88,16 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
 
 
 def aggregate(
-    raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget
+    raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
+    default_elite: int | None = None,
 ) -> dict[str, Any]:
     """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
 
     :param raw: output of :func:`load_raw`
     :param seeds: the seeds to aggregate (all must be present for every method)
     :param budget: the run's budget (recorded, and it names the sweep arms)
+    :param default_elite: the ``n_elite`` the checkpoints acted with when the budget leaves it to the library
+        (``None``: today's default; a rebuilt report passes the one it recorded)
     """
     seeds = list(seeds)
     methods = _methods(raw, seeds)
@@ -111,7 +115,7 @@ def aggregate(
         **_style_summary(raw, seeds),
         "delta_sweep": _delta_sweep(methods, budget),
         "k_sweep": _k_sweep(methods, budget),
-        **_acting_sweep(methods, budget),
+        **_acting_sweep(methods, budget, default_elite),
     }
     comparisons.update(_further_comparisons(methods, online_phases))
     training = _training_episodes(raw, seeds, budget)
@@ -258,17 +262,13 @@ def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, A
     ]
 
 
-def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> dict[str, Any]:
+def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
     """``acting_sweep``: the offline one-step and chunk checkpoints acting with each other rule (Euler
     steps N, elite size m) and the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
-    import inspect
-
-    from sb3_ua2c import UA2C
-
-    default_n = int(budget.algo_kwargs.get("flow_steps", inspect.signature(UA2C).parameters["flow_steps"].default))
-    default_elite = budget.default_elite
+    default_n = int(budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
+    default_elite = budget.default_elite if default_elite is None else default_elite
     rows = []
-    for n, m in budget.acting_variants:  # other acting rules for the offline checkpoints
+    for n, m in budget.acting_variants(default_elite):  # other acting rules for the offline checkpoints
         arms = {arm: acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue

@@ -1,4 +1,4 @@
-"""Command line of the Figure-2 runner (``python -m experiments.fig2``)."""
+"""Command line of the Figure-2 runner (``python -m experiments fig2``)."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
     return Fig2Budget.from_dict(recorded)
 
 
-PROG = "python -m experiments.fig2"
+PROG = "python -m experiments fig2"
 PARENT = harness_parent(
     seeds="0 1 2 3 4", work="<out>/fig2_work",
     workers_help="units run in parallel processes, two per seed: its main and style parts (default: 2)",
@@ -96,6 +96,7 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
         command_line(prog, sys.argv[1:] if argv is None else argv), previous if args.report_only else None
     )
     t0 = time.perf_counter()
+    est = None
     try:
         if not args.report_only:
             est = estimate_seconds(budget, len(seeds))
@@ -111,19 +112,24 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
             executed = run_all(seeds, budget, paths, workers, ray_address=args.ray_address)
             print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
         recorded: dict[str, Any] = {}
+        default_elite = None
         if args.report_only:
             if previous.is_file():
                 recorded = json.loads(previous.read_text())
-            # the budget the run was made with: its manifest, else the one recorded in fig2.json
+            # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
+            # its checkpoints acted with where the budget left it to the library (whose default may have changed)
             manifest = read_manifest(paths)
             if manifest is None and "budget" in recorded:
                 manifest = Fig2Budget.from_dict(recorded["budget"])
+                default_elite = recorded.get("acting_default", {}).get("n_elite")
             budget = manifest or budget
-        summary = aggregate(load_raw(paths, seeds), seeds, budget)
+        summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
+        seconds = recorded.get("seconds", {})
         summary["seconds"] = {
             # without the work directory (e.g. a fresh clone), the timings recorded with the run
-            "measured": measured_seconds(paths, seeds) or recorded.get("seconds", {}).get("measured", {}),
-            "estimated": estimate_seconds(budget, len(seeds)),
+            "measured": measured_seconds(paths, seeds) or seconds.get("measured", {}),
+            # a rebuilt report keeps the estimate printed before its run
+            "estimated": seconds.get("estimated") or est or estimate_seconds(budget, len(seeds)),
         }
     except (ValueError, FileNotFoundError, SeedBusyError) as exc:
         print(f"error: {exc}", file=sys.stderr)

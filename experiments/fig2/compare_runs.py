@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.fig2.compare_runs results/critic_work/transformer results/critic_work/mlp \
+    python -m experiments compare-runs results/critic_work/transformer results/critic_work/mlp \
         --labels transformer mlp [--out results/critic_development.md]
 
 For every method both reports hold (the offline chunk policy, the fine-tuned arms of every online phase,
@@ -82,8 +82,8 @@ def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.fig2.compare_runs", description=__doc__.split("\n")[0])
+def main(argv: Sequence[str] | None = None, prog: str = "python -m experiments compare-runs") -> int:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("a", type=Path, help="the control's report directory (A)")
     parser.add_argument("b", type=Path, help="the ablation's report directory (B)")
     parser.add_argument("--labels", nargs=2, default=["A", "B"], help="names of A and B in the table")
@@ -98,7 +98,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is not None:
         args.out.write_text(table + "\n", encoding="utf-8")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.fig2.pool_replicates results results/fig2_actor512_m8_online3 [more report dirs] [--sampled]
+    python -m experiments pool-replicates results results/<replicate> [more report dirs] [--sampled]
 
 Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
 evaluations of the two fine-tuned arms, and ``{adaptive,fixed}_r<r>.json`` those of its further
@@ -54,11 +54,11 @@ def describe(name: str, pairs: list[tuple[float, float]]) -> str:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("reports", nargs="+", type=Path)
     parser.add_argument("--sampled", action="store_true", help="pool the evaluations with fresh candidate noise")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     runs = {report: arm_rewards(report, "_sampled" if args.sampled else "") for report in args.reports}
     seeds = {tuple(sorted({seed for seed, _ in r})) for r in runs.values()}
     if len(seeds) != 1:
@@ -71,7 +71,3 @@ def main() -> None:
         pooled += list(by_seed.values())
     print(describe("pooled", pooled))
     print(f"paper: {PAPER['online_reward_gain_pct']:+.2f} %")
-
-
-if __name__ == "__main__":
-    main()

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common import records
 from experiments.common.names import (
     CLAIM_COMPARISONS,
     MAX_SEED,
@@ -18,8 +19,8 @@ from experiments.common.names import (
     SAMPLED_METHODS,
     sampled_name,
 )
-from experiments.common.records import strict_json
 from experiments.common.stats import t_confidence_interval
+from experiments.fig2.budget import STAGES
 from experiments.fig2.manifest import RunPaths
 from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
 from sb3_ua2c.execution import format_length_shares
@@ -349,7 +350,8 @@ def _compute_table(summary: Mapping[str, Any]) -> Lines:
         "| stage | measured [min] | estimated [min] |",
         "|---|---|---|",
     ]
-    for stage in (*[k for k in estimated if k != "total"], "total"):
+    listed = [k for k in STAGES if k in estimated] + [k for k in estimated if k not in (*STAGES, "total")]
+    for stage in (*listed, "total"):
         got = measured.get(stage)
         lines.append(
             f"| {stage} | {'n/a' if got is None else f'{got / 60:.1f}'} | {estimated.get(stage, math.nan) / 60:.1f} |"
@@ -393,14 +395,13 @@ def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[
 
 def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date: str) -> list[Path]:
     """Write ``fig2.json``, ``fig2.md`` and the PNG panels into ``paths.out``; return the files."""
-    from sb3_ua2c.pipeline import write_json
+    return records.write_report(paths.out, "fig2", {**summary, "command": command, "date": date},
+                                format_markdown(summary, command, date), lambda out: write_panels(summary, out))
 
-    out = paths.out
-    out.mkdir(parents=True, exist_ok=True)
-    files = [write_json(out / "fig2.json", strict_json({**summary, "command": command, "date": date}))]
-    md = out / "fig2.md"
-    md.write_text(format_markdown(summary, command, date))
-    files.append(md)
+
+def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
+    """The PNG panels of a report: (a)-(c) as bars, (d)'s confusion matrix, the online curves and the sweeps."""
+    files = []
     for name, title, ylabel, arms, note in _claim_panels(summary):
         bar_panel(out / name, title, ylabel, arms, note)
         files.append(out / name)

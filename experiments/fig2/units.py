@@ -337,7 +337,7 @@ def _offline_units(units: _SeedUnits, ds: Any, settings: dict[str, Any]) -> dict
     for k in budget.k_sweep:
         units.evaluate(f"k{k}", ckpt[k], settings, math.inf)
     default_elite = budget.default_elite
-    for n, m in budget.acting_variants:  # other acting rules for the same two checkpoints
+    for n, m in budget.acting_variants():  # other acting rules for the same two checkpoints
         for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
             delta = None if k == 1 else math.inf
             units.evaluate(acting_name(arm, n, m, default_elite), ckpt[k], settings, delta, n_elite=m, flow_steps=n)

@@ -1,13 +1,13 @@
-"""Command line of the OGBench benchmark: ``python -m experiments.ogbench``.
+"""Command line of the OGBench benchmark: ``python -m experiments ogbench``.
 
 Examples::
 
-    python -m experiments.ogbench --workers 2                      # default task and budget (estimate printed first)
-    python -m experiments.ogbench --quick --out /tmp/ogb           # end to end in seconds (CI)
-    python -m experiments.ogbench --report-only                    # rebuild <out>/ogbench.* from stored units
-    python -m experiments.ogbench --arms fixed --seeds 1           # one unit alone (the others are kept)
-    python -m experiments.ogbench --seeds 10 11 12 --episodes 20 --out results/ogbench_test   # other seeds
-    python -m experiments.ogbench --ray-address auto --work /shared/ogbench   # on a Ray cluster
+    python -m experiments ogbench --workers 2                      # default task and budget (estimate printed first)
+    python -m experiments ogbench --quick --out /tmp/ogb           # end to end in seconds (CI)
+    python -m experiments ogbench --report-only                    # rebuild <out>/ogbench.* from stored units
+    python -m experiments ogbench --arms fixed --seeds 1           # one unit alone (the others are kept)
+    python -m experiments ogbench --seeds 10 11 12 --episodes 20 --out results/ogbench_test   # other seeds
+    python -m experiments ogbench --ray-address auto --work /shared/ogbench   # on a Ray cluster
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from experiments.common.cli import harness_parent, run_command
 from experiments.common.records import command_line
 from experiments.ogbench.unit import ARMS
 
-PROG = "python -m experiments.ogbench"
+PROG = "python -m experiments ogbench"
 PARENT = harness_parent(seeds="0 1 2 3 4; 0 1 with --quick", work="<out>/ogbench_work", workers=1,
                         workers_help="local processes at once (default: 1)",
                         quick="a tiny budget and 2 seeds, end to end in seconds (CI)")
@@ -59,14 +59,13 @@ def _run(args: argparse.Namespace, command: str) -> int:
     from experiments.common.records import run_header
     from experiments.common.runner import make_executor
     from experiments.ogbench import report, runner
-    from experiments.ogbench.unit import dataset_file
     from sb3_ua2c.checks import check_int
 
     runner.check_task(args.task)
     arms = runner.check_arms(args.arms)
     seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
-    # ogbench: the environments (also the estimate's episode limits); rliable: the report's statistics
+    # ogbench: the environments; rliable: the report's statistics
     check_extras(["ogbench", "rliable", *(["ray"] if args.ray_address is not None and not args.report_only else [])])
     budget = runner.default_budget(args.task, quick=args.quick)
     if args.episodes is not None:
@@ -77,8 +76,7 @@ def _run(args: argparse.Namespace, command: str) -> int:
         budget = dataclasses.replace(budget, eval_episodes=args.episodes)
     out = Path(args.out)
     work = Path(args.work) if args.work else out / "ogbench_work"
-    data_ready = dataset_file(args.task, budget, work / "data").is_file()
-    est = runner.estimate(args.task, arms, len(seeds), budget, args.workers, data_ready=data_ready)
+    est = runner.estimate(arms, len(seeds), budget, args.workers)
     print(runner.format_estimate(args.task, arms, seeds, budget, args.workers, est), flush=True)
     plots = True
     if args.report_only:
@@ -107,7 +105,3 @@ def _run(args: argparse.Namespace, command: str) -> int:
           f"{summary['ranking']['qc']}")
     print(f"report: {out / 'ogbench.md'}, {out / 'ogbench.json'}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

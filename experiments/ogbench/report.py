@@ -148,7 +148,7 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
         lines += [f"| {LABELS.get(arm, arm)} | {format_length_shares(s['offline']['length_shares'])} "
                   f"| {format_length_shares(s['online'].get('length_shares', []))} |" for arm, s in shares]
     if not summary["improvement"]:
-        lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments.analysis.paired` "
+        lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments paired` "
                   "pairs its per-seed rates with another run's on the same seeds)."]
     else:
         lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
@@ -228,18 +228,14 @@ def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command:
                  plots: bool = True) -> dict[str, Any]:
     """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary
     (``date``: when the run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
-    from sb3_ua2c.pipeline import write_json
+    from experiments.common import records as report_files
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = summarize(records, reps=reps)
     summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
     summary["date"] = date
-    if plots:
-        write_plots(records, out)
-    (out / "ogbench.md").write_text(format_markdown(summary, command))
-    write_json(out / "ogbench.json", {**summary, "records": [
-        {k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]})
+    kept = [{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]
+    report_files.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
+                              (lambda d: write_plots(records, d)) if plots else None)
     return summary
 
 

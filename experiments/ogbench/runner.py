@@ -47,17 +47,6 @@ BUDGETS: dict[str, dict[str, OGBenchBudget]] = {
 QUICK_BUDGET = OGBenchBudget(dataset_episodes=2, episode_steps=30, pretrain_steps=4, finetune_steps=25,
                              eval_episodes=2, curve_points=1, curve_episodes=1, max_episode_steps=20)
 
-#: CPU seconds measured on one core of a shared 2-core machine (2026-12-02, ``experiments/ogbench/measure_costs.py``
-#: and the probes of docs/research-log.md): per pre-training update, per online step (with its
-#: update every ``train_freq`` steps), per evaluation step.
-ARM_COSTS = {
-    "adaptive": {"update": 0.033, "online_step": 0.0102, "eval_step": 0.0027},
-    "fixed": {"update": 0.034, "online_step": 0.0100, "eval_step": 0.0025},
-    "onestep": {"update": 0.019, "online_step": 0.0085, "eval_step": 0.0044},
-}
-#: Oracle steps per CPU second of the dataset generation, by environment family.
-GENERATION_RATE = {"pointmaze": 4270.0, "manipulation": 445.0}
-
 _TASK_ID = re.compile(r"^task[1-5]$")
 
 
@@ -99,35 +88,22 @@ def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
     return QUICK_BUDGET if quick else BUDGETS[family]["full"]
 
 
-def episode_limit(task: str, budget: OGBenchBudget) -> int:
-    """Steps of an evaluation episode without success: the budget's limit or OGBench's."""
-    if budget.max_episode_steps is not None:
-        return budget.max_episode_steps
-    import gymnasium as gym
-    import ogbench.locomaze  # noqa: F401  (registers the environments)
-    import ogbench.manipspace  # noqa: F401
+def estimate(arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
+             reports: Sequence[dict[str, Any]] | None = None) -> dict[str, float]:
+    """CPU and wall seconds of a run: each arm's recorded unit seconds (``reports``: ``ogbench.json`` files;
+    default, the committed ones) scaled by its offline and online steps (the dataset is not priced).
 
-    return int(gym.spec(check_task(task).env_name).max_episode_steps)
-
-
-def estimate(task: str, arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
-             data_ready: bool = False) -> dict[str, float]:
-    """CPU and wall seconds of a run from :data:`ARM_COSTS` (an upper bound on evaluation: every
-    episode runs to its time limit, as it does without success).
-
-    :return: ``{"data_cpu", "units_cpu", "total_cpu", "wall"}``; ``wall`` is the dataset stage plus
-        the units spread over ``workers`` cores
+    :return: ``{"units_cpu", "total_cpu", "wall"}``
     """
-    name = check_task(task)
-    rate = GENERATION_RATE["pointmaze" if name.env_name.startswith("pointmaze") else "manipulation"]
-    steps = (budget.dataset_episodes + budget.dataset_episodes // 10) * budget.episode_steps
-    data_cpu = 0.0 if data_ready else steps / rate
-    eval_steps = (2 * budget.eval_episodes + budget.curve_points * budget.curve_episodes) * episode_limit(task, budget)
-    units = [ARM_COSTS[arm]["update"] * budget.pretrain_steps + ARM_COSTS[arm]["online_step"] * budget.finetune_steps
-             + ARM_COSTS[arm]["eval_step"] * eval_steps for arm in arms for _ in range(n_seeds)]
-    slots = max(1, min(workers, len(units)))
-    wall = data_cpu + max(sum(units) / slots, max(units, default=0.0))
-    return {"data_cpu": data_cpu, "units_cpu": sum(units), "total_cpu": data_cpu + sum(units), "wall": wall}
+    from experiments.common.estimate import estimate as scaled
+    from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
+
+    reports = recorded("**/ogbench.json") if reports is None else reports
+    rates = seconds_per_size((r["arm"], r["seconds"]["total_cpu"], rep["budget"]["pretrain_steps"]
+                              + rep["budget"]["finetune_steps"]) for rep in reports for r in rep.get("records", []))
+    per_unit = scaled(rates, {arm: budget.pretrain_steps + budget.finetune_steps for arm in arms})
+    units = [per_unit[arm] for arm in arms for _ in range(n_seeds)]
+    return {"units_cpu": sum(units), "total_cpu": sum(units), "wall": wall_seconds(units, workers)}
 
 
 def format_estimate(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget, workers: int,
@@ -135,8 +111,8 @@ def format_estimate(task: str, arms: Sequence[str], seeds: Sequence[int], budget
     return (f"OGBench {task}: arms {list(arms)} x seeds {list(seeds)} = {len(arms) * len(seeds)} unit(s), "
             f"{budget.dataset_episodes} dataset episodes, {budget.pretrain_steps} offline updates, "
             f"{budget.finetune_steps} online steps, {budget.eval_episodes} evaluation episodes; estimated "
-            f"{est['total_cpu'] / 3600:.2f} CPU-h (dataset {est['data_cpu'] / 60:.1f} CPU-min), "
-            f"{est['wall'] / 3600:.2f} h wall with {workers} worker(s)")
+            f"{est['total_cpu'] / 3600:.2f} CPU-h, {est['wall'] / 3600:.2f} h wall with {workers} worker(s) "
+            "(from the committed records' unit times)")
 
 
 def generation_unit(task: str, budget: OGBenchBudget, data_dir: str) -> dict[str, Any]:
@@ -206,7 +182,7 @@ def seeds_arg(values: Iterable[int]) -> list[int]:
 
 
 __all__ = [
-    "ARM_COSTS", "BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
+    "BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
     "default_budget", "estimate", "format_estimate", "run_benchmark", "stored_records",
 ]
 

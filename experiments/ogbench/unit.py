@@ -9,31 +9,30 @@ returns is JSON-able: success rates, learning curves, wall-clock and CPU seconds
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from experiments.common.budget import Budget, Check, flag, integer, optional, reserved_keys
 from experiments.common.records import recorded_path
 from experiments.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
 from experiments.ogbench.env import ENV_ID, OGBenchSingleTask
-from sb3_ua2c.checks import check_int
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import OfflineDataset
 
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
-#: ``adaptive`` is UA2C's default (k = 5, δ = 0, best of S = 32 candidates), ``fixed`` executes every
-#: chunk in full (δ = inf, k = 5, best of 32: how Q-chunking acts), ``onestep`` replans every step.
+#: ``adaptive`` is UA2C's default chunking (k and δ), ``fixed`` executes every chunk in full (δ = inf: how
+#: Q-chunking acts), ``onestep`` replans every step (k = 1).
 ARMS: dict[str, dict[str, Any]] = {
-    "adaptive": {"chunk_size": 5},
-    "fixed": {"chunk_size": 5, "entropy_threshold": math.inf},
+    "adaptive": {},
+    "fixed": {"entropy_threshold": math.inf},
     "onestep": {"chunk_size": 1},
 }
 
@@ -44,7 +43,7 @@ VALIDATION_SEED_BASE = 20_000_000
 
 
 @dataclass(frozen=True)
-class OGBenchBudget:
+class OGBenchBudget(Budget):
     """Budget of one unit; a bad value raises ``ValueError`` naming it.
 
     :param dataset_episodes: training episodes of the generated dataset (``episode_steps`` each)
@@ -76,33 +75,13 @@ class OGBenchBudget:
     max_episode_steps: int | None = None
     algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "train_freq", "eval_episodes",
-                     "curve_episodes"):
-            check_int(f"OGBenchBudget.{name}", getattr(self, name))
-        check_int("OGBenchBudget.episode_steps", self.episode_steps, low=2)
-        check_int("OGBenchBudget.data_seed", self.data_seed, low=0)
-        check_int("OGBenchBudget.curve_points", self.curve_points, low=0)
-        if self.max_episode_steps is not None:
-            check_int("OGBenchBudget.max_episode_steps", self.max_episode_steps)
-        if not isinstance(self.sparse, bool):
-            raise ValueError(f"OGBenchBudget.sparse must be a bool, got {self.sparse!r}")
-        if not isinstance(self.algo_kwargs, Mapping):
-            raise ValueError(f"OGBenchBudget.algo_kwargs must be a mapping, got {self.algo_kwargs!r}")
-        reserved = {"chunk_size", "entropy_threshold"} & set(self.algo_kwargs)
-        if reserved:
-            raise ValueError(f"OGBenchBudget.algo_kwargs must not set {sorted(reserved)}: the arm sets them")
-        object.__setattr__(self, "algo_kwargs", dict(self.algo_kwargs))
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> OGBenchBudget:
-        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown OGBenchBudget key(s) {sorted(unknown)}")
-        return cls(**values)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+    CHECKS: ClassVar[Mapping[str, Check]] = {
+        **{name: integer() for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "train_freq",
+                                        "eval_episodes", "curve_episodes")},
+        "episode_steps": integer(low=2), "data_seed": integer(low=0), "curve_points": integer(low=0),
+        "max_episode_steps": optional(integer()), "sparse": flag,
+        "algo_kwargs": reserved_keys("chunk_size", "entropy_threshold", why="the arm sets them"),
+    }
 
 
 def dataset_file(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) -> Path:
@@ -218,7 +197,7 @@ def run_ogbench_unit(
     if arm not in ARMS:
         raise ValueError(f"arm must be one of {sorted(ARMS)}, got {arm!r}")
     TaskName.parse(task)
-    check_int("seed", seed, low=0)
+    integer(low=0)("seed", seed)
     if not isinstance(budget, OGBenchBudget):
         raise TypeError(f"budget must be an OGBenchBudget, got {type(budget).__name__}")
     out = Path(out_dir)
@@ -249,7 +228,7 @@ def run_ogbench_unit(
                              budget.curve_episodes, seed)
         tuned = phase("finetune", lambda: finetune(
             ckpt, out / "finetuned.zip", budget.finetune_steps, dataset=ds, seed=seed, callback=curve,
-            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},
+            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},  # same as default: the cadence
         ))
         online_eval = phase("eval_online", lambda: evaluate_success(load_checkpoint(tuned, env), env,
                                                                      budget.eval_episodes, seed))

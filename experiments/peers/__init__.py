@@ -10,7 +10,7 @@
   offline checkpoint then online, with the same record;
 * :mod:`experiments.common.stats`: IQM, stratified bootstrap CIs and probability of improvement (rliable).
 
-The command ``python -m experiments.peers`` (:mod:`~experiments.peers.cli`) runs every (arm, seed) as one
+The command ``python -m experiments peers`` (:mod:`~experiments.peers.cli`) runs every (arm, seed) as one
 unit (:mod:`~experiments.peers.runner`, budget and estimate in :mod:`~experiments.peers.budget`) and writes
 the report (:mod:`~experiments.peers.report`); see ``docs/peers.md``.
 

@@ -1,18 +1,12 @@
-"""Budget, arms and cost model of the head-to-head (``python -m experiments.peers``).
+"""Budget and arms of the head-to-head (``python -m experiments peers``).
 
 Every arm of a seed runs on the Figure-2 protocol of that seed: the same dataset (Figure 2's, built
 once per seed), the same online env-step budget, the same held-out evaluation scenarios. The UA2C
 arms are Figure 2's: pre-trained offline (one-step k = 1, chunk k), then fine-tuned online from that
 checkpoint, acting with adaptive chunks (δ of the budget), fixed chunks (δ = inf) or one step.
 
-The estimate (:func:`estimate_units`) prices every unit in CPU seconds on one core: the UA2C units
-with Figure 2's :class:`~experiments.fig2.budget.CostModel`, the peer units with
-:class:`PeerCostModel`, calibrated on ``experiments/peers/measure_costs.py`` (CPU seconds of one unit at 10,000
-online and 6,000 offline steps, 20 evaluation episodes: SAC 180, TQC 319, SAC + offline 180, IQL
-389, Cal-QL 2,190; measured side by side with SAC or IQL on 2026-12-04 and scaled to them: CrossQ's
-update at 1.22x SAC's, ReBRAC's offline and online steps at 1.21x and 1.14x IQL's, BC's offline step
-at 0.27x IQL's, RLPD's env step with one update at 1.19x IQL's). The wall time is the sum over the stages (datasets, pre-training, arms) of the
-longest-first schedule of their units on the workers (:func:`~experiments.common.runner.list_schedule_seconds`).
+The estimate printed before a run (:func:`estimate_units`) scales the CPU seconds of each arm's committed
+records by its steps (:mod:`experiments.common.estimate`).
 """
 
 from __future__ import annotations
@@ -20,19 +14,11 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
+from experiments.common.budget import Budget, Check, integer, mapping, one_of, optional
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.runner import list_schedule_seconds
-from experiments.fig2.budget import (
-    FULL_BUDGET,
-    QUICK_BUDGET,
-    CostModel,
-    Fig2Budget,
-    extra_kweights,
-    finetune_overrides,
-)
-from sb3_ua2c.checks import check_int
+from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finetune_overrides
 
 
 @dataclass(frozen=True)
@@ -92,8 +78,6 @@ REFERENCE_ARMS = ("behaviour", "bc")
 ONLINE_SB3_ARMS = ("sac", "tqc", "crossq")
 ARMS = (*UA2C_ARMS, *PEER_ARMS, *REFERENCE_ARMS)
 D3RLPY_ARMS = ("rlpd", "iql", "calql", "rebrac", "bc")
-#: d3rlpy arms without an online phase
-OFFLINE_ONLY_ARMS = ("bc",)
 ARM_LABELS = {
     "ua2c": "UA2C (defaults)",
     "ua2c_paper": "UA2C as in the paper (preset)",
@@ -115,8 +99,21 @@ ARM_LABELS = {
 }
 
 
+def _peer_kwargs(label: str, value: Any) -> None:
+    mapping(label, value)
+    for arm, kwargs in value.items():
+        if arm not in (*PEER_ARMS, "bc"):
+            raise ValueError(f"{label}: {arm!r} is not a peer arm; choose from {[*PEER_ARMS, 'bc']}")
+        mapping(f"{label}[{arm!r}]", kwargs)
+
+
+def _fig2_budget(label: str, value: Any) -> None:
+    if not isinstance(value, Fig2Budget):
+        raise TypeError(f"{label} must be a Fig2Budget, got {type(value).__name__}")
+
+
 @dataclass(frozen=True)
-class PeersBudget:
+class PeersBudget(Budget):
     """Budget of a head-to-head run (per seed); a bad value raises ``ValueError`` naming it.
 
     :param ua2c: the Figure-2 budget the UA2C arms and the shared inputs come from: dataset
@@ -149,27 +146,14 @@ class PeersBudget:
     iql_best_of_n: int = 32
     peer_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        if not isinstance(self.ua2c, Fig2Budget):
-            raise TypeError(f"PeersBudget.ua2c must be a Fig2Budget, got {type(self.ua2c).__name__}")
-        if not isinstance(self.sb3_hyperparams, Mapping):
-            raise ValueError(f"PeersBudget.sb3_hyperparams must be a mapping, got {self.sb3_hyperparams!r}")
-        check_int("PeersBudget.d3rlpy_batch_size", self.d3rlpy_batch_size)
-        if self.calql_offline_steps is not None:
-            check_int("PeersBudget.calql_offline_steps", self.calql_offline_steps)
-        check_int("PeersBudget.rlpd_updates_per_step", self.rlpd_updates_per_step)
-        check_int("PeersBudget.iql_best_of_n", self.iql_best_of_n, low=0)
-        if self.scenarios not in SCENARIO_BASES:
-            raise ValueError(f"PeersBudget.scenarios must be one of {list(SCENARIO_BASES)}, got {self.scenarios!r}")
-        object.__setattr__(self, "sb3_hyperparams", dict(self.sb3_hyperparams))
-        if not isinstance(self.peer_kwargs, Mapping):
-            raise ValueError(f"PeersBudget.peer_kwargs must be a mapping of arm to mapping, got {self.peer_kwargs!r}")
-        for arm, kwargs in self.peer_kwargs.items():
-            if arm not in (*PEER_ARMS, "bc"):
-                raise ValueError(f"PeersBudget.peer_kwargs: {arm!r} is not a peer arm; choose from {[*PEER_ARMS, 'bc']}")
-            if not isinstance(kwargs, Mapping):
-                raise ValueError(f"PeersBudget.peer_kwargs[{arm!r}] must be a mapping, got {kwargs!r}")
-        object.__setattr__(self, "peer_kwargs", {a: dict(k) for a, k in self.peer_kwargs.items()})
+    CHECKS: ClassVar[Mapping[str, Check]] = {
+        "ua2c": _fig2_budget, "sb3_hyperparams": mapping, "d3rlpy_batch_size": integer(),
+        "calql_offline_steps": optional(integer()), "rlpd_updates_per_step": integer(), "iql_best_of_n": integer(low=0),
+        "scenarios": one_of(*SCENARIO_BASES), "peer_kwargs": _peer_kwargs,
+    }
+
+    def validate(self) -> None:  # peer_kwargs in the arms' order, however given (a report prints them)
+        object.__setattr__(self, "peer_kwargs", {a: self.peer_kwargs[a] for a in (*PEER_ARMS, "bc") if a in self.peer_kwargs})
 
     @property
     def online_steps(self) -> int:
@@ -226,35 +210,13 @@ class PeersBudget:
             return {} if spec.config == "paper" else dict(self.ua2c.finetune_kwargs)
         overrides = finetune_overrides(self.ua2c)
         if spec.cadence == "per_step":
-            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}
+            overrides = {**overrides, "train_freq": 1, "gradient_steps": 1}  # same as default: the peers' cadence
         return overrides
-
-    def steps_per_update(self, arm: str, plan_length: float) -> float:
-        """Online env steps per gradient step of a UA2C arm (``plan_length``: its mean plan length, what
-        ``gradient_steps=-1`` counts)."""
-        kwargs = {**_ua2c_schedule_defaults(), **self.pretrain_kwargs(arm), **self.finetune_overrides(arm)}
-        if kwargs["gradient_steps"] == -1:
-            return plan_length
-        freq = kwargs["train_freq"]
-        steps = freq if isinstance(freq, int) else freq[0] if freq[1] == "step" else steps_per_episode(self.ua2c)
-        return float(steps) / float(kwargs["gradient_steps"])
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"ua2c": self.ua2c.to_dict(), "sb3_hyperparams": dict(self.sb3_hyperparams),
-                "d3rlpy_batch_size": self.d3rlpy_batch_size, "calql_offline_steps": self.calql_offline_steps,
-                "rlpd_updates_per_step": self.rlpd_updates_per_step, "iql_best_of_n": self.iql_best_of_n,
-                "scenarios": self.scenarios, "peer_kwargs": {a: dict(k) for a, k in self.peer_kwargs.items()}}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
-        """Inverse of :meth:`to_dict`; an unknown key raises ``ValueError`` naming it."""
-        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown PeersBudget key(s) {sorted(unknown)}")
-        values = {"scenarios": "figure2", **values}  # budgets recorded before the split: Figure 2's scenarios
-        if "ua2c" in values:
-            values["ua2c"] = Fig2Budget.from_dict(values["ua2c"])
-        return cls(**values)
+        """:meth:`Budget.from_dict`; a budget recorded before the scenario split ran on Figure 2's scenarios."""
+        return super().from_dict({"scenarios": "figure2", **values})
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> PeersBudget:
         """A copy with ``overrides`` (``--budget``): PeersBudget keys replaced, ``"ua2c"``'s Fig2Budget keys one by
@@ -268,7 +230,7 @@ class PeersBudget:
 
     def with_online_steps(self, online_steps: int) -> PeersBudget:
         """A copy with ``online_steps`` online env steps for every arm."""
-        check_int("--online-steps", online_steps)
+        integer()("--online-steps", online_steps)
         return dataclasses.replace(self, ua2c=self.ua2c.replace(finetune_steps=online_steps))
 
 
@@ -284,119 +246,32 @@ QUICK_PEERS_BUDGET = PeersBudget(
 )
 
 
-@dataclass(frozen=True)
-class PeerCostModel:
-    """CPU cost of the peer units on one core, calibrated on ``experiments/peers/measure_costs.py`` (2026-12-02);
-    RLPD's update on the tuning runs of 2026-12-04 (20.3–21.9 ms at 2, 4 and 8 updates per env step).
+def unit_steps(budget: PeersBudget, arm: str) -> float:
+    """What one unit of ``arm`` costs in proportion to: its offline gradient steps and online env steps (a
+    reference row learns nothing online; the behaviour policy's unit is its evaluation alone: 1)."""
+    return max(budget.offline_steps(arm) + (0 if arm in REFERENCE_ARMS else budget.online_steps), 1)
 
-    :param sb3_update_ms: one SB3 gradient step with its env step (after ``learning_starts``), per arm
-    :param sb3_env_ms: one SB3 env step without an update (the random ``learning_starts`` steps)
-    :param d3rlpy_offline_ms: one d3rlpy offline gradient step, per arm
-    :param d3rlpy_online_ms: one d3rlpy online env step with its update, per arm (RLPD: per update, times
-        its updates per env step)
-    :param eval_ms_per_step: evaluation, per env step
+
+def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, workers: int,
+                   records: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
+    """CPU seconds of one unit of each arm, from the committed arm records (``records``: default, every
+    ``results/**/peers_raw`` record) scaled by :func:`unit_steps`; with the run's CPU and wall seconds.
+
+    :return: ``{"cpu", "wall", "workers", "per_unit": {arm: seconds}}``
     """
+    from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
 
-    sb3_update_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"sac": 19.6, "tqc": 35.2, "crossq": 24.0, "sac_offline_mix": 19.6})
-    sb3_env_ms: float = 0.5
-    d3rlpy_offline_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"iql": 13.0, "calql": 125.6, "rebrac": 15.8, "bc": 3.6, "rlpd": 0.0})
-    d3rlpy_online_ms: Mapping[str, float] = field(
-        default_factory=lambda: {"iql": 30.7, "calql": 143.3, "rebrac": 35.1, "bc": 0.0, "rlpd": 21.0})
-    eval_ms_per_step: float = 0.5
-
-
-def _ua2c_schedule_defaults() -> dict[str, Any]:
-    """UA2C's default ``train_freq`` and ``gradient_steps`` (its constructor's)."""
-    import inspect
-
-    from sb3_ua2c import UA2C
-
-    params = inspect.signature(UA2C.__init__).parameters
-    return {name: params[name].default for name in ("train_freq", "gradient_steps")}
+    records = recorded("**/peers_raw/seed*/*.json") if records is None else records
+    rates = seconds_per_size((r["arm"], r["cpu_seconds"]["total"], max(r.get("offline_steps", 0) + r["online_steps"], 1))
+                             for r in records if "cpu_seconds" in r)
+    per_unit = estimate(rates, {arm: unit_steps(budget, arm) for arm in arms})
+    units = [s for s in per_unit.values() for _ in range(n_seeds)]
+    return {"cpu": sum(units), "wall": wall_seconds(units, workers), "workers": workers, "per_unit": per_unit}
 
 
-def steps_per_episode(budget: Fig2Budget) -> float:
-    """Env steps of a full episode: ``time_limit / step_length`` (40 s / 0.2 s = 200 by default)."""
-    return float(budget.env_kwargs.get("time_limit", 40.0)) / float(budget.env_kwargs.get("step_length", 0.2))
+def format_estimate(estimate: Mapping[str, Any]) -> str:
+    """The estimate as printed before a run: per arm (one unit) and in total."""
+    from experiments.common.estimate import format_minutes
 
-
-def peer_unit_seconds(arm: str, budget: PeersBudget, costs: PeerCostModel | None = None) -> float:
-    """Estimated CPU seconds of one peer unit (one arm, one seed)."""
-    c = costs or PeerCostModel()
-    ms = 1e-3
-    n_evals = 1  # the final evaluation
-    if arm in D3RLPY_ARMS and arm not in OFFLINE_ONLY_ARMS and budget.offline_steps(arm) > 0:
-        n_evals += 1  # the offline policy's
-    if arm == "iql" and budget.iql_best_of_n > 0:
-        n_evals += 1  # the final policy acting by best-of-N
-    evals = n_evals * budget.ua2c.eval_episodes * steps_per_episode(budget.ua2c)
-    total = evals * c.eval_ms_per_step * ms
-    if arm == "behaviour":
-        return total
-    if arm in D3RLPY_ARMS:
-        total += budget.offline_steps(arm) * c.d3rlpy_offline_ms[arm] * ms
-        online = 0 if arm in OFFLINE_ONLY_ARMS else budget.online_steps * budget.updates_per_step(arm)
-        return total + online * c.d3rlpy_online_ms[arm] * ms
-    starts = int(budget.sb3_kwargs(arm).get("learning_starts", 1000))
-    updates = max(budget.online_steps - starts, 0)
-    return total + (updates * c.sb3_update_ms[arm] + (budget.online_steps - updates) * c.sb3_env_ms) * ms
-
-
-def ua2c_stage_seconds(budget: PeersBudget, costs: CostModel | None = None) -> dict[str, float]:
-    """Estimated CPU seconds of one seed's UA2C units: ``dataset``, ``pretrain_k<k>`` and each UA2C arm
-    (offline evaluation, online phase, final evaluation), with Figure 2's cost model."""
-    c, b, ms = costs or CostModel(), budget.ua2c, 1e-3
-    spe = steps_per_episode(b)
-    out = {"dataset": b.dataset_episodes * spe * c.collect_ms_per_step * ms}
-    scale = b.algo_kwargs.get("batch_size", 256) / 256
-    for arm in UA2C_ARMS:
-        k = budget.chunk_length(arm)
-        extra = extra_kweights(budget.pretrain_kwargs(arm))
-        out[budget.pretrain_name(arm)] = b.pretrain_steps * c.pretrain_step_ms(k, extra) * ms
-        plan_length = 1.0 if k == 1 else float(k) if budget.delta(arm) == float("inf") else c.adaptive_plan_length
-        online_ms = (c.finetune_ms_per_env_step + c.replan_ms(extra) / plan_length
-                     + (c.finetune_ms_per_update * scale + extra * c.update_ms_per_kweight)
-                     / budget.steps_per_update(arm, plan_length))
-        eval_ms = c.eval_ms_per_step + extra / plan_length * c.plan_ms_per_kweight
-        out[arm] = (budget.online_steps * online_ms + 2 * b.eval_episodes * spe * eval_ms) * ms
-    return out
-
-
-def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int) -> dict[str, Any]:
-    """CPU seconds per unit of each stage and arm (one seed), for :func:`format_estimate`.
-
-    :return: ``{"dataset": s, "pretrain": {k: s}, "arms": {arm: s}}`` (``k``: ``"5"``, ``"5_paper"`` for the preset)
-    """
-    ua2c = ua2c_stage_seconds(budget)
-    names = sorted({budget.pretrain_name(a) for a in arms if a in UA2C_ARMS})
-    return {
-        "seeds": n_seeds,
-        "dataset": ua2c["dataset"],
-        "pretrain": {name.removeprefix("pretrain_k"): ua2c[name] for name in names},  # "5", "5_paper"
-        "arms": {a: ua2c[a] if a in UA2C_ARMS else peer_unit_seconds(a, budget) for a in arms},
-    }
-
-
-def estimate_wall(estimate: Mapping[str, Any], workers: int) -> dict[str, float]:
-    """CPU and wall seconds of the whole run (every unit still to run) on ``workers`` local cores."""
-    n = estimate["seeds"]
-    stages = [[estimate["dataset"]] * n, list(estimate["pretrain"].values()) * n, list(estimate["arms"].values()) * n]
-    cpu = sum(sum(s) for s in stages)
-    # each stage's units longest first (run_peers submits them so)
-    return {"cpu": cpu, "wall": sum(list_schedule_seconds(sorted(s, reverse=True), workers) for s in stages if s)}
-
-
-def format_estimate(estimate: Mapping[str, Any], workers: int) -> str:
-    """The estimate as printed before a run: per arm (one unit, all seeds) and in total."""
-    n = estimate["seeds"]
-    totals = estimate_wall(estimate, workers)
-    lines = [f"estimate (CPU on one core per unit; {n} seed(s)):",
-             f"  dataset {estimate['dataset'] / 60:.1f} min/seed; "
-             + ", ".join(f"pretrain k={k} {s / 60:.1f} min/seed" for k, s in estimate["pretrain"].items())]
-    for arm, s in estimate["arms"].items():
-        lines.append(f"  {arm:22s} {s / 60:6.1f} min/unit  {s * n / 60:7.1f} min over seeds")
-    lines.append(f"  total {totals['cpu'] / 60:.0f} CPU-min, ~{totals['wall'] / 60:.0f} min wall on {workers} "
-                 "worker(s) (dedicated cores, before resuming)")
-    return "\n".join(lines)
+    lines = [f"  {arm:22s} {s / 60:6.1f} CPU-min per unit" for arm, s in estimate["per_unit"].items()]
+    return "\n".join([format_minutes("peers", estimate["cpu"], estimate["wall"], estimate["workers"]), *lines])

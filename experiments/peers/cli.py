@@ -1,9 +1,10 @@
-"""Command line of the head-to-head: ``python -m experiments.peers`` (see ``docs/peers.md``)."""
+"""Command line of the head-to-head: ``python -m experiments peers`` (see ``docs/peers.md``)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -21,7 +22,6 @@ from experiments.peers.budget import (
     QUICK_PEERS_BUDGET,
     PeersBudget,
     estimate_units,
-    estimate_wall,
     format_estimate,
 )
 from experiments.peers.report import aggregate, verdicts, write_report
@@ -29,7 +29,7 @@ from experiments.peers.runner import PeersPaths, load_records, read_manifest, ru
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.cli_args import json_object_arg
 
-PROG = "python -m experiments.peers"
+PROG = "python -m experiments peers"
 PARENT = harness_parent(
     seeds="0 1 2 3 4; with --quick: 0 1", work="<out>/peers_work", workers=None,
     workers_help="local processes at once, each unit in a fresh process (default: 2; with --quick: 1); 1 runs the "
@@ -128,25 +128,25 @@ def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict
 
 
 def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command: str, date: str,
-                  reps: int = 2000) -> dict[str, Any]:
-    """``peers.json``: the header (command, date, budget, estimate of the units run here, records reused
-    from other runs, observation) and :func:`aggregate`."""
+                  reps: int = 2000, estimate: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``peers.json``: the header (command, date, budget, estimate of the units run here, unless ``estimate``
+    gives the one printed before the run; records reused from other runs, observation) and :func:`aggregate`."""
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})
     reused = reused_records(records, paths.work)
     elsewhere = {a for arms in reused.values() for a in arms}
-    estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS and a not in elsewhere], len(seeds))
-    return {"command": command, "date": date, "seeds": seeds, "budget": budget.to_dict(),
-            "estimate": {**estimate_wall(estimate, workers), "workers": workers, "per_unit": estimate},
+    if estimate is None:
+        estimate = estimate_units(budget, [a for a in summary["arms"] if a in ARMS and a not in elsewhere], len(seeds),
+                                  workers)
+    return {"command": command, "date": date, "seeds": seeds, "budget": budget.to_dict(), "estimate": estimate,
             "reused": reused, "observation": observation_text(records), "scenarios": scenario_text(records),
             **summary}
 
 
 def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: PeersBudget, paths: PeersPaths) -> None:
-    estimate = estimate_units(budget, arms, len(seeds))
     print(f"peers: seeds {seeds}, arms {arms}, {budget.online_steps} online env steps per arm", flush=True)
-    print(format_estimate(estimate, args.workers), flush=True)
+    print(format_estimate(estimate_units(budget, arms, len(seeds), args.workers)), flush=True)
     if args.rerun:
         for s in seeds:
             for a in arms:
@@ -172,18 +172,22 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     paths = PeersPaths.under(args.out, args.raw, args.work)
-    command, date = run_header(
-        command_line(prog, sys.argv[1:] if argv is None else argv),
-        paths.out / "peers.json" if args.report_only else None,
-    )
+    previous = paths.out / "peers.json"
+    command, date = run_header(command_line(prog, sys.argv[1:] if argv is None else argv),
+                               previous if args.report_only else None)
 
     def run() -> int:
         nonlocal budget
-        if args.report_only:
-            budget = read_manifest(paths) or budget
+        estimate = None
+        if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
+            recorded = json.loads(previous.read_text()) if previous.is_file() else {}
+            budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
+                                              else budget)
+            estimate = recorded.get("estimate")
         else:
             _run(args, seeds, arms, budget, paths)
-        summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000)
+        summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000,
+                                estimate=estimate)
         files = write_report(summary, paths.out)
         for line in verdicts(summary):
             print(line)

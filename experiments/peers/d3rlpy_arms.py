@@ -183,7 +183,7 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
             "actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "temp_learning_rate": 3e-4,
             "actor_encoder_factory": vector([256, 256]),
             "critic_encoder_factory": vector([256, 256], use_layer_norm=True),
-            "n_critics": 2, "initial_temperature": 1.0, "tau": 0.005,
+            "n_critics": 2, "initial_temperature": 1.0, "tau": 0.005,  # same as default: RLPD's, d3rlpy's names
         }
     if algo == "calql":  # d3rlpy's Cal-QL reproduction (its reward shift is AntMaze's, not taken)
         return {"actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "alpha_threshold": 0.8}
@@ -219,8 +219,8 @@ def run_d3rlpy(
     inputs: ArmInputs,
     algo: str = "iql",
     offline_steps: int = 6000,
-    offline_ratio: float = 0.5,
-    batch_size: int = 256,
+    offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
+    batch_size: int = 256,  # same as default: the SAC zoo entry's
     updates_per_step: int = 1,
     best_of_n: int = 0,
     config_kwargs: Mapping[str, Any] | None = None,

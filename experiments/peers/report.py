@@ -480,11 +480,6 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write ``peers.json``, ``peers.md`` and the PNGs into ``out``; return their paths."""
-    from experiments.common.records import strict_json
-    from sb3_ua2c.pipeline import write_json
+    from experiments.common import records
 
-    out.mkdir(parents=True, exist_ok=True)
-    files = [write_json(out / "peers.json", strict_json(summary))]
-    md = out / "peers.md"
-    md.write_text(format_markdown(summary))
-    return [*files, md, *write_plots(summary, out)]
+    return records.write_report(out, "peers", summary, format_markdown(summary), lambda d: write_plots(summary, d))

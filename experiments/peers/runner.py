@@ -154,7 +154,7 @@ def run_peers(
         paths.seed_work(s).mkdir(parents=True, exist_ok=True)
     run_units(dataset_units(seeds, budget, paths), executor, printer)
     pretrained = {r.name: r.value for r in run_units(pretrain_units(seeds, arms, budget, paths), executor, printer)}
-    cost = estimate_units(budget, arms, len(seeds))["arms"]
+    cost = estimate_units(budget, arms, len(seeds), workers=1)["per_unit"]
     order = sorted(((a, s) for s in seeds for a in arms), key=lambda p: (-cost[p[0]], p[1]))
     return run_units([arm_unit(a, s, budget, paths, pretrained) for a, s in order], executor, printer)
 

@@ -54,7 +54,7 @@ def scale_actions(actions: np.ndarray, action_space: spaces.Box) -> np.ndarray:
 class OfflineMixReplayBuffer(ReplayBuffer):
     """SB3 replay buffer whose minibatches draw ``offline_ratio`` of their rows from fixed offline
     transitions and the rest from the online transitions added as usual (RLPD's symmetric
-    sampling at ``offline_ratio=0.5``). While the online part is empty, the whole batch is offline.
+    sampling: half of each batch offline). While the online part is empty, the whole batch is offline.
 
     Paper: Ball et al., "Efficient Online Reinforcement Learning with Offline Data" (RLPD), ICML 2023.
 
@@ -67,11 +67,11 @@ class OfflineMixReplayBuffer(ReplayBuffer):
         buffer_size: int,
         observation_space: spaces.Space,
         action_space: spaces.Space,
-        device: th.device | str = "auto",
+        device: th.device | str = "auto",  # same as default: SB3's ReplayBuffer signature
         n_envs: int = 1,
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
-        offline_ratio: float = 0.5,
+        offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
     ) -> None:
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, optimize_memory_usage,
                          handle_timeout_termination)
@@ -149,7 +149,7 @@ def _train_and_evaluate(
         kwargs = copy.deepcopy(params)  # SB3 adds keys to policy_kwargs: keep the record as given
         if offline_ratio is not None:
             kwargs.update(replay_buffer_class=OfflineMixReplayBuffer, replay_buffer_kwargs={"offline_ratio": offline_ratio})
-        model = _algorithm(algo)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)
+        model = _algorithm(algo)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)  # same as default: quiet
         if offline_ratio is not None:
             model.replay_buffer.add_offline(episode_transitions(ds.episodes))
         with clock.phase("online"):
@@ -193,7 +193,7 @@ def run_sb3_online(
 
 def run_sb3_offline_mix(
     inputs: ArmInputs,
-    offline_ratio: float = 0.5,
+    offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
 ) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""The same small tuning budget for every method of the head-to-head: ``python -m experiments.peers.tuning``.
+"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
 
 Each tuned method (:data:`TUNED_ARMS`, UA2C included) has three configurations in :data:`GRID`: its
 published settings first, then two moves of the knob that matters most for it (its conservatism, its
@@ -13,7 +13,7 @@ a tie keeps the earlier one. ``<out>/selected.json`` holds the ``--budget`` over
 configurations, written once every method is chosen, for the test run on other seeds and the test
 scenarios::
 
-    python -m experiments.peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
+    python -m experiments peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
 
 The report, ``<out>/tuning.md`` / ``tuning.json``, gives every configuration's per-run scores.
 """
@@ -44,12 +44,11 @@ from experiments.peers.budget import (
     UA2C_ARMS,
     PeersBudget,
     estimate_units,
-    estimate_wall,
 )
 from experiments.peers.cli import check_selection, needed_extras
 from experiments.peers.runner import PeersPaths, load_records, run_peers
 
-PROG = "python -m experiments.peers.tuning"
+PROG = "python -m experiments peers-tuning"
 
 
 @dataclass(frozen=True)
@@ -74,7 +73,8 @@ def _sb3_grid(lr: float) -> tuple[Setting, ...]:
 
 #: Per tuned method, its configurations; the first is its published setting (the head-to-head's default).
 GRID: dict[str, tuple[Setting, ...]] = {
-    "ua2c_adaptive": (Setting("λ (q_weight) 1, the default"), Setting("λ 0.3", {"q_weight": 0.3}),
+    "ua2c_adaptive": (Setting("λ (q_weight) 1, the default", {"q_weight": 1.0}),  # the default of the tuning's day
+                      Setting("λ 0.3", {"q_weight": 0.3}),  # same as default: the grid names the value it tried
                       Setting("λ 3", {"q_weight": 3.0})),
     "sac": _sb3_grid(1e-3),
     "tqc": _sb3_grid(1e-3),
@@ -184,8 +184,8 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description="The head-to-head's methods, each in 3 configurations "
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, description="The head-to-head's methods, each in 3 configurations "
                                      "on the validation scenarios; writes the choice for the test run (resumable).")
     parser.add_argument("--seeds", type=int, nargs="+", default=list(DEFAULT_SEEDS), help="validation seeds (default 0 1)")
     parser.add_argument("--arms", nargs="+", default=list(TUNED_ARMS), metavar="ARM",
@@ -213,7 +213,7 @@ def _check(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, base: PeersBudget) -> None:
     budgets = {i: config_budget(i, args.arms, base) for i in args.configs}
-    walls = [estimate_wall(estimate_units(b, args.arms, len(args.seeds)), args.workers) for b in budgets.values()]
+    walls = [estimate_units(b, args.arms, len(args.seeds), args.workers) for b in budgets.values()]
     print(f"tuning: seeds {args.seeds}, methods {args.arms}, configurations {args.configs}; estimate "
           f"{sum(w['cpu'] for w in walls) / 60:.0f} CPU-min, ~{sum(w['wall'] for w in walls) / 60:.0f} min wall on "
           f"{args.workers} worker(s) (before resuming)", flush=True)
@@ -224,9 +224,9 @@ def _run(args: argparse.Namespace, base: PeersBudget) -> None:
         print(f"configuration {i}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit code (2 on a bad argument, 1 when units failed)."""
-    parser = build_parser()
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
         _check(args)
@@ -235,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.seeds, args.arms = list(dict.fromkeys(args.seeds)), [a for a in TUNED_ARMS if a in args.arms]
     base = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
     out = Path(args.out)
-    command, date = run_header(command_line(PROG, sys.argv[1:] if argv is None else argv),
+    command, date = run_header(command_line(prog, sys.argv[1:] if argv is None else argv),
                                out / "tuning.json" if args.report_only else None)
     try:
         if not args.report_only:
@@ -261,7 +261,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     selected.write_text(json.dumps(summary["selected"], indent=1) + "\n")
     print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}, {selected}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

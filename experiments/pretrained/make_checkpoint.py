@@ -1,6 +1,6 @@
 """Build the pretrained Phase-1 UA2C checkpoint of ``MixedTraffic-v0`` in rl-zoo's trained-agents layout.
 
-``python -m experiments.pretrained.make_checkpoint --out rl-trained-agents`` (from the repository root)
+``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root)
 
 1. reads the ``MixedTraffic-v0`` entry of ``zoo_configs/ua2c.yml`` through rl-zoo3's own
    ``ExperimentManager`` and writes ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0/{config,args}.yml``
@@ -37,7 +37,7 @@ import torch
 ALGO = "ua2c"
 ENV_ID = "MixedTraffic-v0"
 EXP_ID = 1
-SCRIPT = "python -m experiments.pretrained.make_checkpoint"
+SCRIPT = "python -m experiments make-checkpoint"
 
 #: The budget of ``python -m envs main`` (``MAIN_BUDGET["full"]`` of ``envs/cli.py``;
 #: ``tests/traffic/test_pretrained.py`` checks that they agree).
@@ -270,8 +270,8 @@ stateful `predict` with adaptive execution (δ = {info['entropy_threshold']}), a
 """
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=SCRIPT, description=__doc__.split("\n\n")[0])
+def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="rl-trained-agents", help="trained-agents folder (rl-zoo's -f)")
     parser.add_argument("--conf-file", default="zoo_configs/ua2c.yml")
     parser.add_argument("--episodes", type=int, default=None, help="default: main's 200")

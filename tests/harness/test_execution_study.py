@@ -1,4 +1,4 @@
-"""The execution-rule study (``python -m experiments.execution``): the controls, the run-level report on
+"""The execution-rule study (``python -m experiments execution``): the controls, the run-level report on
 hand-made records, and bad input."""
 
 from __future__ import annotations

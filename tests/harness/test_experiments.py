@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 
 from experiments.common import names
+from experiments.common.budget import library_default
 from experiments.common.names import delta_name
 from experiments.common.records import command_line, strict_json
 from experiments.common.runner import list_schedule_seconds
@@ -18,15 +18,16 @@ from experiments.common.stats import (
     compare,
     relative_change_pct,
     student_t_quantile,
-    student_t_two_sided_cdf,
     t_confidence_interval,
 )
 from experiments.fig2 import budget as fig2_budget
 from experiments.fig2 import cli as fig2_cli
 from experiments.fig2 import manifest, units
 from experiments.fig2.aggregation import aggregate, online_curve, online_phase_stats
-from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, CostModel, Fig2Budget, estimate_seconds
+from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
 from experiments.fig2.report import format_markdown
+
+DEFAULT_ELITE = library_default("policy_kwargs")["n_elite"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -40,14 +41,9 @@ def test_student_t_quantile_matches_tables(df: int, expected: float) -> None:
     assert student_t_quantile(0.95, df) == pytest.approx(expected, abs=1e-4)
 
 
-def test_student_t_cdf_closed_forms() -> None:
-    # df=1 is Cauchy: P(|T| <= 1) = 2 atan(1) / pi = 0.5; df=2: P(|T| <= t) = t / sqrt(2 + t^2)
-    assert student_t_two_sided_cdf(1.0, 1) == pytest.approx(0.5)
-    assert student_t_two_sided_cdf(2.0, 2) == pytest.approx(2.0 / math.sqrt(6.0))
-    assert student_t_two_sided_cdf(0.0, 5) == 0.0
-    assert student_t_two_sided_cdf(math.inf, 3) == 1.0
+def test_student_t_quantile_checks_its_arguments() -> None:
     with pytest.raises(ValueError, match="df"):
-        student_t_two_sided_cdf(1.0, 0)
+        student_t_quantile(0.95, 0)
     with pytest.raises(ValueError, match="confidence"):
         student_t_quantile(1.5, 3)
 
@@ -130,27 +126,28 @@ def test_budget_validation_names_the_key() -> None:
             Fig2Budget(flow_sweep=(bad,))
     budget = Fig2Budget().replace(flow_sweep=[3, 2, 2], elite_sweep=[8])
     assert budget.flow_sweep == (2, 3) and budget.to_dict()["flow_sweep"] == [2, 3]
-    assert budget.acting_variants == ((None, 8), (2, 1), (2, 8), (3, 1), (3, 8))
+    assert budget.acting_variants() == ((None, 1), (2, 8), (2, 1), (3, 8), (3, 1))  # UA2C's elite mean of 8
+    assert budget.acting_variants(1) == ((None, 8), (2, 1), (2, 8), (3, 1), (3, 8))  # a report made under m = 1
     budget = Fig2Budget().replace(k_sweep=[10, 3, 3], delta_sweep=["inf", 0])
     assert budget.k_sweep == (3, 10) and budget.delta_sweep == (0.0, math.inf)
     assert budget.pretrain_ks == (1, 3, 5, 10)  # 1 and chunk_size always
-    # checkpoints that act by an elite mean: the sweep names m = 1 and evaluates it like any other m
-    elite8 = {"policy_kwargs": {"n_elite": 8}}
-    budget = Fig2Budget().replace(algo_kwargs=elite8, elite_sweep=[4, 8], flow_sweep=[2])
-    assert budget.default_elite == 8 and Fig2Budget().default_elite == 1
-    assert budget.acting_variants == ((None, 1), (None, 4), (2, 8), (2, 1), (2, 4))
-    assert [names.acting_name("chunk", n, m, 8) for n, m in budget.acting_variants] == [
-        "chunk_elite1", "chunk_elite4", "chunk_flow2", "chunk_flow2_elite1", "chunk_flow2_elite4"
+    # checkpoints that act by another elite mean: the sweep names the library's and evaluates it like any other m
+    elite4 = {"policy_kwargs": {"n_elite": 4}}
+    budget = Fig2Budget().replace(algo_kwargs=elite4, elite_sweep=[4, 8], flow_sweep=[2])
+    assert budget.default_elite == 4 and Fig2Budget().default_elite == DEFAULT_ELITE
+    assert budget.acting_variants() == ((None, 1), (None, 8), (2, 4), (2, 1), (2, 8))
+    assert [names.acting_name("chunk", n, m, 4) for n, m in budget.acting_variants()] == [
+        "chunk_elite1", "chunk_elite8", "chunk_flow2", "chunk_flow2_elite1", "chunk_flow2_elite8"
     ]
-    assert names.acting_name("onestep", None, 8) == "onestep_elite8"  # default_elite = 1: the old names
-    assert Fig2Budget(algo_kwargs=elite8).arm_kwargs(1)["policy_kwargs"] == elite8["policy_kwargs"]  # inherited
-    with pytest.raises(ValueError, match="one-step baseline acts with n_elite=1 and the chunk policy with n_elite=8"):
-        Fig2Budget(algo_kwargs=elite8, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}})
+    assert names.acting_name("onestep", None, 8, 1) == "onestep_elite8"  # default_elite = 1: the old names
+    assert Fig2Budget(algo_kwargs=elite4).arm_kwargs(1)["policy_kwargs"] == elite4["policy_kwargs"]  # inherited
+    with pytest.raises(ValueError, match="one-step baseline acts with n_elite=8 and the chunk policy with n_elite=4"):
+        Fig2Budget(algo_kwargs=elite4, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}})
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
-    # the default run: each offline arm at its own size, both acting by the elite mean of 8
-    assert FULL_BUDGET.default_elite == 8 and FULL_BUDGET.online_replicates == 2
-    assert FULL_BUDGET.arm_kwargs(1)["policy_kwargs"] == {"net_arch": [128, 128], "n_elite": 8}
-    assert FULL_BUDGET.arm_kwargs(3)["policy_kwargs"] == {"net_arch": [512, 512, 512], "n_elite": 8}  # k sweep too
+    # the default run: the chunk policy at UA2C's defaults, the one-step baseline at 128 x 2, both acting alike
+    assert FULL_BUDGET.default_elite == DEFAULT_ELITE and FULL_BUDGET.online_replicates == 2
+    assert FULL_BUDGET.arm_kwargs(1)["policy_kwargs"] == {"net_arch": [128, 128]}
+    assert "policy_kwargs" not in FULL_BUDGET.arm_kwargs(3)  # the k sweep too: UA2C's own defaults
     assert Fig2Budget.from_dict(FULL_BUDGET.to_dict()) == FULL_BUDGET
 
 
@@ -167,76 +164,46 @@ def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> N
     assert "finetune_kwargs" in manifest.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
 
 
-def test_estimate_by_hand_and_full_budget_fits_two_hours() -> None:
-    costs = CostModel(
-        collect_ms_per_step=1.0,
-        pretrain_ms_per_step=4.0,
-        pretrain_ms_per_step_per_k=10.0,
-        finetune_ms_per_update=100.0,
-        finetune_ms_per_env_step=0.0,
-        eval_ms_per_step=1.0,
-        style_ms_per_step=1.0,
-        style_s_per_epoch=0.0,
-        adaptive_plan_length=1.0,
-        plan_ms=2.0,
-    )
-    budget = Fig2Budget(
-        dataset_episodes=10,
-        pretrain_steps=100,
-        finetune_steps=50,
-        eval_episodes=2,
-        chunk_size=2,
-        style_episodes=5,
-        delta_sweep=(0.0,),
-        k_sweep=(1,),
-        style_ablation=False,
-        elite_sweep=(),
-        flow_sweep=(),
-        sampled_eval=False,
-        algo_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},  # the cost model's reference field
-        onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},
-    )
-    est = estimate_seconds(budget, n_seeds=2, costs=costs)
-    steps = 200  # 40 s / 0.2 s
-    assert est["datasets"] == pytest.approx(2 * 10 * steps * 1e-3)
-    assert est["pretrain"] == pytest.approx(2 * 100 * ((4 + 10) + (4 + 20)) * 1e-3)  # k = 1 and k = 2
-    # both arms: one update per k = 2 env steps; replanning every L = 1 (adaptive) or 2 (fixed) steps
-    assert est["finetune"] == pytest.approx(2 * 50 * ((2 / 1 + 100 / 2) + (2 / 2 + 100 / 2)) * 1e-3)
-    assert est["evaluate"] == pytest.approx(2 * (6 + 1 + 1) * 2 * steps * 1e-3)  # 6 arms, 1 δ, 1 k, no elite
-    assert est["total"] == pytest.approx(sum(v for k, v in est.items() if k != "total"))
-    # acting sweep: (N, m) in {10, 2} x {1, 8} without (10, 1), for both offline checkpoints
-    acting = estimate_seconds(budget.replace(elite_sweep=[8], flow_sweep=[2]), n_seeds=2, costs=costs)
-    assert acting["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 3) * 2 * steps * 1e-3)
-    # sampled evaluations: the 6 methods of SAMPLED_METHODS once more
-    sampled = estimate_seconds(budget.replace(sampled_eval=True), n_seeds=2, costs=costs)
-    assert sampled["evaluate"] - est["evaluate"] == pytest.approx(2 * 6 * 2 * steps * 1e-3)
-    # two more online phases: both arms fine-tuned and evaluated twice more (no sampled evaluations here)
-    phases = estimate_seconds(budget.replace(online_replicates=3), n_seeds=2, costs=costs)
-    assert phases["finetune"] == pytest.approx(3 * est["finetune"])
-    assert phases["evaluate"] - est["evaluate"] == pytest.approx(2 * (2 * 2) * 2 * steps * 1e-3)
-    # a larger velocity field for the chunk policy alone: its gradient steps and replannings cost more
-    assert fig2_budget.velocity_field_weights({}) == 2 * 512 * 512  # UA2C's default field
-    assert fig2_budget.velocity_field_weights({"policy_kwargs": {"net_arch": [128, 128]}}) == 128 * 128
-    assert fig2_budget.velocity_field_weights({"policy_kwargs": {"net_arch": [256, 256, 256]}}) == 2 * 256 * 256
-    wide = budget.replace(
-        algo_kwargs={"policy_kwargs": {"net_arch": [512, 512, 512]}}, onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}}
-    )
-    est_wide = estimate_seconds(wide, n_seeds=2, costs=dataclasses.replace(costs, update_ms_per_kweight=1.0, plan_ms_per_kweight=2.0))
-    extra = (2 * 512 * 512 - 128 * 128) / 1000  # 507.904 thousand weights beyond 128 x 2
-    assert est_wide["pretrain"] - est["pretrain"] == pytest.approx(2 * 100 * extra * 1e-3)  # k = 2 only
-    # adaptive (L = 1) and fixed (L = 2) replannings, one update per k = 2 env steps for both arms
-    assert est_wide["finetune"] - est["finetune"] == pytest.approx(2 * 50 * (2 * extra / 1 + extra / 2 + 2 * extra / 2 + extra / 2) * 1e-3)
-    assert est_wide["evaluate"] - est["evaluate"] == pytest.approx(2 * 8 * 2 * steps * 2 * (extra / 2) * 1e-3)
-    # the per-unit costs behind it (experiments/fig2/measure_costs.py compares them with measured times)
-    assert fig2_budget.extra_kweights({"policy_kwargs": {"net_arch": [64, 64]}}) == 0.0  # smaller: no saving
-    assert fig2_budget.extra_kweights(wide.arm_kwargs(2)) == pytest.approx(extra)
-    unit = CostModel()
-    assert unit.pretrain_step_ms(5, 100.0) == pytest.approx(14.0 + 5 * 2.8 + 100 * 0.032)  # 31.2 ms
-    assert unit.pretrain_step_ms(1) == pytest.approx(16.8)
-    assert unit.replan_ms(100.0) == pytest.approx(4.0 + 100 * 0.008)  # 4.8 ms
+def test_quick_budget_arms_act_with_the_n_elite_their_labels_say() -> None:
+    """The quick budget leaves n_elite to UA2C: the arms' model kwargs and the acting sweep's labels agree on it."""
+    from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
+    from sb3_ua2c import UA2C
+
+    assert "n_elite" not in QUICK_BUDGET.arm_kwargs(QUICK_BUDGET.chunk_size).get("policy_kwargs", {})
+    env = make_traffic_env(env_kwargs=dict(QUICK_BUDGET.env_kwargs))
+    try:
+        for k in (1, QUICK_BUDGET.chunk_size):  # the kwargs the runner pre-trains each arm with (units.py)
+            model = UA2C("MlpPolicy", env, device="cpu", **{**TRAFFIC_DEFAULTS, **QUICK_BUDGET.arm_kwargs(k)})
+            assert model.policy.n_elite == QUICK_BUDGET.default_elite == DEFAULT_ELITE
+    finally:
+        env.close()
+    # the sweep's labels: the arm's own m has no suffix, every other m is named
+    labels = [names.acting_name("chunk", n, m, QUICK_BUDGET.default_elite) for n, m in QUICK_BUDGET.acting_variants()]
+    assert "chunk" not in labels and f"chunk_elite{DEFAULT_ELITE}" not in labels and "chunk_elite1" in labels
+
+
+def test_estimate_scales_the_recorded_stage_times_by_the_budget() -> None:
+    budget = Fig2Budget(dataset_episodes=10, pretrain_steps=100, finetune_steps=50, eval_episodes=2, chunk_size=2,
+                        style_episodes=5, delta_sweep=(0.0,), k_sweep=(1,), style_ablation=False, elite_sweep=(),
+                        flow_sweep=(), sampled_eval=False)
+    sizes = fig2_budget.stage_sizes(budget)
+    # (N, m) in {10} x {m0, 1}: (10, 1) is the one variant; 4 main + 2 + 1 δ + 1 k + 2 acting = 10 evaluations
+    assert sizes == {"datasets": 10, "pretrain": 200, "finetune": 100, "evaluate": 20, "style": 5, "style_ablation": 0}
+    # a report measured at twice the sizes on 1 seed: every stage takes half its seconds per seed
+    report = {"seeds": [0], "budget": budget.replace(dataset_episodes=20, pretrain_steps=200, finetune_steps=100,
+                                                     eval_episodes=4, style_episodes=10).to_dict(),
+              "seconds": {"measured": {"datasets": 8.0, "pretrain": 40.0, "finetune": 20.0, "evaluate": 10.0,
+                                       "style": 2.0, "style_ablation": 0.0}}}
+    est = estimate_seconds(budget, n_seeds=3, reports=[report])
+    assert est["pretrain"] == pytest.approx(3 * 20.0) and est["datasets"] == pytest.approx(3 * 4.0)
+    assert est["style_ablation"] == 0.0 and est["total"] == pytest.approx(3 * (4 + 20 + 10 + 5 + 1))
+    # a stage no report measured takes the median rate of the others
+    partial = {**report, "seconds": {"measured": {"pretrain": 40.0, "finetune": 20.0}}}
+    assert estimate_seconds(budget, 1, [partial])["evaluate"] == pytest.approx(0.1 * 20)  # 40 / 400 and 20 / 200
+    # the committed reports: the default budget is about two hours of wall time on 2 cores
     full = estimate_seconds(FULL_BUDGET, 5)
     wall = fig2_budget.estimate_wall_seconds(full, 5, 2)
-    assert 30 * 60 <= wall <= 2.25 * 60 * 60
+    assert 30 * 60 <= wall <= 2.5 * 60 * 60
     # the two parts of a seed fill the workers: shorter than whole seeds (one worker runs 3 of 5)
     assert full["total"] / 2 <= wall < full["total"] / 5 * math.ceil(5 / 2)
 
@@ -465,6 +432,7 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
         "adaptive",
         "fixed_adaptive",
         "adaptive_style",
+        "chunk_elite1",
         "chunk_elite2",
         "onestep_elite2",
         "chunk_flow2",
@@ -490,9 +458,9 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     work = quick_run / "fig2_work" / "seed0"
     units = json.loads((work / "unit_seconds.json").read_text())  # the seed's main part
     style = json.loads((work / "unit_seconds_style.json").read_text())  # its style part
-    # main: dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 3 acting rules, finetune 2, online
+    # main: dataset 1, pretrain k=1,2,3 3, offline evals 6 + 2 x 5 acting rules, finetune 2, online
     # evals 3, δ sweep 2, sampled evals 6, second online phase 2 + 2 evals + 2 sampled
-    assert len(units) == 35 and "seed0/pretrain/pretrain_k2" in units
+    assert len(units) == 39 and "seed0/pretrain/pretrain_k2" in units
     # style: collect, train, evaluate; the ablation's dataset, pre-training, fine-tuning, evaluation
     assert sorted(style) == [
         "seed0/dataset_style", "seed0/evaluate/adaptive_style", "seed0/finetune/adaptive_style",
@@ -510,8 +478,11 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert set(summary["sampled"]) == set(names.PAPER)
     assert (quick_run / "fig2_b_offline_jerk_sampled.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
-    # (N, m): the checkpoints' N = 10 with m = 2, then N = 2 with m = 1 and 2
-    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 2), (2, 1), (2, 2)]
+    # (N, m): the arms act with UA2C's m (the quick budget leaves n_elite out); the checkpoints' N = 10 with
+    # m = 1 and 2, then N = 2 with UA2C's m, 1 and 2
+    m0 = DEFAULT_ELITE
+    assert summary["acting_default"] == {"flow_steps": library_default("flow_steps"), "n_elite": m0}
+    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 1), (10, 2), (2, m0), (2, 1), (2, 2)]
     assert "Acting rule" in (quick_run / "fig2.md").read_text()
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
@@ -609,7 +580,7 @@ def test_resumed_run_does_no_work(quick_run: Path, monkeypatch: pytest.MonkeyPat
     assert rebuilt["budget"]["pretrain_steps"] == 8
     # the rebuilt report keeps the command and date of the run that produced the results
     assert (rebuilt["command"], rebuilt["date"]) == (run_record["command"], run_record["date"])
-    assert rebuilt["command"].startswith("python -m experiments.fig2 --quick")
+    assert rebuilt["command"].startswith("python -m experiments fig2 --quick")
     # without the work directory (a fresh clone holds only results/), the run's budget and unit
     # timings come from fig2.json, so the compute table survives
     empty = quick_run / "no_work"
@@ -769,15 +740,29 @@ def test_explicit_default_net_arch_builds_the_same_networks() -> None:
 
 
 def test_command_line_is_quoted_for_the_shell() -> None:
-    assert command_line("python -m experiments.fig2", []) == "python -m experiments.fig2"
-    line = command_line("python -m experiments.fig2", ["--budget", '{"a": 1}', "--out", "r"])
-    assert line == """python -m experiments.fig2 --budget '{"a": 1}' --out r"""
+    assert command_line("python -m experiments fig2", []) == "python -m experiments fig2"
+    line = command_line("python -m experiments fig2", ["--budget", '{"a": 1}', "--out", "r"])
+    assert line == """python -m experiments fig2 --budget '{"a": 1}' --out r"""
 
 
 def test_the_cli_subcommand_names_itself(capsys) -> None:
     with pytest.raises(SystemExit):
         fig2_cli.main(["--help"])
-    assert capsys.readouterr().out.startswith("usage: python -m experiments.fig2 ")
+    assert capsys.readouterr().out.startswith("usage: python -m experiments fig2 ")
+
+
+def test_one_entry_point_dispatches_every_command(capsys) -> None:
+    import importlib
+
+    from experiments.__main__ import COMMANDS, main
+
+    assert main([]) == 2 and "peers-tuning" in capsys.readouterr().out  # the usage lists the commands
+    assert main(["fig3"]) == 2 and "unknown command 'fig3'" in capsys.readouterr().err
+    for name, (module, _) in COMMANDS.items():  # every command's module has main(argv, prog)
+        assert "prog" in importlib.import_module(module).main.__code__.co_varnames, name
+    with pytest.raises(SystemExit):
+        main(["peers-tuning", "--help"])
+    assert capsys.readouterr().out.startswith("usage: python -m experiments peers-tuning ")
 
 
 def test_each_name_is_imported_from_its_defining_module() -> None:

@@ -1,4 +1,4 @@
-"""``python -m experiments.fig2.compare_runs``: two Figure-2 reports paired run by run (hand-made records)."""
+"""``python -m experiments compare-runs`` and ``pool-replicates``: Figure-2 reports paired run by run (hand-made records)."""
 
 import json
 
@@ -36,3 +36,19 @@ def test_rows_pair_runs_and_pool_online_phases(tmp_path, capsys):
     assert out.read_text().startswith("| reward | ctl (A) | abl (B) |") and "| offline chunk policy | 15.0 | 17.0 | +2.0 [" in out.read_text()
     assert compare_runs.main([str(tmp_path / "missing"), str(b)]) == 2
     assert "no fig2_raw/" in capsys.readouterr().err
+
+
+def test_pool_replicates_pools_every_online_phase_of_every_report(tmp_path, capsys):
+    from experiments.fig2 import pool_replicates
+
+    a = _report(tmp_path / "a", {(0, "adaptive"): 110.0, (0, "fixed"): 100.0, (0, "adaptive_r1"): 90.0,
+                                 (0, "fixed_r1"): 100.0, (1, "adaptive"): 120.0, (1, "fixed"): 100.0})
+    b = _report(tmp_path / "b", {(0, "adaptive"): 100.0, (0, "fixed"): 100.0, (1, "adaptive"): 130.0,
+                                 (1, "fixed"): 100.0})
+    assert pool_replicates.arm_rewards(a) == {(0, 0): (110.0, 100.0), (0, 1): (90.0, 100.0), (1, 0): (120.0, 100.0)}
+    pool_replicates.main([str(a), str(b)], prog="pool-replicates")
+    rows = capsys.readouterr().out.splitlines()
+    # pooled: 5 runs, adaptive 110.0 against fixed 100.0, (c) +10 %; per run +10, -10, +20, 0, +30 %
+    assert rows[-2].startswith("| pooled | 5 | 110.0 | 100.0 | +10.00 % | +10.0 ± ")
+    with pytest.raises(SystemExit, match="different seeds"):
+        pool_replicates.main([str(a), str(_report(tmp_path / "c", {(2, "adaptive"): 1.0, (2, "fixed"): 1.0}))])

@@ -258,7 +258,7 @@ def test_unit_runs_end_to_end(ogb, tmp_path):
                            eval_episodes=2, curve_points=1, curve_episodes=1, max_episode_steps=20)
     record = run_ogbench_unit("fixed", TASK, 0, budget, tmp_path / "unit", data_dir=tmp_path / "data")
     assert record["dataset"]["transitions"] == 58
-    assert record["algo_kwargs"]["entropy_threshold"] == "inf" and record["algo_kwargs"]["chunk_size"] == 5
+    assert record["algo_kwargs"]["entropy_threshold"] == "inf" and "chunk_size" not in record["algo_kwargs"]  # the default k
     assert [p["step"] for p in record["curve"]] == [0, 12, 25]
     assert record["curve"][0]["success"] == record["success_offline"] in (0.0, 0.5, 1.0)
     assert len(record["eval_online"]["successes"]) == 2

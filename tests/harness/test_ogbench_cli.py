@@ -1,4 +1,4 @@
-"""``python -m experiments.ogbench``: the quick run end to end, resuming, the report's statistics on
+"""``python -m experiments ogbench``: the quick run end to end, resuming, the report's statistics on
 hand-made records, the cost estimate and bad input.
 
 Needs the ``ogbench`` extra (fails under ``CI=true`` without it, skips elsewhere), except for the
@@ -148,19 +148,17 @@ def test_seeds_are_a_list_kept_distinct_and_sorted():
 
 
 # ------------------------------------------------------------------------------------ estimate
-def test_estimate_from_the_cost_table():
-    require("ogbench")
+def test_estimate_scales_the_recorded_unit_seconds_by_the_steps():
     from experiments.ogbench.runner import estimate
 
-    budget = OGBenchBudget(dataset_episodes=10, episode_steps=30, pretrain_steps=1000, finetune_steps=1000,
-                           eval_episodes=10, curve_points=0, max_episode_steps=20)
-    est = estimate("cube-single-play-singletask-task2-v0", ["fixed"], 2, budget, workers=2)
-    # one fixed unit: 1000 x 0.034 + 1000 x 0.0100 + (2 x 10 episodes x 20 steps) x 0.0025 = 45 CPU s
-    assert est["units_cpu"] == pytest.approx(90.0)
-    assert est["data_cpu"] == pytest.approx((10 + 1) * 30 / 445.0)  # 330 oracle steps at 445 per CPU s
-    assert est["wall"] == pytest.approx(est["data_cpu"] + 45.0)  # two units on two workers
-    assert estimate("cube-single-play-singletask-task2-v0", ["fixed"], 2, budget, 1, data_ready=True)["wall"] \
-        == pytest.approx(90.0)
+    budget = OGBenchBudget(pretrain_steps=1000, finetune_steps=1000)
+    report = {"budget": OGBenchBudget(pretrain_steps=3000, finetune_steps=1000).to_dict(),
+              "records": [{"arm": "fixed", "seconds": {"total_cpu": 80.0}}, {"arm": "fixed", "seconds": {"total_cpu": 120.0}}]}
+    est = estimate(["fixed", "onestep"], 2, budget, workers=2, reports=[report])
+    # fixed: 200 CPU s over 8,000 steps = 25 ms per step -> 50 s a unit; onestep, unrecorded, the same rate
+    assert est["units_cpu"] == est["total_cpu"] == pytest.approx(4 * 50.0)
+    assert est["wall"] == pytest.approx(100.0)  # four units on two workers
+    assert estimate(["fixed"], 1, budget, 1)["total_cpu"] > 0  # the committed reports
 
 
 # ------------------------------------------------------------------------------------ report builders
@@ -222,10 +220,10 @@ def test_markdown_and_curves_on_hand_made_records(hand_records, tmp_path):
     require("rliable")
     from experiments.ogbench.report import format_markdown, return_curve, summarize, write_report
 
-    summary = write_report(hand_records, tmp_path, command="python -m experiments.ogbench", reps=200)
+    summary = write_report(hand_records, tmp_path, command="python -m experiments ogbench", reps=200)
     text = (tmp_path / "ogbench.md").read_text()
     assert "| fixed chunks (k = 5, δ = inf) | 3 | 0.0 % | 0.0 % [0.0 %, 0.0 %] | 58.3 % | 58.3 %" in text
-    assert "| 100, 75, 0 |" in text and "Command: `python -m experiments.ogbench`" in text
+    assert "| 100, 75, 0 |" in text and "Command: `python -m experiments ogbench`" in text
     assert summary["ranking"]["agrees_with_qc"] is (summary["ranking"]["ours_online"] == "fixed chunks > one-step")
     assert (tmp_path / "ogbench_online_success.png").stat().st_size > 1000
     on_disk = json.loads((tmp_path / "ogbench.json").read_text(), parse_constant=pytest.fail)

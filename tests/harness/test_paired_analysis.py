@@ -1,4 +1,4 @@
-"""``python -m experiments.analysis.paired``: the paired difference of two arms across runs, on hand-made
+"""``python -m experiments paired``: the paired difference of two arms across runs, on hand-made
 records with hand-computed intervals, and what bad input gets."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The head-to-head command (``python -m experiments.peers``): end to end at the quick budget, resuming and
+"""The head-to-head command (``python -m experiments peers``): end to end at the quick budget, resuming and
 rerunning one unit, the report builders on hand-made records, the estimate, and bad input."""
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from experiments.peers.budget import (
     UA2C_ARMS,
     PeersBudget,
     estimate_units,
-    estimate_wall,
-    peer_unit_seconds,
+    format_estimate,
 )
 from experiments.peers.report import (
     aggregate,
@@ -127,7 +126,7 @@ def test_a_report_over_records_of_another_run_names_that_run(quick_run, tmp_path
     assert cli.main(args) == 0
     summary = json.loads((out / "peers.json").read_text())
     assert summary["reused"] == {(quick_run / "peers_work").as_posix(): ["sac", "ua2c"]}
-    assert summary["estimate"]["per_unit"]["arms"] == {} and summary["estimate"]["per_unit"]["pretrain"] == {}  # none ran here
+    assert summary["estimate"]["per_unit"] == {} and summary["estimate"]["cpu"] == 0  # none ran here
     md = (out / "peers.md").read_text()
     assert f"Records reused from the run in `{(quick_run / 'peers_work').as_posix()}`" in md and ": sac, ua2c." in md
     # the run's own records are not "reused"
@@ -244,17 +243,25 @@ def test_binned_curve_carries_the_last_return_forward():
     np.testing.assert_allclose(binned_curve(episodes, 100, bins=4), [np.nan, 2.0, 2.0, 5.0])
 
 
-def test_estimate_reproduces_the_measured_peer_units_and_fits_three_and_a_quarter_hours():
+def test_estimate_scales_the_recorded_unit_seconds_by_the_steps():
+    # two records of SAC (offline 0) at 5,000 and 15,000 online steps: 40 CPU s per 1,000 steps
+    records = [{"arm": "sac", "cpu_seconds": {"total": 200.0}, "offline_steps": 0, "online_steps": 5000},
+               {"arm": "sac", "cpu_seconds": {"total": 600.0}, "online_steps": 15000},
+               {"arm": "iql", "cpu_seconds": {"total": 110.0}, "offline_steps": 6000, "online_steps": 5000}]
     at_10k = FULL_PEERS_BUDGET.with_online_steps(10_000)
-    measured = {"sac": 180, "tqc": 319, "sac_offline_mix": 180, "iql": 389, "calql": 2190}  # experiments/peers/measure_costs.py
-    for arm, seconds in measured.items():
-        assert peer_unit_seconds(arm, at_10k) == pytest.approx(seconds, rel=0.02), arm
-    # longest first on 2 workers: 5 | 4, then 3 -> the 4-worker, 3 -> the 5-worker, 3 -> the 7-worker
+    est = estimate_units(at_10k, ["sac", "iql", "tqc"], 2, workers=2, records=records)
+    assert est["per_unit"]["sac"] == pytest.approx(400.0)
+    assert est["per_unit"]["iql"] == pytest.approx(110.0 / 11_000 * 16_000)
+    assert est["per_unit"]["tqc"] == pytest.approx((0.04 + 0.01) / 2 * 10_000)  # no record: the median rate
+    assert est["cpu"] == pytest.approx(2 * sum(est["per_unit"].values()))
     # longest first on 2 workers: 5 | 4, 3 -> 7 | 3 -> 8 | 3 -> 10
     assert list_schedule_seconds(sorted([3, 5, 3, 4, 3], reverse=True), 2) == 10
     assert list_schedule_seconds([5, 3], 4) == 5
-    full = estimate_wall(estimate_units(FULL_PEERS_BUDGET, ARMS, 5), 2)
-    assert full["wall"] < 3.25 * 3600 and full["cpu"] > full["wall"]
+    assert est["wall"] == pytest.approx(sum(est["per_unit"].values()))  # each arm's two seeds on the two workers
+    assert "tqc" in format_estimate(est) and "CPU-min" in format_estimate(est)
+    # the committed records: every arm of the default run on 5 seeds fits within four hours on 2 cores
+    full = estimate_units(FULL_PEERS_BUDGET, ARMS, 5, workers=2)
+    assert full["wall"] < 4 * 3600 and full["cpu"] > full["wall"]
 
 
 def test_ua2c_arms_take_their_configuration_checkpoint_and_cadence_from_the_budget():
@@ -271,16 +278,6 @@ def test_ua2c_arms_take_their_configuration_checkpoint_and_cadence_from_the_budg
     assert b.finetune_overrides("ua2c_adaptive") == {"n_elite": 4, "train_freq": 5, "gradient_steps": 1}
     assert b.finetune_overrides("ua2c_adaptive_per_step") == {"n_elite": 4, "train_freq": 1, "gradient_steps": 1}
     assert (b.delta("ua2c"), b.delta("ua2c_paper"), b.delta("ua2c_fixed")) == (0.0, None, float("inf"))
-    # env steps per update: the paper's one per plan (gradient_steps=-1) counts plans; the others their cadence
-    assert b.steps_per_update("ua2c_paper", 2.5) == 2.5 and b.steps_per_update("ua2c_adaptive", 2.5) == 5.0
-    assert b.steps_per_update("ua2c_adaptive_per_step", 2.5) == 1.0
-    every_other = b.with_overrides({"ua2c": {"algo_kwargs": {"train_freq": 4, "gradient_steps": 2,
-                                                                     "policy_kwargs": {"n_elite": 8}}}})
-    assert every_other.steps_per_update("ua2c", 2.5) == 2.0
-    # one pre-training per checkpoint, priced by its own network (the preset's 128 x 2 field is cheaper)
-    estimate = estimate_units(b, ["ua2c", "ua2c_paper", "ua2c_adaptive"], 5)
-    assert sorted(estimate["pretrain"]) == ["5", "5_paper"]
-    assert estimate["pretrain"]["5_paper"] < estimate["pretrain"]["5"]
 
 
 def test_headline_names_the_best_of_each_side():
@@ -361,15 +358,3 @@ def test_budget_overrides_reach_the_budget_and_bad_keys_are_named(tmp_path, caps
         assert exit_info.value.code == 2 and name in capsys.readouterr().err
 
 
-def test_measure_costs_measures_the_arms_the_cost_model_prices():
-    from experiments.peers.budget import PeerCostModel
-    from experiments.peers.measure_costs import MEASURED_ARMS, measured_budget
-    from experiments.peers.runner import eval_protocol
-
-    costs = PeerCostModel()
-    assert set(MEASURED_ARMS) == set(costs.sb3_update_ms) | set(costs.d3rlpy_offline_ms)
-    assert len(MEASURED_ARMS) == 9 and "behaviour" not in MEASURED_ARMS
-    budget = measured_budget(2000, 500, 200, 20)
-    assert (budget.online_steps, budget.offline_steps("iql"), budget.ua2c.dataset_episodes) == (2000, 500, 200)
-    # Figure 2's evaluation scenarios of seed 0: SUMO seeds 1000 * (2000 + 0) + i
-    assert eval_protocol(0, budget) == {"eval_seeds": (2000,), "eval_episodes": 20}

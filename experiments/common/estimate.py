@@ -1,0 +1,62 @@
+"""Run-time estimates from the timings the committed records already hold, printed before a run.
+
+Every harness stores the CPU seconds of its units in its records (``results/**/peers_raw/seed<s>/<arm>.json``,
+the ``seconds`` of ``fig2.json`` and of ``ogbench.json``'s run records). A harness names the *kind* of each
+unit it is about to run (an arm, a stage) and its *size* (its steps); :func:`seconds_per_size` pools the
+recorded seconds per unit of size of each kind, and :func:`estimate` scales them by the new sizes. A kind
+that no record holds takes the median rate of the kinds that do. Units are priced on one core each; the wall
+time is their longest-first schedule on the workers (:func:`~experiments.common.runner.list_schedule_seconds`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.common.runner import list_schedule_seconds
+
+#: The committed reports and their records
+RESULTS = Path(__file__).resolve().parents[2] / "results"
+
+
+def recorded(pattern: str, results: Path = RESULTS) -> list[dict[str, Any]]:
+    """The JSON files under ``results`` matching ``pattern`` (e.g. ``"**/ogbench.json"``), parsed, in path order."""
+    return [json.loads(path.read_text()) for path in sorted(results.glob(pattern))]
+
+
+def seconds_per_size(samples: Iterable[tuple[str, float, float]]) -> dict[str, float]:
+    """Seconds per unit of size of each kind: the sum of its samples' seconds over the sum of their sizes.
+
+    :param samples: ``(kind, seconds, size)`` of each recorded unit (a size <= 0 is skipped)
+    """
+    seconds: dict[str, float] = {}
+    sizes: dict[str, float] = {}
+    for kind, s, size in samples:
+        if size > 0:
+            seconds[kind] = seconds.get(kind, 0.0) + float(s)
+            sizes[kind] = sizes.get(kind, 0.0) + float(size)
+    return {kind: seconds[kind] / sizes[kind] for kind in seconds}
+
+
+def estimate(rates: Mapping[str, float], sizes: Mapping[str, float]) -> dict[str, float]:
+    """Seconds of each kind at ``sizes`` (a kind without a rate: the median rate of the others; 0 without any)."""
+    fallback = float(np.median(list(rates.values()))) if rates else 0.0
+    return {kind: rates.get(kind, fallback) * size for kind, size in sizes.items()}
+
+
+def wall_seconds(units: Sequence[float], workers: int) -> float:
+    """Wall seconds of ``units`` (CPU seconds each) run longest first on ``workers`` cores."""
+    return list_schedule_seconds(sorted(units, reverse=True), workers) if units else 0.0
+
+
+def format_minutes(what: str, cpu: float, wall: float, workers: int) -> str:
+    """The line printed before a run."""
+    return (f"{what}: estimated {cpu / 60:.0f} CPU-min, ~{wall / 60:.0f} min wall on {workers} worker(s) "
+            "(from the unit times of the committed records; before resuming)")
+
+
+__all__ = ["RESULTS", "estimate", "format_minutes", "recorded", "seconds_per_size", "wall_seconds"]

@@ -1,8 +1,0 @@
-"""``python -m experiments.execution`` (see ``--help``)."""
-
-import sys
-
-from experiments.execution.cli import main
-
-if __name__ == "__main__":
-    sys.exit(main())
