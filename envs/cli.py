@@ -4,7 +4,7 @@ Commands, all on ``MixedTraffic-v0``: ``collect`` (offline dataset), ``pretrain`
 ``finetune`` (Phase 2), ``evaluate`` (metrics table + JSON), ``main`` (all four end to end),
 ``style`` (driving-style classifier: collect / train / evaluate). Each run writes into its own run
 directory (``--run-dir``, default ``runs/<command>-<date>-<time>``). The research experiments
-(Figure 2, the head-to-head, OGBench) run from a checkout as ``python -m experiments.<name>``.
+(Figure 2, the head-to-head, OGBench) run from a checkout as ``python -m experiments <command>``.
 
 The algorithm package ``sb3_ua2c`` knows no traffic: this module drives its generic stages
 (:func:`sb3_ua2c.pipeline.pretrain`, :func:`~sb3_ua2c.pipeline.finetune`) with the traffic

@@ -1,5 +1,5 @@
 """argparse argument types shared by the command lines of sb3-ua2c (``python -m envs``,
-``python -m experiments.fig2``, ``python -m experiments.peers``)."""
+``python -m experiments fig2``, ``python -m experiments peers``)."""
 
 from __future__ import annotations
 

@@ -34,16 +34,15 @@ from typing import Any
 
 import torch
 
+from envs.cli import MAIN_BUDGET
+
 ALGO = "ua2c"
 ENV_ID = "MixedTraffic-v0"
 EXP_ID = 1
 SCRIPT = "python -m experiments make-checkpoint"
 
-#: The budget of ``python -m envs main`` (``MAIN_BUDGET["full"]`` of ``envs/cli.py``;
-#: ``tests/traffic/test_pretrained.py`` checks that they agree).
-EPISODES = 200
-PRETRAIN_STEPS = 3000
-EVAL_EPISODES = 10
+#: The budget of ``python -m envs main`` (``MAIN_BUDGET["full"]`` of ``envs/cli.py``), taken from there.
+EPISODES, PRETRAIN_STEPS, EVAL_EPISODES = (MAIN_BUDGET["full"][k] for k in ("episodes", "pretrain_steps", "eval_episodes"))
 
 #: Seconds per collected episode, per evaluated episode and per gradient step, measured on one
 #: thread of a busy 2-core machine (for the estimate printed before the run).

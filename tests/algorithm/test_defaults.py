@@ -216,16 +216,7 @@ def scan_yaml(text: str, names: dict[str, list[Any]], where: str = "<yaml>") -> 
 
 #: the trees scanned; experiments/ and the zoo's files are not in every checkout
 TREES = {"sb3_ua2c": "*.py", "experiments": "*.py", "zoo_configs": "ua2c*.yml"}
-#: trees that still write defaults again, until their own change of the same issue takes them from
-#: ``defaults()``: their scan is expected to fail (and passes silently once they do)
-PENDING = {"experiments"}
-
-
-@pytest.mark.parametrize(
-    "tree",
-    [pytest.param(t, marks=pytest.mark.xfail(reason="takes its defaults from defaults() in a change of its own",
-                                              strict=False)) if t in PENDING else t for t in TREES],
-)
+@pytest.mark.parametrize("tree", list(TREES))
 def test_no_default_is_written_twice(tree):
     if not (ROOT / tree).is_dir():
         pytest.skip(f"no {tree}/ in this checkout")

@@ -1,6 +1,6 @@
 """The pretrained Phase-1 checkpoint shipped in ``rl-trained-agents/`` (rl-zoo's trained-agents layout).
 
-Made by ``python -m experiments.pretrained.make_checkpoint --out rl-trained-agents``.
+Made by ``python -m experiments make-checkpoint --out rl-trained-agents``.
 """
 
 from __future__ import annotations
