@@ -7,8 +7,8 @@ rl-zoo3 2.9.2 lacks:
 * Registration: rl-zoo3 has no plugin mechanism, and ``--algo`` checks its choices against
   ``rl_zoo3.ALGOS`` at parse time (``--gym-packages`` comes too late for an algorithm).
   :func:`register` adds ``ua2c`` there, its sampler to ``HYPERPARAMS_SAMPLER`` and its converter
-  (for ``--trial-id``) to ``HYPERPARAMS_CONVERTER``; :func:`main` registers and runs ``rl_zoo3.cli``
-  with ``--algo ua2c`` unless given another, ``optimize`` being ``train --optimize-hyperparameters``.
+  (for ``--trial-id``) to ``HYPERPARAMS_CONVERTER``; :func:`main` registers and runs rl-zoo3's
+  ``train`` / ``enjoy`` with ``--algo ua2c`` unless given another, ``optimize`` being ``train --optimize-hyperparameters``.
 * The UA2C search space (:data:`SEARCH_SPACE`, Optuna distributions; :func:`sample_ua2c_params`).
   A plug-in critic's own settings are searched as ``critic_kwargs.<name>`` in a space of your own.
 * ``train -i model.zip`` keeps counting timesteps (``learn(reset_num_timesteps=False)``): ``-n`` means
@@ -286,11 +286,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     if command == "optimize":
         command, args = "train", [*args, "--optimize-hyperparameters"]
     register()
-    from rl_zoo3.cli import main as zoo_main
+    from rl_zoo3.enjoy import enjoy  # not rl_zoo3.cli: it imports the plotting scripts, which need seaborn
+    from rl_zoo3.train import train
 
-    saved_argv, sys.argv = sys.argv, ["ua2c-zoo", command, *args]
+    saved_argv, sys.argv = sys.argv, [f"ua2c-zoo {command}", *args]
     try:
-        zoo_main()
+        {"train": train, "enjoy": enjoy}[command]()
     finally:
         sys.argv = saved_argv
 

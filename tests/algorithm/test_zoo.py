@@ -188,11 +188,13 @@ def test_paper_file_is_the_preset_on_ua2c_yaml_problems():
 
 @pytest.fixture
 def zoo_argv(monkeypatch) -> list[list[str]]:
-    """The ``sys.argv`` rl-zoo3's command line receives from the launcher (rl-zoo3 itself not run)."""
-    import rl_zoo3.cli
+    """The ``sys.argv`` rl-zoo3's ``train`` / ``enjoy`` receive from the launcher (rl-zoo3 itself not run)."""
+    import rl_zoo3.enjoy
+    import rl_zoo3.train
 
     seen = []
-    monkeypatch.setattr(rl_zoo3.cli, "main", lambda: seen.append(list(sys.argv)))
+    for module, name in ((rl_zoo3.train, "train"), (rl_zoo3.enjoy, "enjoy")):
+        monkeypatch.setattr(module, name, lambda name=name: seen.append([name, *sys.argv]))
     return seen
 
 
@@ -201,9 +203,9 @@ def test_main_defaults_algo_and_turns_optimize_into_train(zoo_argv):
     zoo.main(["optimize", "--algo", "sac", "--n-trials", "2"])
     zoo.main(["enjoy", "--algo=sac", "-f", "logs"])
     assert zoo_argv == [
-        ["ua2c-zoo", "train", "--algo", "ua2c", "--env", "Pendulum-v1", "--conf-file", "c.yml"],
-        ["ua2c-zoo", "train", "--algo", "sac", "--n-trials", "2", "--optimize-hyperparameters"],
-        ["ua2c-zoo", "enjoy", "--algo=sac", "-f", "logs"],
+        ["train", "ua2c-zoo train", "--algo", "ua2c", "--env", "Pendulum-v1", "--conf-file", "c.yml"],
+        ["train", "ua2c-zoo train", "--algo", "sac", "--n-trials", "2", "--optimize-hyperparameters"],
+        ["enjoy", "ua2c-zoo enjoy", "--algo=sac", "-f", "logs"],
     ]
 
 
