@@ -45,12 +45,6 @@ EPISODES = 200
 PRETRAIN_STEPS = 3000
 EVAL_EPISODES = 10
 
-#: Seconds per collected episode, per evaluated episode and per gradient step, measured on one
-#: thread of a busy 2-core machine (for the estimate printed before the run).
-COLLECT_SECONDS_PER_EPISODE = 0.08
-EVAL_SECONDS_PER_EPISODE = 0.6
-PRETRAIN_SECONDS_PER_STEP = 0.125
-
 
 def experiment_dir(out: str | os.PathLike) -> Path:
     """``<out>/ua2c/MixedTraffic-v0_1``: where rl-zoo's ``enjoy -f <out>`` looks by default."""
@@ -286,11 +280,6 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     episodes = EPISODES if args.episodes is None else args.episodes
     steps = PRETRAIN_STEPS if args.steps is None else args.steps
     eval_episodes = EVAL_EPISODES if args.eval_episodes is None else args.eval_episodes
-    print(
-        f"estimate: ~{episodes * COLLECT_SECONDS_PER_EPISODE + eval_episodes * EVAL_SECONDS_PER_EPISODE + steps * PRETRAIN_SECONDS_PER_STEP:.0f} s "
-        f"({episodes} + {eval_episodes} episodes, {steps} gradient steps)",
-        flush=True,
-    )
 
     out = Path(args.out)
     log_folder = os.path.relpath(out) if out.is_absolute() else str(out)
@@ -378,6 +367,3 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     print(f"checkpoint: {shipped} ({info['size']} bytes)")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
