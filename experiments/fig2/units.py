@@ -128,8 +128,8 @@ def _evaluation(
 
 
 
-class SeedBusyError(RuntimeError):
-    """Another process is running the same seed in the same work directory."""
+class SeedBusyError(ValueError):
+    """Another process is running the same seed in the same work directory (a usage error: exit code 2)."""
 
 
 @contextmanager
