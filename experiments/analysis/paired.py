@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import LOWER_IS_BETTER, paired_difference, run_scores
+from experiments.common.stats import LOWER_IS_BETTER, interval, paired_difference, run_scores
 from experiments.peers.runner import PeersPaths, load_records
 
 
@@ -131,8 +131,7 @@ def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric:
     else:
         sense, ahead = "X − Y, X better when > 0", "X ahead in"
     return (f"X = {x.name}: {result['x_mean']:.2f}\nY = {y.name}: {result['y_mean']:.2f}\n"
-            f"{metric}, {sense}, paired over seeds {result['seeds']}: {result['difference']:+.2f} "
-            f"[{result['ci_low']:+.2f}, {result['ci_high']:+.2f}] (95 % Student-t); "
+            f"{metric}, {sense}, paired over seeds {result['seeds']}: {interval(result)} (95 % Student-t); "
             f"{ahead} {result['x_better_runs']} of {result['runs']} runs")
 
 

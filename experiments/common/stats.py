@@ -220,6 +220,12 @@ def verdict(x: str, y: str, paired: Mapping[str, float], unit: str = "") -> str:
             f"runs ({x} ahead in {paired['x_better_runs']}): {word}")
 
 
+def interval(stat: Mapping[str, float], key: str = "difference", digits: int = 2, sign: str = "+") -> str:
+    """A statistic with its interval, ``+3.10 [+0.70, +5.50]`` (``sign="+"``) or ``0.62 [0.40, 0.81]`` (``""``)."""
+    spec = f"{sign}.{digits}f"
+    return f"{stat[key]:{spec}} [{stat['ci_low']:{spec}}, {stat['ci_high']:{spec}}]"
+
+
 def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) -> float:
     """Area under one run's online learning curve per env step: the return of the episode running at
     each step, averaged over the steps up to the last episode's end, i.e. ``Σ_i R_i ℓ_i / Σ_i ℓ_i``
@@ -315,7 +321,7 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
 
 
 __all__ = [
-    "LOWER_IS_BETTER", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
+    "LOWER_IS_BETTER", "interval", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
     "probability_of_improvement", "run_scores", "score_matrix", "verdict",
     "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval",
 ]

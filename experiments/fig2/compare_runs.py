@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from experiments.common.names import replicate_name
-from experiments.common.stats import paired_difference
+from experiments.common.stats import interval, paired_difference
 
 #: rows of the comparison: (label, methods pooled into it; their runs are (seed, method) pairs)
 ROWS = (
@@ -77,8 +77,7 @@ def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:
             head = f"| {r['label']} | fixed {r['a']:.1f} | adaptive {r['b']:.1f} |"
         else:
             head = f"| {r['label']} | {r['a']:.1f} | {r['b']:.1f} |"
-        lines.append(f"{head} {r['difference']:+.1f} [{r['ci_low']:+.1f}, {r['ci_high']:+.1f}] | "
-                     f"{r['runs']} ({r['x_better_runs']}) |")
+        lines.append(f"{head} {interval(r, digits=1)} | {r['runs']} ({r['x_better_runs']}) |")
     return "\n".join(lines)
 
 

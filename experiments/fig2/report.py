@@ -19,7 +19,7 @@ from experiments.common.names import (
     SAMPLED_METHODS,
     sampled_name,
 )
-from experiments.common.stats import t_confidence_interval
+from experiments.common.stats import interval, t_confidence_interval
 from experiments.fig2.budget import STAGES
 from experiments.fig2.manifest import RunPaths
 from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
@@ -139,8 +139,7 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
         cmp = c[key]
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
         paired = cmp.get("paired")
-        diff = (f"{paired['difference']:+.2f} [{paired['ci_low']:+.2f}, {paired['ci_high']:+.2f}] "
-                f"({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else "")
+        diff = f"{interval(paired)} ({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else ""
         paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
         lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {diff} | {paper} | {verdict} |")
