@@ -1,17 +1,8 @@
 """Command line of the execution-rule study: ``python -m experiments execution``.
 
-Examples::
-
-    python -m experiments execution --role development --seeds 0 1 2 --workers 2     # the screen (validation)
-    python -m experiments execution --role confirmation --seeds 10 11 12 13 14 --online fixed growth0.5
-    python -m experiments execution --quick --out /tmp/exe                             # end to end in seconds
-    python -m experiments execution --role development --report-only                  # rebuild the report
-    python -m experiments execution --env ogbench --role development --seeds 0 1 2    # OGBench pointmaze
-
-A development run evaluates on validation scenarios (seed base 3,000; OGBench: reset seeds 20,000,000 +
-1000 s + i) and is where rules are chosen; a confirmation run evaluates on test scenarios (seed base 4,000;
-OGBench: the OGBench report's 10,000,000 + 1000 s + i) with seeds never used for a choice.
-"""
+A development run evaluates on validation scenarios and is where rules are chosen; a confirmation run
+evaluates on test scenarios with seeds never used for a choice (OGBench: reset seeds 20,000,000 and
+10,000,000 + 1000 s + i)."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
-"""An ablation against its control: two Figure-2 reports made on the same seeds and datasets, paired run by run.
+"""An ablation against its control: two Figure-2 reports on the same seeds and datasets, paired run by run
+(``python -m experiments compare-runs A B --labels a b [--out FILE.md]``).
 
-Usage::
-
-    python -m experiments compare-runs results/critic_work/transformer results/critic_work/mlp \
-        --labels transformer mlp [--out results/critic_development.md]
-
-For every method both reports hold (the offline chunk policy, the fine-tuned arms of every online phase,
-with fixed and with fresh candidate noise), the mean reward of each report and the mean paired difference
-``B − A`` over the runs both hold (one run = one seed, or one seed of one online phase for the fine-tuned
-arms pooled over phases) with its Student-t interval (:func:`experiments.common.stats.paired_difference`).
-Also Figure 2 (c) of each report on the same runs: adaptive − fixed, paired per run.
-"""
+Per method both reports hold, each report's mean reward and the paired difference ``B − A`` over the runs
+both hold (fine-tuned arms pooled over online phases) with its Student-t interval; and Figure 2 (c) of each
+report on the same runs."""
 
 from __future__ import annotations
 

@@ -1,14 +1,4 @@
-"""Command line of the OGBench benchmark: ``python -m experiments ogbench``.
-
-Examples::
-
-    python -m experiments ogbench --workers 2                      # default task and budget (estimate printed first)
-    python -m experiments ogbench --quick --out /tmp/ogb           # end to end in seconds (CI)
-    python -m experiments ogbench --report-only                    # rebuild <out>/ogbench.* from stored units
-    python -m experiments ogbench --arms fixed --seeds 1           # one unit alone (the others are kept)
-    python -m experiments ogbench --seeds 10 11 12 --episodes 20 --out results/ogbench_test   # other seeds
-    python -m experiments ogbench --ray-address auto --work /shared/ogbench   # on a Ray cluster
-"""
+"""Command line of the OGBench benchmark: ``python -m experiments ogbench`` (see ``docs/ogbench.md``)."""
 
 from __future__ import annotations
 

@@ -1,22 +1,11 @@
 """The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
 
-Each tuned method (:data:`TUNED_ARMS`, UA2C included) has three configurations in :data:`GRID`: its
-published settings first, then two moves of the knob that matters most for it (its conservatism, its
-learning rate or start, its update-to-data ratio), fixed before any run. Configuration ``i`` of every
-method runs in one run directory, ``<out>/c<i>``, on the **validation** scenarios and the validation
-seeds, at the head-to-head's default budget, through :func:`~experiments.peers.runner.run_peers` (resumable,
-local processes or Ray).
-
-The choice: per method, the configuration with the highest mean final reward over its runs (one score
-per run, the mean over its evaluation episodes), once every configuration has a record for every seed;
-a tie keeps the earlier one. ``<out>/selected.json`` holds the ``--budget`` overrides of the chosen
-configurations, written once every method is chosen, for the test run on other seeds and the test
-scenarios::
-
-    python -m experiments peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
-
-The report, ``<out>/tuning.md`` / ``tuning.json``, gives every configuration's per-run scores.
-"""
+Each tuned method has three configurations in :data:`GRID`, fixed before any run: its published settings,
+then two moves of the knob that matters most for it. Configuration ``i`` of every method runs in
+``<out>/c<i>`` on the validation seeds and scenarios at the head-to-head's default budget. Per method the
+configuration with the highest mean final reward over its runs is chosen (a tie keeps the earlier one);
+once every method is chosen, ``<out>/selected.json`` holds the ``--budget`` of the test run
+(``python -m experiments peers --budget @results/peers_tuning/selected.json ...``)."""
 
 from __future__ import annotations
 
