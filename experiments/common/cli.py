@@ -26,18 +26,10 @@ class MissingExtraError(ValueError):
     """A run needs a module that is not installed; the message names the ``pip install`` that adds it."""
 
 
-def harness_parent(
-    *,
-    seeds: str,
-    work: str,
-    workers: int | None = 2,
-    workers_help: str = "local processes at once, each unit in a fresh process (default: 2)",
-    quick: str = "a tiny budget: a smoke test",
-    budget: str | None = None,
-    raw: str | None = None,
-    scenarios: bool = False,
-    rerun: bool = False,
-) -> argparse.ArgumentParser:
+def harness_parent(*, seeds: str, work: str, workers: int | None = 2,
+                   workers_help: str = "local processes at once, each unit in a fresh process (default: 2)",
+                   quick: str = "a tiny budget: a smoke test", budget: str | None = None, raw: str | None = None,
+                   scenarios: bool = False, rerun: bool = False) -> argparse.ArgumentParser:
     """The parent parser of the options every harness has (``--seeds --out --work --workers --ray-address
     --quick --report-only``) and of those some have (``--budget --raw --scenarios --rerun``).
 

@@ -147,14 +147,8 @@ def mean_with_ci(
     return _aggregate_with_ci(scores, "mean", _rliable()[1].aggregate_mean, confidence, reps, seed)
 
 
-def probability_of_improvement(
-    x: np.ndarray,
-    y: np.ndarray,
-    higher_is_better: bool = True,
-    confidence: float = 0.95,
-    reps: int = 2000,
-    seed: int = 0,
-) -> dict[str, float]:
+def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: bool = True, confidence: float = 0.95,
+                               reps: int = 2000, seed: int = 0) -> dict[str, float]:
     """``P(X > Y)``: how likely a run of X scores higher than a run of Y on a task (ties count one
     half), averaged over the tasks, with rliable's bootstrap interval (X and Y resampled
     independently, rliable's ``StratifiedIndependentBootstrap``).
@@ -303,9 +297,7 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     """
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
-        raise ValueError(
-            f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}"
-        )
+        raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
     per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
     finite = [p for p in per_seed if math.isfinite(p)]
     mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
@@ -323,5 +315,4 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
 __all__ = [
     "LOWER_IS_BETTER", "interval", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
     "probability_of_improvement", "run_scores", "score_matrix", "verdict",
-    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval",
-]
+    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval"]

@@ -17,14 +17,9 @@ from experiments.common.names import replicate_name
 from experiments.common.stats import interval, paired_difference
 
 #: rows of the comparison: (label, methods pooled into it; their runs are (seed, method) pairs)
-ROWS = (
-    ("offline chunk policy", ("chunk",)),
-    ("offline chunk policy, sampled", ("chunk_sampled",)),
-    ("fine-tuned, adaptive", ("adaptive",)),
-    ("fine-tuned, fixed", ("fixed",)),
-    ("fine-tuned, adaptive, sampled", ("adaptive_sampled",)),
-    ("fine-tuned, fixed, sampled", ("fixed_sampled",)),
-)
+ROWS = (("offline chunk policy", ("chunk",)), ("offline chunk policy, sampled", ("chunk_sampled",)),
+        ("fine-tuned, adaptive", ("adaptive",)), ("fine-tuned, fixed", ("fixed",)),
+        ("fine-tuned, adaptive, sampled", ("adaptive_sampled",)), ("fine-tuned, fixed, sampled", ("fixed_sampled",)))
 MAX_PHASES = 10
 
 

@@ -69,13 +69,8 @@ class D3rlpyPolicy:
         self.observation_space = observation_space
         self.action_space = action_space
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
         """The greedy action (``deterministic``) or one drawn from the policy; ``state`` is ignored.
 
         :param observation: ``obs_shape`` or ``(n, *obs_shape)``

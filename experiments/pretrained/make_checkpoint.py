@@ -58,10 +58,8 @@ def checkpoint_path(out: str | os.PathLike) -> Path:
 
 def zoo_train_argv(log_folder: str, conf_file: str, seed: int) -> list[str]:
     """rl-zoo3 ``train`` arguments whose ``config.yml`` / ``args.yml`` go with the checkpoint."""
-    return [
-        "--algo", ALGO, "--env", ENV_ID, "--gym-packages", "envs", "--conf-file", conf_file,
-        "-f", log_folder, "--seed", str(seed),
-    ]
+    return ["--algo", ALGO, "--env", ENV_ID, "--gym-packages", "envs", "--conf-file", conf_file,
+            "-f", log_folder, "--seed", str(seed)]
 
 
 @contextlib.contextmanager
@@ -197,14 +195,10 @@ def readme(info: dict[str, Any]) -> str:
     s = info["summary"]
     rows = "\n".join(
         f"| {name} | {value} |" for name, value in (
-            ("reward (mean)", f"{s['reward']:.2f}"),
-            ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
-            ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"),
-            ("collision rate", f"{s['collision']:.2f}"),
-            ("merge success rate", f"{s['merge_success']:.2f}"),
-            ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
-            ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}"),
-        )
+            ("reward (mean)", f"{s['reward']:.2f}"), ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
+            ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"), ("collision rate", f"{s['collision']:.2f}"),
+            ("merge success rate", f"{s['merge_success']:.2f}"), ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
+            ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}"))
     )
     episodes = "\n".join(
         f"| {r.seed} | {r.reward:.2f} | {r.length} | {r.cumulative_jerk:.1f} | {'yes' if r.collision else 'no'} "
@@ -305,13 +299,10 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
         dataset_dir, full_ckpt = work / "dataset", work / "pretrained.zip"
         collect_argv = [
             "collect", "--episodes", str(episodes), "--seed", str(args.seed), "--out", str(dataset_dir),
-            "--overwrite", "--no-progress", "--threads", "1",
-        ] + (["--style-classifier", style] if style else [])
-        pretrain_argv = [
-            "pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(steps),
-            "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
-            "--no-progress", "--threads", "1",
-        ]
+            "--overwrite", "--no-progress", "--threads", "1"] + (["--style-classifier", style] if style else [])
+        pretrain_argv = ["pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(steps),
+                         "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
+                         "--no-progress", "--threads", "1"]
         collect_seconds = run_cli(collect_argv)
         pretrain_seconds = run_cli(pretrain_argv)
 
