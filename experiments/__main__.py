@@ -22,8 +22,6 @@ COMMANDS = {
     "compare-runs": ("experiments.fig2.compare_runs", "two Figure-2 reports paired run by run"),
     "pool-replicates": ("experiments.fig2.pool_replicates", "Figure 2 (c) pooled over online replicates"),
     "paired": ("experiments.analysis.paired", "the paired difference of two arms across runs"),
-    "flow-fit": ("experiments.analysis.flow_fit", "how well the velocity field fits the data's chunks"),
-    "lane-change-timing": ("experiments.analysis.lane_change_timing", "when lane changes start, by execution rule"),
     "make-checkpoint": ("experiments.pretrained.make_checkpoint", "the pre-trained checkpoint of rl-trained-agents"),
 }
 

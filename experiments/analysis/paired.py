@@ -1,30 +1,13 @@
-"""The paired per-seed difference of any two arms, within one run or across two runs.
+"""The paired per-seed difference of any two arms, within one run or across two runs:
+``python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]``.
 
-Usage::
-
-    python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]
-
-``X`` and ``Y`` each name one score per seed, in one of two forms:
-
-- ``RAW_DIR:ARM``: the unit records of a head-to-head run (``<out>/peers_raw``, one
-  ``seed<s>/<arm>.json`` per run). A run's score is the mean of ``--metric`` over its evaluation
-  episodes (``--offline``: the evaluation after the offline phase). ``ARM_best_of_n`` (e.g.
-  ``iql_best_of_n``) is the report's row of a peer acting by the best of N actions under its critic,
-  read from the peer's records. The two arms must have
-  used the same dataset and evaluation scenarios on every shared seed, or they are not paired and
-  the command says so.
-- ``FILE.json:KEY.KEY...``: a list of per-seed scores inside a report, e.g.
-  ``results/ogbench_test/ogbench.json:arms.onestep.online.per_seed``. Its seeds are the nearest ``seeds``
-  list on the way down the key path (the list's parent first, the file's top level last). A list
-  carries no dataset or scenarios, so nothing checks that it pairs: name lists of runs that share
-  their seeds' data and evaluation (the report says which).
-
-It prints both arms' means over the seeds they share and the mean paired difference X − Y with its
-Student-t interval (:func:`experiments.common.stats.paired_difference`; with ``--lower-is-better``
-the difference is Y − X, so that a positive number always means X does better). This is how the
-cross-run differences quoted in ``docs/peers.md`` and ``docs/research-log.md`` are reproduced from
-the committed records.
-"""
+``X`` and ``Y`` each name one score per seed: ``RAW_DIR:ARM``, the unit records of a head-to-head run (a
+run's score is the mean of ``--metric`` over its evaluation episodes; ``ARM_best_of_n`` reads a peer's
+best-of-N row; both arms must have used the same dataset and scenarios on every shared seed), or
+``FILE.json:KEY.KEY...``, a list of per-seed scores inside a report whose seeds are the nearest ``seeds``
+list on the key path (nothing checks that such lists pair). A positive difference always means X does
+better (with ``--lower-is-better`` it is Y − X). The cross-run differences quoted in ``docs/`` are
+reproduced this way from the committed records."""
 
 from __future__ import annotations
 
@@ -37,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import LOWER_IS_BETTER, paired_difference, run_scores
+from experiments.common.stats import LOWER_IS_BETTER, interval, paired_difference, run_scores
 from experiments.peers.runner import PeersPaths, load_records
 
 
@@ -131,8 +114,7 @@ def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric:
     else:
         sense, ahead = "X − Y, X better when > 0", "X ahead in"
     return (f"X = {x.name}: {result['x_mean']:.2f}\nY = {y.name}: {result['y_mean']:.2f}\n"
-            f"{metric}, {sense}, paired over seeds {result['seeds']}: {result['difference']:+.2f} "
-            f"[{result['ci_low']:+.2f}, {result['ci_high']:+.2f}] (95 % Student-t); "
+            f"{metric}, {sense}, paired over seeds {result['seeds']}: {interval(result)} (95 % Student-t); "
             f"{ahead} {result['x_better_runs']} of {result['runs']} runs")
 
 

@@ -1,12 +1,6 @@
-"""What every harness command line shares: the options of a run (:func:`harness_parent`), the seeds they
-select (:func:`select_seeds`), the optional packages a run needs, checked before any unit runs
-(:func:`check_extras`), and the command and exit code of a finished run (:func:`run_command`).
-
-Each experiment (``fig2``, ``peers``, ``ogbench``, ``execution``) builds its parser on
-:func:`harness_parent` and adds only its own options::
-
-    parser = argparse.ArgumentParser(prog=PROG, parents=[harness_parent(seeds="0 1 2", work="<out>/x_work")])
-"""
+"""What every harness command line shares: its options (:func:`harness_parent`), the seeds they select
+(:func:`select_seeds`), the optional packages a run needs, checked before any unit runs (:func:`check_extras`),
+and the skeleton parse → check → run → exit code (:func:`harness_main`)."""
 
 from __future__ import annotations
 
@@ -14,9 +8,13 @@ import argparse
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from importlib.util import find_spec
+from pathlib import Path
+from typing import Any
 
-from experiments.common.names import MAX_SEED
+from experiments.common.names import MAX_SEED, SCENARIO_BASES
+from experiments.common.records import command_line
 from experiments.common.runner import UnitsFailedError
+from sb3_ua2c.cli_args import json_object_arg
 
 #: The pip extra of ``sb3-ua2c`` that installs each optional module a harness may need.
 EXTRAS = {"rliable": "peers", "ray": "peers", "structlog": "peers", "d3rlpy": "peers", "ogbench": "ogbench"}
@@ -28,23 +26,19 @@ class MissingExtraError(ValueError):
     """A run needs a module that is not installed; the message names the ``pip install`` that adds it."""
 
 
-def harness_parent(
-    *,
-    seeds: str,
-    work: str,
-    workers: int | None = 2,
-    workers_help: str = "local processes at once, each unit in a fresh process (default: 2)",
-    quick: str = "a tiny budget: a smoke test",
-) -> argparse.ArgumentParser:
-    """The parent parser of the options every harness has: ``--seeds --out --work --workers --ray-address
-    --quick --report-only``.
+def harness_parent(*, seeds: str, work: str, workers: int | None = 2,
+                   workers_help: str = "local processes at once, each unit in a fresh process (default: 2)",
+                   quick: str = "a tiny budget: a smoke test", budget: str | None = None, raw: str | None = None,
+                   scenarios: bool = False, rerun: bool = False) -> argparse.ArgumentParser:
+    """The parent parser of the options every harness has (``--seeds --out --work --workers --ray-address
+    --quick --report-only``) and of those some have (``--budget --raw --scenarios --rerun``).
 
-    :param seeds: the default seeds, as the help text says them (``--seeds`` itself defaults to ``None``:
-        :func:`select_seeds` applies the default)
+    :param seeds: the default seeds, as the help text says them (``--seeds`` defaults to ``None``)
     :param work: the default work directory, as the help text says it (``--work`` defaults to ``None``)
     :param workers: the default of ``--workers`` (``None``: the experiment chooses after parsing)
-    :param workers_help: help text of ``--workers``
-    :param quick: help text of ``--quick``
+    :param budget: help text of ``--budget`` (a JSON object or ``@FILE``; ``None``: no such option)
+    :param raw: the default record directory, as the help text says it (``None``: no ``--raw``)
+    :param scenarios: add ``--scenarios``; ``rerun``: add ``--rerun``
     """
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--seeds", type=int, nargs="+", default=None, metavar="SEED",
@@ -59,7 +53,28 @@ def harness_parent(
                              "and a fresh process per unit")
     parent.add_argument("--quick", action="store_true", help=quick)
     parent.add_argument("--report-only", action="store_true", help="only rebuild the report from the stored records")
+    if budget is not None:
+        parent.add_argument("--budget", type=budget_arg, default={}, help=budget)
+    if raw is not None:
+        parent.add_argument("--raw", default=None, help=f"per-unit records (default: {raw})")
+    if scenarios:
+        parent.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
+                            help="evaluation scenarios: validation (choices, tuning), test (reported numbers; "
+                            "default), figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
+    if rerun:
+        parent.add_argument("--rerun", action="store_true",
+                            help="delete the stored records of the selected arms and seeds first, so they run again")
     return parent
+
+
+def budget_arg(text: str) -> dict[str, Any]:
+    """argparse type of ``--budget``: a JSON object, or ``@FILE`` naming a file that holds one."""
+    if text.startswith("@"):
+        try:
+            text = Path(text[1:]).read_text()
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"cannot read {text[1:]!r}: {exc.strerror}") from exc
+    return json_object_arg(text)
 
 
 def select_seeds(seeds: Sequence[int] | None, default: Sequence[int], high: int = MAX_SEED) -> list[int]:
@@ -94,16 +109,30 @@ def check_extras(modules: Iterable[str]) -> None:
 
 def run_command(run: Callable[[], int]) -> int:
     """``run()``'s exit code, or the exit code of its error printed to stderr: 2 for a usage error (a bad
-    argument, a missing file or record), 1 when units failed."""
+    argument, a missing file or record, a seed another process is running), 1 when units failed."""
     try:
         return run()
     except UnitsFailedError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return 2 if all("SeedBusyError" in tb for tb in exc.failures.values()) else 1
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
 
-__all__ = ["D3RLPY_INSTALL", "EXTRAS", "MissingExtraError", "check_extras", "harness_parent", "run_command",
-           "select_seeds"]
+def harness_main(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: str,
+                 check: Callable[[argparse.Namespace], Any], run: Callable[[argparse.Namespace, Any, str], int]) -> int:
+    """The skeleton of every harness command: parse ``argv`` (default ``sys.argv[1:]``); ``check(args)``, whose
+    ``ValueError`` is a usage error; then ``run(args, checked, command)``, ``command`` being the shell line a
+    report records, through :func:`run_command`."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    try:
+        checked = check(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run_command(lambda: run(args, checked, command_line(prog, argv)))
+
+
+__all__ = ["D3RLPY_INSTALL", "EXTRAS", "MissingExtraError", "budget_arg", "check_extras", "harness_main",
+           "harness_parent", "run_command", "select_seeds"]

@@ -18,8 +18,7 @@ CLAIM_COMPARISONS = {
 }
 #: Metrics of :class:`envs.evaluation.EpisodeMetrics` aggregated per method.
 METRICS = (
-    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length",
-)
+    "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length")
 #: fine-tuned arms whose Phase-2 training episodes are logged (``<raw>/online/<arm>.json``)
 ONLINE_ARMS = ("fixed", "adaptive", "adaptive_style")
 #: The four arms of Fig. 2 (a)-(c).

@@ -67,14 +67,9 @@ def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str
     return [*files, *(plots(out) if plots is not None else [])]
 
 
-def check_budget_record(
-    path: str | os.PathLike,
-    budget: Mapping[str, Any],
-    what: str,
-    fields: Sequence[str] | None = None,
-    read: Callable[[Any], Mapping[str, Any]] | None = None,
-    write: bool = True,
-) -> None:
+def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what: str,
+                        fields: Sequence[str] | None = None, read: Callable[[Any], Mapping[str, Any]] | None = None,
+                        write: bool = True) -> None:
     """Refuse to resume a run under another budget: its stored units would be silently reused.
 
     ``path`` holds the budget a run was made with (JSON). When it exists, the stored budget must agree with

@@ -308,7 +308,5 @@ def run_units(
     return [r for r in results if r is not None]
 
 
-__all__ = [
-    "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
-    "call_unit", "list_schedule_seconds", "make_executor", "ray_session", "run_units",
-]
+__all__ = ["Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
+           "call_unit", "list_schedule_seconds", "make_executor", "ray_session", "run_units"]

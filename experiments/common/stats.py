@@ -147,14 +147,8 @@ def mean_with_ci(
     return _aggregate_with_ci(scores, "mean", _rliable()[1].aggregate_mean, confidence, reps, seed)
 
 
-def probability_of_improvement(
-    x: np.ndarray,
-    y: np.ndarray,
-    higher_is_better: bool = True,
-    confidence: float = 0.95,
-    reps: int = 2000,
-    seed: int = 0,
-) -> dict[str, float]:
+def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: bool = True, confidence: float = 0.95,
+                               reps: int = 2000, seed: int = 0) -> dict[str, float]:
     """``P(X > Y)``: how likely a run of X scores higher than a run of Y on a task (ties count one
     half), averaged over the tasks, with rliable's bootstrap interval (X and Y resampled
     independently, rliable's ``StratifiedIndependentBootstrap``).
@@ -218,6 +212,12 @@ def verdict(x: str, y: str, paired: Mapping[str, float], unit: str = "") -> str:
     word = f"{x} better" if low > 0 else f"{y} better" if high < 0 else "no difference shown"
     return (f"{x} vs {y}: {paired['difference']:+.2f}{unit} [{low:+.2f}, {high:+.2f}] over {paired['runs']} paired "
             f"runs ({x} ahead in {paired['x_better_runs']}): {word}")
+
+
+def interval(stat: Mapping[str, float], key: str = "difference", digits: int = 2, sign: str = "+") -> str:
+    """A statistic with its interval, ``+3.10 [+0.70, +5.50]`` (``sign="+"``) or ``0.62 [0.40, 0.81]`` (``""``)."""
+    spec = f"{sign}.{digits}f"
+    return f"{stat[key]:{spec}} [{stat['ci_low']:{spec}}, {stat['ci_high']:{spec}}]"
 
 
 def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) -> float:
@@ -297,9 +297,7 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     """
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
-        raise ValueError(
-            f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}"
-        )
+        raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
     per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
     finite = [p for p in per_seed if math.isfinite(p)]
     mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
@@ -315,7 +313,6 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
 
 
 __all__ = [
-    "LOWER_IS_BETTER", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
+    "LOWER_IS_BETTER", "interval", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
     "probability_of_improvement", "run_scores", "score_matrix", "verdict",
-    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval",
-]
+    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval"]

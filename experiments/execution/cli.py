@@ -1,28 +1,18 @@
 """Command line of the execution-rule study: ``python -m experiments execution``.
 
-Examples::
-
-    python -m experiments execution --role development --seeds 0 1 2 --workers 2     # the screen (validation)
-    python -m experiments execution --role confirmation --seeds 10 11 12 13 14 --online fixed growth0.5
-    python -m experiments execution --quick --out /tmp/exe                             # end to end in seconds
-    python -m experiments execution --role development --report-only                  # rebuild the report
-    python -m experiments execution --env ogbench --role development --seeds 0 1 2    # OGBench pointmaze
-
-A development run evaluates on validation scenarios (seed base 3,000; OGBench: reset seeds 20,000,000 +
-1000 s + i) and is where rules are chosen; a confirmation run evaluates on test scenarios (seed base 4,000;
-OGBench: the OGBench report's 10,000,000 + 1000 s + i) with seeds never used for a choice.
-"""
+A development run evaluates on validation scenarios and is where rules are chosen; a confirmation run
+evaluates on test scenarios with seeds never used for a choice (OGBench: reset seeds 20,000,000 and
+10,000,000 + 1000 s + i)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from experiments.common.cli import check_extras, harness_parent, run_command, select_seeds
+from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
 from experiments.execution.controls import RULES
 from sb3_ua2c.checks import check_int
@@ -65,7 +55,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
-def _check(args: argparse.Namespace) -> None:
+def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
     unknown = sorted((set(args.online) | set(args.rules)) - set(RULES))
     if unknown:
         raise ValueError(f"unknown rules {unknown}; known: {list(RULES)}")
@@ -74,6 +64,12 @@ def _check(args: argparse.Namespace) -> None:
     check_int("--workers", args.workers)
     if not args.report_only:
         check_extras([*(["ogbench"] if args.env == "ogbench" else []), *(["ray"] if args.ray_address else [])])
+    seeds = select_seeds(args.seeds, [0, 1] if args.quick else [0, 1, 2])
+    setup = _setup(args)
+    if args.episodes is not None:
+        check_int("--episodes", args.episodes)
+        setup["budget"]["eval_episodes"] = args.episodes
+    return seeds, setup
 
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
@@ -114,24 +110,13 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
 def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit code (2 on a bad argument, a missing extra or missing runs, 1 when runs
     failed)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
-    try:
-        _check(args)
-        seeds = select_seeds(args.seeds, [0, 1] if args.quick else [0, 1, 2])
-        setup = _setup(args)
-        if args.episodes is not None:
-            check_int("--episodes", args.episodes)
-            setup["budget"]["eval_episodes"] = args.episodes
-    except ValueError as exc:
-        parser.error(str(exc))
-    return run_command(lambda: _run(args, argv, seeds, setup, prog))
+    return harness_main(build_parser(prog), argv, prog, _check,
+                        lambda args, checked, command: _run(args, command, *checked, prog))
 
 
-def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup: dict[str, Any], prog: str) -> int:
+def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[str, Any], prog: str) -> int:
     """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
-    from experiments.common.records import command_line, run_header
+    from experiments.common.records import run_header
     from experiments.common.runner import Unit, make_executor, run_units
     from experiments.execution import report
 
@@ -155,7 +140,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str], seeds: list[int], setup:
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
     name, metric = setup["name"], setup["metric"]
-    command, date = run_header(command_line(prog, argv), out / f"{name}.json" if args.report_only else None)
+    command, date = run_header(command, out / f"{name}.json" if args.report_only else None)
     summary = report.summarize(records, metric)
     online = report.online_protocol(records, metric)
     header = [f"Command: `{command}`", f"Date: {date}",

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import paired_difference
+from experiments.common.stats import interval, paired_difference
 from sb3_ua2c.execution import format_length_shares
 
 MODES = ("deterministic", "sampled")
@@ -81,7 +81,7 @@ def online_protocol(records: Sequence[Mapping[str, Any]], metric: str = "reward"
 def _interval(p: Mapping[str, float] | None, digits: int = 1) -> str:
     if p is None:
         return "n/a"
-    return f"{p['difference']:+.{digits}f} [{p['ci_low']:+.{digits}f}, {p['ci_high']:+.{digits}f}]"
+    return interval(p, digits=digits)
 
 
 def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:

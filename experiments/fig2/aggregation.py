@@ -53,8 +53,7 @@ def online_curve(
         rewards = np.array([e["reward"] for e in episodes], dtype=float)
         which = np.clip(np.searchsorted(edges, ends, side="left") - 1, 0, n_bins - 1)
         per_seed.append(
-            [float(rewards[which == b].mean()) if np.any(which == b) else math.nan for b in range(n_bins)]
-        )
+            [float(rewards[which == b].mean()) if np.any(which == b) else math.nan for b in range(n_bins)])
     values = np.array(per_seed, dtype=float).reshape(-1, n_bins)  # (seeds, bins)
     seen = np.isfinite(values).sum(axis=0)
     curve = np.where(seen > 0, np.nansum(values, axis=0) / np.maximum(seen, 1), np.nan)
@@ -87,10 +86,8 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
     return out
 
 
-def aggregate(
-    raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
-    default_elite: int | None = None,
-) -> dict[str, Any]:
+def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
+              default_elite: int | None = None) -> dict[str, Any]:
     """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
 
     :param raw: output of :func:`load_raw`
@@ -189,8 +186,7 @@ def _further_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str,
         out["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
         out["online_phase_reward_last"] = compare(episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"])
     if {"chunk", "onestep"} <= set(methods) and all(
-        math.isfinite(v) for m in ("chunk", "onestep") for v in _per_seed(methods, m, "jerk_per_step")
-    ):
+        math.isfinite(v) for m in ("chunk", "onestep") for v in _per_seed(methods, m, "jerk_per_step")):
         out["offline_jerk_per_step"] = _compare(methods, "chunk", "onestep", "jerk_per_step")
     return out
 
@@ -210,8 +206,7 @@ def _sampled_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str,
         if key == "online_reward":  # pooled over the online phases, like (c)
             if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
                 out[f"{key}_sampled"] = compare(
-                    online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"]
-                )
+                    online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"])
         elif all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
             out[f"{key}_sampled"] = _compare(methods, names[0], names[1], metric)
     return out
@@ -232,8 +227,7 @@ def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -
             "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
             "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
             "baseline_macro_accuracy_per_seed": [
-                float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r
-            ],
+                float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
             "confusion_matrix": matrix.tolist(),
             "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds",
             "classes": styles[0]["classes"],
@@ -317,10 +311,8 @@ def _online_phases(
         row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in names.items()}}
         row["change"] = compare(methods[names["adaptive"]]["reward"]["per_seed"], methods[names["fixed"]]["reward"]["per_seed"])
         if all(sampled_name(n) in methods for n in names.values()):
-            row["change_sampled"] = compare(
-                methods[sampled_name(names["adaptive"])]["reward"]["per_seed"],
-                methods[sampled_name(names["fixed"])]["reward"]["per_seed"],
-            )
+            row["change_sampled"] = compare(methods[sampled_name(names["adaptive"])]["reward"]["per_seed"],
+                                            methods[sampled_name(names["fixed"])]["reward"]["per_seed"])
         out["per_phase"].append(row)
     for arm in ("adaptive", "fixed"):
         for suffix in ("", "_sampled"):

@@ -165,31 +165,16 @@ def _policy_elite(budget: Fig2Budget, k: int) -> int:
 #: velocity field, elite mean of 8 candidates); the one-step baseline at its better size by reward, 128 × 2,
 #: acting by the same elite mean; two online phases pooled into (c); the k sweep stops at k = 5 to stay
 #: within the budget (k = 10 collapsed at 128 × 2).
-FULL_BUDGET = Fig2Budget(
-    k_sweep=(1, 3, 5),
-    onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},
-    online_replicates=2,
-)
+FULL_BUDGET = Fig2Budget(k_sweep=(1, 3, 5), onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},
+                         online_replicates=2)
 
 
 #: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI; the arms act as UA2C's
 #: defaults do (its ``n_elite``), the labels of the acting sweep name the same default.
-QUICK_BUDGET = Fig2Budget(
-    dataset_episodes=3,
-    pretrain_steps=8,
-    finetune_steps=30,
-    eval_episodes=1,
-    style_episodes=6,
-    style_max_epochs=2,
-    delta_sweep=(0.0, math.inf),
-    k_sweep=(1, 2, 3),
-    elite_sweep=(2,),
-    flow_sweep=(2,),
-    chunk_size=3,
-    env_kwargs={"time_limit": 4.0},
-    algo_kwargs={"batch_size": 32},
-    online_replicates=2,
-)
+QUICK_BUDGET = Fig2Budget(dataset_episodes=3, pretrain_steps=8, finetune_steps=30, eval_episodes=1, style_episodes=6,
+                          style_max_epochs=2, delta_sweep=(0.0, math.inf), k_sweep=(1, 2, 3), elite_sweep=(2,),
+                          flow_sweep=(2,), chunk_size=3, env_kwargs={"time_limit": 4.0},
+                          algo_kwargs={"batch_size": 32}, online_replicates=2)
 
 
 def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:

@@ -5,16 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from experiments.common.cli import check_extras, harness_parent, select_seeds
+from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import PAPER
-from experiments.common.records import command_line, run_header
-from experiments.common.runner import UnitsFailedError
+from experiments.common.records import run_header
 from experiments.fig2.aggregation import aggregate, load_raw
 from experiments.fig2.budget import (
     FULL_BUDGET,
@@ -25,9 +23,8 @@ from experiments.fig2.budget import (
 )
 from experiments.fig2.manifest import RunPaths, read_manifest
 from experiments.fig2.report import format_pct, write_report
-from experiments.fig2.units import SEED_PARTS, SeedBusyError, measured_seconds, run_all
+from experiments.fig2.units import SEED_PARTS, measured_seconds, run_all
 from sb3_ua2c.checks import check_int
-from sb3_ua2c.cli_args import json_object_arg
 
 
 def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
@@ -52,7 +49,8 @@ PROG = "python -m experiments fig2"
 PARENT = harness_parent(
     seeds="0 1 2 3 4", work="<out>/fig2_work",
     workers_help="units run in parallel processes, two per seed: its main and style parts (default: 2)",
-    quick="tiny budget (4-s episodes, a few updates): a smoke test")
+    quick="tiny budget (4-s episodes, a few updates): a smoke test",
+    budget="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'", raw="<out>/fig2_raw")
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
@@ -62,89 +60,72 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
         "δ, k and style-context sweeps. Resumable: finished units (datasets, checkpoints, evaluations) are skipped.",
     )
     parser.add_argument("--seed-list", dest="seeds", type=int, nargs="+", help="the same as --seeds")
-    parser.add_argument("--budget", type=json_object_arg, default={},
-                        help="Fig2Budget overrides as JSON, e.g. '{\"pretrain_steps\": 4000}'")
     parser.add_argument("--budget-of", default=None, metavar="REPORT",
                         help="start from the budget a report ran with (its fig2.json, or the directory holding it) "
                         "instead of the default; --budget applies on top. Reruns a report made under another default "
                         "exactly")
-    parser.add_argument("--raw", default=None, help="per-seed raw JSON directory (default: <out>/fig2_raw)")
     return parser
 
 
-def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument or missing results).
+def _check(args: argparse.Namespace) -> tuple[list[int], Fig2Budget]:
+    if args.budget_of is not None and args.quick:
+        raise ValueError("--budget-of and --quick both choose the base budget: pass one of them")
+    base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
+    seeds = select_seeds(args.seeds, range(5))
+    check_int("--workers", args.workers)
+    check_extras(["ray"] if args.ray_address is not None and not args.report_only else [])
+    return seeds, base.replace(**args.budget) if args.budget else base
 
-    :param argv: arguments (default ``sys.argv[1:]``)
-    :param prog: how the command was invoked, for the help text and the report's command line
-    """
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
-    try:
-        if args.budget_of is not None and args.quick:
-            raise ValueError("--budget-of and --quick both choose the base budget: pass one of them")
-        base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
-        budget = base.replace(**args.budget) if args.budget else base
-        seeds = select_seeds(args.seeds, range(5))
-        check_int("--workers", args.workers)
-        check_extras(["ray"] if args.ray_address is not None and not args.report_only else [])
-    except ValueError as exc:
-        parser.error(str(exc))
+
+def _run_units(args: argparse.Namespace, seeds: list[int], budget: Fig2Budget, paths: RunPaths) -> dict[str, float]:
+    """Run the units not stored yet; the estimate printed first."""
+    est = estimate_seconds(budget, len(seeds))
+    workers = min(args.workers, len(SEED_PARTS) * len(seeds))
+    wall = estimate_wall_seconds(est, len(seeds), workers)
+    print(f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, ~{wall / 60:.0f} "
+          "min wall before resuming (" + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total")
+          + " CPU-min)", flush=True)
+    t0 = time.perf_counter()
+    executed = run_all(seeds, budget, paths, workers, ray_address=args.ray_address)
+    print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
+    return est
+
+
+def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], command: str) -> int:
+    seeds, budget = checked
     paths = RunPaths.under(args.out, args.raw, args.work)
     previous = paths.out / "fig2.json"  # a rebuilt report keeps the command and date of the run
-    command, date = run_header(
-        command_line(prog, sys.argv[1:] if argv is None else argv), previous if args.report_only else None
-    )
-    t0 = time.perf_counter()
-    est = None
-    try:
-        if not args.report_only:
-            est = estimate_seconds(budget, len(seeds))
-            workers = min(args.workers, len(SEED_PARTS) * len(seeds))
-            wall = estimate_wall_seconds(est, len(seeds), workers)
-            print(
-                f"Figure 2: seeds {seeds}, {workers} worker(s); estimated {est['total'] / 60:.1f} CPU-min, "
-                f"~{wall / 60:.0f} min wall before resuming ("
-                + ", ".join(f"{k} {v / 60:.1f}" for k, v in est.items() if k != "total")
-                + " CPU-min)",
-                flush=True,
-            )
-            executed = run_all(seeds, budget, paths, workers, ray_address=args.ray_address)
-            print(f"{len(executed)} unit(s) run in {time.perf_counter() - t0:.0f} s", flush=True)
-        recorded: dict[str, Any] = {}
-        default_elite = None
-        if args.report_only:
-            if previous.is_file():
-                recorded = json.loads(previous.read_text())
-            # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
-            # its checkpoints acted with where the budget left it to the library (whose default may have changed)
-            manifest = read_manifest(paths)
-            if manifest is None and "budget" in recorded:
-                manifest = Fig2Budget.from_dict(recorded["budget"])
-                default_elite = recorded.get("acting_default", {}).get("n_elite")
-            budget = manifest or budget
-        summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
-        seconds = recorded.get("seconds", {})
-        summary["seconds"] = {
-            # without the work directory (e.g. a fresh clone), the timings recorded with the run
-            "measured": measured_seconds(paths, seeds) or seconds.get("measured", {}),
-            # a rebuilt report keeps the estimate printed before its run
-            "estimated": seconds.get("estimated") or est or estimate_seconds(budget, len(seeds)),
-        }
-    except (ValueError, FileNotFoundError, SeedBusyError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except UnitsFailedError as exc:  # a seed in use by another process is a usage error (2), others fail (1)
-        print(f"error: {exc}", file=sys.stderr)
-        busy = all("SeedBusyError" in tb for tb in exc.failures.values())
-        return 2 if busy else 1
+    command, date = run_header(command, previous if args.report_only else None)
+    est = None if args.report_only else _run_units(args, seeds, budget, paths)
+    recorded: dict[str, Any] = {}
+    default_elite = None
+    if args.report_only:
+        if previous.is_file():
+            recorded = json.loads(previous.read_text())
+        # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
+        # its checkpoints acted with where the budget left it to the library (whose default may have changed)
+        manifest = read_manifest(paths)
+        if manifest is None and "budget" in recorded:
+            manifest = Fig2Budget.from_dict(recorded["budget"])
+            default_elite = recorded.get("acting_default", {}).get("n_elite")
+        budget = manifest or budget
+    summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
+    seconds = recorded.get("seconds", {})
+    summary["seconds"] = {
+        # without the work directory (e.g. a fresh clone), the timings recorded with the run
+        "measured": measured_seconds(paths, seeds) or seconds.get("measured", {}),
+        # a rebuilt report keeps the estimate printed before its run
+        "estimated": seconds.get("estimated") or est or estimate_seconds(budget, len(seeds)),
+    }
     files = write_report(summary, paths, command, date)
-    for label, key in (
-        ("offline reward", "offline_reward_gain_pct"),
-        ("offline jerk", "offline_jerk_change_pct"),
-        ("online reward", "online_reward_gain_pct"),
-    ):
+    for label, key in (("offline reward", "offline_reward_gain_pct"), ("offline jerk", "offline_jerk_change_pct"),
+                       ("online reward", "online_reward_gain_pct")):
         print(f"{label}: ours {format_pct(summary[key])}, paper {PAPER[key]:+.2f}%")
     print(f"style macro accuracy: {summary['style_macro_accuracy']:.3f}")
     print("wrote " + ", ".join(str(f) for f in files))
     return 0
+
+
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit code (2 on a bad argument or missing results, 1 when units failed)."""
+    return harness_main(build_parser(prog), argv, prog, _check, _run)

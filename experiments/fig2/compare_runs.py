@@ -1,16 +1,9 @@
-"""An ablation against its control: two Figure-2 reports made on the same seeds and datasets, paired run by run.
+"""An ablation against its control: two Figure-2 reports on the same seeds and datasets, paired run by run
+(``python -m experiments compare-runs A B --labels a b [--out FILE.md]``).
 
-Usage::
-
-    python -m experiments compare-runs results/critic_work/transformer results/critic_work/mlp \
-        --labels transformer mlp [--out results/critic_development.md]
-
-For every method both reports hold (the offline chunk policy, the fine-tuned arms of every online phase,
-with fixed and with fresh candidate noise), the mean reward of each report and the mean paired difference
-``B − A`` over the runs both hold (one run = one seed, or one seed of one online phase for the fine-tuned
-arms pooled over phases) with its Student-t interval (:func:`experiments.common.stats.paired_difference`).
-Also Figure 2 (c) of each report on the same runs: adaptive − fixed, paired per run.
-"""
+Per method both reports hold, each report's mean reward and the paired difference ``B − A`` over the runs
+both hold (fine-tuned arms pooled over online phases) with its Student-t interval; and Figure 2 (c) of each
+report on the same runs."""
 
 from __future__ import annotations
 
@@ -21,17 +14,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from experiments.common.names import replicate_name
-from experiments.common.stats import paired_difference
+from experiments.common.stats import interval, paired_difference
 
 #: rows of the comparison: (label, methods pooled into it; their runs are (seed, method) pairs)
-ROWS = (
-    ("offline chunk policy", ("chunk",)),
-    ("offline chunk policy, sampled", ("chunk_sampled",)),
-    ("fine-tuned, adaptive", ("adaptive",)),
-    ("fine-tuned, fixed", ("fixed",)),
-    ("fine-tuned, adaptive, sampled", ("adaptive_sampled",)),
-    ("fine-tuned, fixed, sampled", ("fixed_sampled",)),
-)
+ROWS = (("offline chunk policy", ("chunk",)), ("offline chunk policy, sampled", ("chunk_sampled",)),
+        ("fine-tuned, adaptive", ("adaptive",)), ("fine-tuned, fixed", ("fixed",)),
+        ("fine-tuned, adaptive, sampled", ("adaptive_sampled",)), ("fine-tuned, fixed, sampled", ("fixed_sampled",)))
 MAX_PHASES = 10
 
 
@@ -77,8 +65,7 @@ def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:
             head = f"| {r['label']} | fixed {r['a']:.1f} | adaptive {r['b']:.1f} |"
         else:
             head = f"| {r['label']} | {r['a']:.1f} | {r['b']:.1f} |"
-        lines.append(f"{head} {r['difference']:+.1f} [{r['ci_low']:+.1f}, {r['ci_high']:+.1f}] | "
-                     f"{r['runs']} ({r['x_better_runs']}) |")
+        lines.append(f"{head} {interval(r, digits=1)} | {r['runs']} ({r['x_better_runs']}) |")
     return "\n".join(lines)
 
 

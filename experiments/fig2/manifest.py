@@ -26,12 +26,8 @@ class RunPaths:
     work: Path
 
     @classmethod
-    def under(
-        cls,
-        out: str | os.PathLike,
-        raw: str | os.PathLike | None = None,
-        work: str | os.PathLike | None = None,
-    ) -> RunPaths:
+    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
+              work: str | os.PathLike | None = None,) -> RunPaths:
         """Default layout: ``<out>/fig2_raw`` and ``<out>/fig2_work`` unless given."""
         out = Path(out)
         return cls(out, Path(raw) if raw else out / "fig2_raw", Path(work) if work else out / "fig2_work")
@@ -44,21 +40,9 @@ class RunPaths:
 
 
 #: Budget fields that change what an existing unit holds; the sweeps may grow between calls.
-UNIT_FIELDS = (
-    "dataset_episodes",
-    "pretrain_steps",
-    "finetune_steps",
-    "eval_episodes",
-    "chunk_size",
-    "entropy_threshold",
-    "style_episodes",
-    "style_max_epochs",
-    "env_kwargs",
-    "algo_kwargs",
-    "onestep_kwargs",
-    "finetune_kwargs",
-    "online_seed_offset",
-)
+UNIT_FIELDS = ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes", "chunk_size",
+               "entropy_threshold", "style_episodes", "style_max_epochs", "env_kwargs", "algo_kwargs",
+               "onestep_kwargs", "finetune_kwargs", "online_seed_offset")
 
 
 MANIFEST = "fig2_budget.json"

@@ -1,19 +1,11 @@
-"""Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``).
+"""Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``):
+``python -m experiments pool-replicates REPORT [REPORT ...] [--sampled]``.
 
-Usage::
-
-    python -m experiments pool-replicates results results/<replicate> [more report dirs] [--sampled]
-
-Every directory is a ``fig2`` report whose ``fig2_raw/seed*/{adaptive,fixed}.json`` hold the final
-evaluations of the two fine-tuned arms, and ``{adaptive,fixed}_r<r>.json`` those of its further
-online phases (``Fig2Budget.online_replicates``): every phase a report holds is a run. The reports
-must share their pre-trained checkpoints (same seeds, same Phase-1 budget) and differ in the online
-seeds only; do not pass two reports holding the same phase (e.g. a report and its own rerun). Prints per directory and
-pooled: the mean reward of both arms, (c) as the change of the means, and the mean ± 95 %
-Student-t interval of the paired per-run changes (one run = one seed of one replicate).
-``--sampled`` pools the evaluations with fresh candidate noise (``{adaptive,fixed}_sampled.json``,
-``Fig2Budget.sampled_eval``) instead.
-"""
+Every online phase a report holds (``fig2_raw/seed*/{adaptive,fixed}[_r<r>].json``) is a run; the reports
+must share their pre-trained checkpoints and differ in the online seeds only (never pass a report and its
+own rerun). Prints per report and pooled: both arms' mean rewards, (c) as the change of the means, and the
+paired per-run changes with their 95 % Student-t interval. ``--sampled`` pools the evaluations with fresh
+candidate noise instead."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from experiments.common.names import (
     SAMPLED_METHODS,
     sampled_name,
 )
-from experiments.common.stats import t_confidence_interval
+from experiments.common.stats import interval, t_confidence_interval
 from experiments.fig2.budget import STAGES
 from experiments.fig2.manifest import RunPaths
 from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
@@ -50,20 +50,10 @@ def paper_verdict(paper_key: str, change_pct: float) -> str:
 
 def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
     """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
-    sections = (
-        _header(summary, command, date),
-        _claims_table(summary),
-        _methods_table(summary),
-        _online_phases_table(summary),
-        _training_episodes_table(summary),
-        _style_section(summary),
-        _delta_sweep_table(summary),
-        _k_sweep_table(summary),
-        _acting_sweep_table(summary),
-        _style_context_section(summary),
-        _budget_section(summary),
-        _compute_table(summary),
-    )
+    sections = (_header(summary, command, date), _claims_table(summary), _methods_table(summary),
+                _online_phases_table(summary), _training_episodes_table(summary), _style_section(summary),
+                _delta_sweep_table(summary), _k_sweep_table(summary), _acting_sweep_table(summary),
+                _style_context_section(summary), _budget_section(summary), _compute_table(summary))
     return "\n".join([line for section in sections for line in section] + [""])
 
 
@@ -100,20 +90,15 @@ def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None]
     variants beyond the paper, then the "sampled" rows of (a)-(c), (b'') and (c''')."""
     n_phases = _n_phases(summary)
     pooled = f" ({len(summary['seeds'])} seeds × {n_phases} online phases, pooled)" if n_phases > 1 else ""
-    rows = (
-        ("(a) offline reward, chunk vs one-step", "offline_reward", "offline_reward_gain_pct"),
-        ("(b) cumulative jerk, chunk vs one-step", "offline_jerk", "offline_jerk_change_pct"),
-        (f"(c) online reward, adaptive vs fixed{pooled}", "online_reward", "online_reward_gain_pct"),
-    )
+    rows = (("(a) offline reward, chunk vs one-step", "offline_reward", "offline_reward_gain_pct"),
+            ("(b) cumulative jerk, chunk vs one-step", "offline_jerk", "offline_jerk_change_pct"),
+            (f"(c) online reward, adaptive vs fixed{pooled}", "online_reward", "online_reward_gain_pct"))
     extra = (
         ("(a') offline reward, chunk with adaptive execution vs one-step", "offline_reward_chunk_adaptive", None),
         ("(b') cumulative jerk, chunk with adaptive execution vs one-step", "offline_jerk_chunk_adaptive", None),
         ("(b'') jerk per step (Σ\\|jerk\\| / episode length), chunk vs one-step", "offline_jerk_per_step", None),
-        (
-            f"(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed{pooled}",
-            "online_phase_reward",
-            None,
-        ),
+        (f"(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed{pooled}",
+         "online_phase_reward", None),
         (f"(c'') the same over the last quarter of the training episodes{pooled}", "online_phase_reward_last", None),
         (
             "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks"
@@ -123,8 +108,7 @@ def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None]
         ),
     )
     sampled = tuple(
-        (f"{label} — sampled", f"{key}_sampled", paper_key) for label, key, paper_key in (*rows, extra[2], extra[5])
-    )
+        (f"{label} — sampled", f"{key}_sampled", paper_key) for label, key, paper_key in (*rows, extra[2], extra[5]))
     return (*rows, *extra, *sampled)
 
 
@@ -139,8 +123,7 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
         cmp = c[key]
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
         paired = cmp.get("paired")
-        diff = (f"{paired['difference']:+.2f} [{paired['ci_low']:+.2f}, {paired['ci_high']:+.2f}] "
-                f"({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else "")
+        diff = f"{interval(paired)} ({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else ""
         paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
         lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {diff} | {paper} | {verdict} |")
@@ -237,15 +220,9 @@ def _style_section(summary: Mapping[str, Any]) -> Lines:
     style = summary.get("style")
     if not style:
         return []
-    lines = [
-        "",
-        "## (d) Driving-style inference",
-        "",
-        f"Confusion matrix ({style['confusion_matrix_layout']}):",
-        "",
-        "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
-        "|---" * (len(style["classes"]) + 1) + "|",
-    ]
+    lines = ["", "## (d) Driving-style inference", "", f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
+             "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
+             "|---" * (len(style["classes"]) + 1) + "|"]
     for name, row in zip(style["classes"], style["confusion_matrix"], strict=True):
         lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
     if style["baseline_macro_accuracy_per_seed"]:
@@ -409,12 +386,8 @@ def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
         from envs.style import plot_confusion
 
         st = summary["style"]
-        plot_confusion(
-            np.asarray(st["confusion_matrix"]),
-            out / "fig2_d_style_confusion.png",
-            st["classes"],
-            title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}",
-        )
+        plot_confusion(np.asarray(st["confusion_matrix"]), out / "fig2_d_style_confusion.png", st["classes"],
+                       title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")
         files.append(out / "fig2_d_style_confusion.png")
     if summary.get("online_phase"):
         curve_panel(out / "fig2_c_online_curves.png", summary)

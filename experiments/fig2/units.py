@@ -46,15 +46,8 @@ class UnitLog(list):
         self.seconds[name] = time.perf_counter() - start
 
 
-def _dataset(
-    path: Path,
-    n_episodes: int,
-    seed: int,
-    env_kwargs: dict[str, Any],
-    style_classifier: str | None,
-    log: UnitLog,
-    unit: str,
-):
+def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any], style_classifier: str | None,
+             log: UnitLog, unit: str):
     """Load the dataset at ``path``, or collect it (unit ``unit``) when missing or damaged."""
     from envs.collection import collect_dataset
     from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
@@ -65,29 +58,13 @@ def _dataset(
         except OfflineDatasetError:
             pass  # damaged: collect again
     with log.timed(unit):
-        return collect_dataset(
-            path,
-            n_episodes,
-            env_kwargs=env_kwargs,
-            style_classifier=style_classifier,
-            seed=seed,
-            overwrite=True,
-        )
+        return collect_dataset(path, n_episodes, env_kwargs=env_kwargs, style_classifier=style_classifier, seed=seed,
+                               overwrite=True)
 
 
-def _evaluation(
-    raw: Path,
-    method: str,
-    checkpoint: Path,
-    seed: int,
-    budget: Fig2Budget,
-    settings: dict[str, Any],
-    entropy_threshold: float | None,
-    log: UnitLog,
-    n_elite: int | None = None,
-    flow_steps: int | None = None,
-    deterministic: bool = True,
-) -> None:
+def _evaluation(raw: Path, method: str, checkpoint: Path, seed: int, budget: Fig2Budget, settings: dict[str, Any],
+                entropy_threshold: float | None, log: UnitLog, n_elite: int | None = None,
+                flow_steps: int | None = None, deterministic: bool = True) -> None:
     """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists
     (``deterministic``: fixed candidate noise, see :func:`envs.evaluation.evaluate`)."""
     from envs.evaluation import evaluate, plan_length_shares, summarize
@@ -97,55 +74,31 @@ def _evaluation(
     if path.is_file():
         return
     with log.timed(f"seed{seed}/evaluate/{method}"):
-        episodes = evaluate(
-            checkpoint,
-            n_episodes=budget.eval_episodes,
-            seeds=(EVAL_SEED_BASE + seed,),
-            env_settings_=settings,
-            entropy_threshold=entropy_threshold,
-            n_elite=n_elite,
-            flow_steps=flow_steps,
-            deterministic=deterministic,
-        )
-        write_json(
-            path,
-            {
-                "method": method,
-                "seed": seed,
-                "checkpoint": checkpoint.name,
-                "entropy_threshold": None
-                if entropy_threshold is None
-                else delta_name(float(entropy_threshold)),
-                "eval_seed": EVAL_SEED_BASE + seed,
-                "n_elite": n_elite,
-                "flow_steps": flow_steps,
-                "deterministic": deterministic,
-                "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
-                            "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
-                "episodes": episodes,
-            },
-        )
+        episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(EVAL_SEED_BASE + seed,),
+                            env_settings_=settings, entropy_threshold=entropy_threshold, n_elite=n_elite,
+                            flow_steps=flow_steps, deterministic=deterministic)
+        delta = None if entropy_threshold is None else delta_name(float(entropy_threshold))
+        write_json(path, {
+            "method": method, "seed": seed, "checkpoint": checkpoint.name, "entropy_threshold": delta,
+            "eval_seed": EVAL_SEED_BASE + seed, "n_elite": n_elite, "flow_steps": flow_steps,
+            "deterministic": deterministic,
+            "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
+                        "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
+            "episodes": episodes,
+        })
 
 
 
-class SeedBusyError(RuntimeError):
-    """Another process is running the same seed in the same work directory."""
+class SeedBusyError(ValueError):
+    """Another process is running the same seed in the same work directory (a usage error: exit code 2)."""
 
 
 @contextmanager
 def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
-    """Hold an exclusive lock on a seed's work directory (``<work>/<name>``, ``flock``) while inside;
-    each part of a seed (:data:`SEED_PARTS`) has its own lock file.
+    """Hold an exclusive lock on a seed's work directory (``<work>/<name>``, ``flock``; one per part of a seed)
+    while inside: two ``fig2`` processes on one work directory would otherwise train the same unit at once.
+    The lock dies with its process; without ``fcntl`` (Windows) there is none.
 
-    Two ``fig2`` processes on one work directory (e.g. a second one started with ``--seed-list``)
-    would otherwise train the same unit at once and write the same files. The lock dies with its
-    process, so an interrupted run leaves nothing to clean up.
-
-    On a platform without ``fcntl`` (Windows) there is no lock: do not start two runs on one
-    work directory there.
-
-    :param work: the seed's work directory (must exist)
-    :param name: the lock file's name in ``work``
     :raises SeedBusyError: if another open lock holds it, naming the directory and the holder's pid
     """
     try:
@@ -159,10 +112,8 @@ def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
         except BlockingIOError:
             handle.seek(0)
             holder = handle.read().strip() or "unknown"
-            raise SeedBusyError(
-                f"{work} is in use by another fig2 process (pid {holder}); wait for it or use "
-                "another --work directory"
-            ) from None
+            raise SeedBusyError(f"{work} is in use by another fig2 process (pid {holder}); wait for it or use "
+                                "another --work directory") from None
         handle.seek(0)
         handle.truncate()
         handle.write(str(os.getpid()))
@@ -180,18 +131,9 @@ style classifier of (d) and the style-context ablation, which has its own datase
 
 
 def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
-    """Run (or resume) the units of one seed; return the names of the units actually executed.
-
-    The wall-clock seconds of every unit run are merged into ``<work>/seed<s>/unit_seconds.json``
-    (part ``"main"``) and ``unit_seconds_style.json`` (part ``"style"``): the measured cost of the
-    run, next to :func:`estimate_seconds`. The part's lock (:func:`seed_lock`) is held meanwhile.
-
-    :param seed: the seed (datasets, networks, online env, evaluation scenarios derive from it)
-    :param budget: the run's budget
-    :param paths: the run's directories
-    :param part: one of :data:`SEED_PARTS`, or ``"all"`` for both, one after the other
-    :raises ValueError: on an unknown ``part``
-    """
+    """Run (or resume) the units of one seed's ``part`` (one of :data:`SEED_PARTS`, or ``"all"``) under the part's
+    lock; return the names of the units executed. Their wall-clock seconds are merged into the part's
+    ``<work>/seed<s>/unit_seconds[_style].json`` (the measured cost, next to :func:`estimate_seconds`)."""
     import torch
 
     if part not in (*SEED_PARTS, "all"):
@@ -234,15 +176,8 @@ class _SeedUnits:
 
     def dataset(self, name: str, style_classifier: str | None = None) -> Any:
         """The seed's offline dataset ``<work>/<name>`` (the style ablation's: with the style context)."""
-        return _dataset(
-            self.work / name,
-            self.budget.dataset_episodes,
-            DATASET_SEED_BASE + 10_000 * self.seed,
-            dict(self.budget.env_kwargs),
-            style_classifier,
-            self.log,
-            f"seed{self.seed}/{name}",
-        )
+        return _dataset(self.work / name, self.budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * self.seed,
+                        dict(self.budget.env_kwargs), style_classifier, self.log, f"seed{self.seed}/{name}")
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
         """Phase 1 of the arm with chunk length ``k`` into ``<work>/<name>.zip``."""
@@ -263,11 +198,9 @@ class _SeedUnits:
         path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
         if not path.is_file():
             with self.log.timed(f"seed{self.seed}/finetune/{name}"):
-                finetune(
-                    start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                    seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
-                    algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env,
-                )
+                finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
+                         seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
+                         algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env)
         _online_episodes(self.raw / "online" / f"{name}.json", monitor)
         return path
 
@@ -320,10 +253,7 @@ def _style_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: Unit
 
 
 _PART_UNITS = {"main": _main_units, "style": _style_units}
-_PART_FILES = {  # lock file, measured seconds
-    "main": (".lock", "unit_seconds.json"),
-    "style": (".lock-style", "unit_seconds_style.json"),
-}
+_PART_FILES = {"main": (".lock", "unit_seconds.json"), "style": (".lock-style", "unit_seconds_style.json")}  # lock, seconds
 
 
 def _offline_units(units: _SeedUnits, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
@@ -375,21 +305,13 @@ def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitL
     from envs import style
     from sb3_ua2c.pipeline import write_json
 
-    data_path, model_path, result_path = (
-        work / "style_data.npz",
-        work / "style_classifier.pt",
-        raw / "style.json",
-    )
+    data_path, model_path, result_path = work / "style_data.npz", work / "style_classifier.pt", raw / "style.json"
     if data_path.is_file():
         data = style.StyleDataset.load(data_path)
     else:
         with log.timed(f"seed{seed}/style/collect"):
-            data = style.collect_style_dataset(
-                budget.style_episodes,
-                seed=STYLE_SEED_BASE + 10_000 * seed,
-                env_kwargs=dict(budget.env_kwargs),
-                progress_bar=False,
-            )
+            data = style.collect_style_dataset(budget.style_episodes, seed=STYLE_SEED_BASE + 10_000 * seed,
+                                               env_kwargs=dict(budget.env_kwargs), progress_bar=False)
             tmp = data_path.with_name(".style_data.tmp.npz")
             data.save(tmp)
             os.replace(tmp, data_path)
@@ -397,9 +319,8 @@ def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitL
         model = style.DrivingStyleClassifier.load(model_path)
     else:
         with log.timed(f"seed{seed}/style/train"):
-            model, _ = style.train_style_classifier(
-                data, train_config={"max_epochs": budget.style_max_epochs, "seed": seed}, progress_bar=False
-            )
+            model, _ = style.train_style_classifier(data, train_config={"max_epochs": budget.style_max_epochs,
+                                                                          "seed": seed}, progress_bar=False)
             tmp = model_path.with_name(".style_classifier.tmp.pt")
             model.save(tmp)
             os.replace(tmp, model_path)
@@ -410,12 +331,8 @@ def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitL
 
 
 def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
-    """Wall-clock seconds of the units run so far, by the stages of :func:`estimate_seconds`.
-
-    :param paths: the run's directories (reads ``<work>/seed<s>/unit_seconds*.json``, one per part)
-    :param seeds: the seeds to count
-    :return: seconds per stage and ``"total"`` (stages without a record are absent)
-    """
+    """Wall-clock seconds of the units run so far (``<work>/seed<s>/unit_seconds*.json``) per stage of
+    :func:`estimate_seconds` and ``"total"`` (stages without a record are absent)."""
     out: dict[str, float] = {}
     for s in seeds:
         records: dict[str, float] = {}
@@ -425,16 +342,7 @@ def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
                 records.update(json.loads(path.read_text()))
         for name, seconds in records.items():
             parts = name.split("/")  # seed<s>/<stage>[/<what>]
-            if name.endswith("_style"):
-                stage = "style_ablation"
-            else:
-                stage = {
-                    "dataset": "datasets",
-                    "pretrain": "pretrain",
-                    "finetune": "finetune",
-                    "evaluate": "evaluate",
-                    "style": "style",
-                }.get(parts[1], parts[1])
+            stage = "style_ablation" if name.endswith("_style") else {"dataset": "datasets"}.get(parts[1], parts[1])
             out[stage] = out.get(stage, 0.0) + float(seconds)
     if out:
         out["total"] = sum(out.values())
@@ -446,20 +354,11 @@ def run_fig2_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part:
     return run_fig2_seed(seed, Fig2Budget.from_dict(budget), paths, part)
 
 
-def run_all(
-    seeds: Sequence[int],
-    budget: Fig2Budget,
-    paths: RunPaths,
-    workers: int = 1,
-    printer: Any = print,
-    ray_address: str | None = None,
-) -> list[str]:
-    """Run (or resume) every seed as two :mod:`experiments.common.runner` units, its parts
-    (:data:`SEED_PARTS`): every ``"main"`` part first, then the shorter ``"style"`` parts, which fill
-    the workers that the main parts leave idle (5 seeds on 2 workers no longer end with one seed
-    alone on one core). ``workers`` units at a time in separate processes (one SUMO simulation per
-    process), in this process when ``workers=1``, or as Ray tasks on the cluster at ``ray_address``.
-    A part resumes its own units (they are files), so the units have no result file and always run.
+def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print,
+            ray_address: str | None = None) -> list[str]:
+    """Run (or resume) every seed as two :mod:`experiments.common.runner` units, its parts (:data:`SEED_PARTS`):
+    every ``"main"`` part first, then the shorter ``"style"`` parts, which fill the workers the main parts leave
+    idle. A part resumes its own units (they are files), so the units have no result file and always run.
 
     :return: the units executed, over all seeds
     :raises UnitsFailedError: after every part ran, naming the parts that raised
@@ -471,10 +370,8 @@ def run_all(
     parts = [(s, part) for part in SEED_PARTS for s in seeds]
     serial = ray_address is None and workers == 1
     executor = make_executor(min(workers, len(parts)), ray_address, serial=serial)
-    units = [
-        Unit(f"seed{s}/{part}", run_fig2_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths, "part": part})
-        for s, part in parts
-    ]
+    units = [Unit(f"seed{s}/{part}", run_fig2_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths,
+                                                           "part": part}) for s, part in parts]
     executed: list[str] = []
     for (s, part), result in zip(parts, run_units(units, executor, printer=None), strict=True):
         printer(f"seed {s} ({part}): {len(result.value)} unit(s) run in {result.wall_seconds:.0f} s")

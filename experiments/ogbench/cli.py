@@ -1,26 +1,14 @@
-"""Command line of the OGBench benchmark: ``python -m experiments ogbench``.
-
-Examples::
-
-    python -m experiments ogbench --workers 2                      # default task and budget (estimate printed first)
-    python -m experiments ogbench --quick --out /tmp/ogb           # end to end in seconds (CI)
-    python -m experiments ogbench --report-only                    # rebuild <out>/ogbench.* from stored units
-    python -m experiments ogbench --arms fixed --seeds 1           # one unit alone (the others are kept)
-    python -m experiments ogbench --seeds 10 11 12 --episodes 20 --out results/ogbench_test   # other seeds
-    python -m experiments ogbench --ray-address auto --work /shared/ogbench   # on a Ray cluster
-"""
+"""Command line of the OGBench benchmark: ``python -m experiments ogbench`` (see ``docs/ogbench.md``)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.common.cli import harness_parent, run_command
-from experiments.common.records import command_line
+from experiments.common.cli import harness_main, harness_parent
 from experiments.ogbench.unit import ARMS
 
 PROG = "python -m experiments ogbench"
@@ -47,12 +35,10 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Entry point; returns the exit code (2 on a bad argument or a missing extra, 1 when units failed)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(prog).parse_args(argv)
-    return run_command(lambda: _run(args, command_line(prog, argv)))
+    return harness_main(build_parser(prog), argv, prog, lambda args: None, _run)  # checked in _run: exit code 2
 
 
-def _run(args: argparse.Namespace, command: str) -> int:
+def _run(args: argparse.Namespace, _: None, command: str) -> int:
     import warnings
 
     from experiments.common.cli import check_extras

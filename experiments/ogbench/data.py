@@ -222,15 +222,9 @@ def val_path(path: str | os.PathLike) -> Path:
     return Path(str(path).replace(".npz", "-val.npz"))
 
 
-def generate_play_dataset(
-    task: str,
-    path: str | os.PathLike,
-    n_episodes: int,
-    episode_steps: int = PLAY_EPISODE_STEPS,
-    seed: int = 0,
-    noise: float | None = None,
-    noise_smoothing: float = PLAY_NOISE_SMOOTHING,
-) -> dict[str, Any]:
+def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
+                          episode_steps: int = PLAY_EPISODE_STEPS, seed: int = 0, noise: float | None = None,
+                          noise_smoothing: float = PLAY_NOISE_SMOOTHING) -> dict[str, Any]:
     """Generate the 'play' dataset of ``task``'s domain with OGBench's oracles (see the module
     docstring), or the 'navigate' dataset of a ``pointmaze`` (``generate_locomaze.py``).
 
@@ -347,10 +341,7 @@ def to_episodes(dataset: dict[str, np.ndarray]) -> list[Episode]:
         truncated[-1] = not solved[stop - 1]
         episodes.append(Episode(
             observations=np.concatenate([dataset["observations"][sl], dataset["next_observations"][stop - 1:stop]]),
-            actions=np.asarray(dataset["actions"][sl]),
-            rewards=np.asarray(dataset["rewards"][sl], dtype=np.float64),
-            terminations=terminated,
-            truncations=truncated,
-        ))
+            actions=np.asarray(dataset["actions"][sl]), rewards=np.asarray(dataset["rewards"][sl], dtype=np.float64),
+            terminations=terminated, truncations=truncated))
         start = stop
     return episodes

@@ -33,10 +33,8 @@ class OGBenchSingleTask(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(
-        self, task: str = "cube-single-play-singletask-task2-v0", sparse: bool = False,
-        max_episode_steps: int | None = None,
-    ) -> None:
+    def __init__(self, task: str = "cube-single-play-singletask-task2-v0", sparse: bool = False,
+                 max_episode_steps: int | None = None) -> None:
         import ogbench
 
         TaskName.parse(task)

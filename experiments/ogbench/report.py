@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import iqm_with_ci, paired_difference, probability_of_improvement
+from experiments.common.stats import interval, iqm_with_ci, paired_difference, probability_of_improvement
 from sb3_ua2c.execution import format_length_shares
 
 PHASES = ("offline", "online")
@@ -159,7 +159,7 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
         paired = [f"{_pct(p[f'{ph}_paired']['difference'])} [{_pct(p[f'{ph}_paired']['ci_low'])}, "
                   f"{_pct(p[f'{ph}_paired']['ci_high'])}]" if f"{ph}_paired" in p else "–" for ph in PHASES]
         lines.append("| " + pair + " | " + " | ".join(
-            f"{p[ph]['probability']:.2f} [{p[ph]['ci_low']:.2f}, {p[ph]['ci_high']:.2f}]" for ph in PHASES)
+            interval(p[ph], "probability", sign="") for ph in PHASES)
             + " | " + " | ".join(paired) + " |")
     r = summary["ranking"]
     lines += ["", "## Budget and ranking next to Q-chunking", "",

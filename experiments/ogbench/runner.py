@@ -181,8 +181,6 @@ def seeds_arg(values: Iterable[int]) -> list[int]:
     return sorted(select_seeds(list(values), [], high=1000))
 
 
-__all__ = [
-    "BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
-    "default_budget", "estimate", "format_estimate", "run_benchmark", "stored_records",
-]
+__all__ = ["BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
+           "default_budget", "estimate", "format_estimate", "run_benchmark", "stored_records"]
 

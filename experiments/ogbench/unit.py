@@ -173,14 +173,8 @@ class _OnlineCurve(BaseCallback):
         return True
 
 
-def run_ogbench_unit(
-    arm: str,
-    task: str,
-    seed: int,
-    budget: OGBenchBudget,
-    out_dir: str | os.PathLike,
-    data_dir: str | os.PathLike | None = None,
-) -> dict[str, Any]:
+def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_dir: str | os.PathLike,
+                     data_dir: str | os.PathLike | None = None) -> dict[str, Any]:
     """Run one (arm, task, seed) unit and return its record (also written to ``<out_dir>/record.json``).
 
     :param arm: a key of :data:`ARMS`

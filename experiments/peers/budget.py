@@ -240,10 +240,8 @@ FULL_PEERS_BUDGET = PeersBudget()
 
 #: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
 QUICK_PEERS_BUDGET = PeersBudget(
-    ua2c=QUICK_BUDGET,
-    sb3_hyperparams={"learning_starts": 10, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}},
-    d3rlpy_batch_size=8,
-)
+    ua2c=QUICK_BUDGET, sb3_hyperparams={"learning_starts": 10, "batch_size": 8, "policy_kwargs": {"net_arch": [16]}},
+    d3rlpy_batch_size=8)
 
 
 def unit_steps(budget: PeersBudget, arm: str) -> float:

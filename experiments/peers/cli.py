@@ -5,15 +5,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from experiments.common.cli import check_extras, harness_parent, run_command, select_seeds
+from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import command_line, run_header
+from experiments.common.records import run_header
 from experiments.common.runner import make_executor, ray_session
 from experiments.peers.budget import (
     ARMS,
@@ -27,14 +26,17 @@ from experiments.peers.budget import (
 from experiments.peers.report import aggregate, verdicts, write_report
 from experiments.peers.runner import PeersPaths, load_records, read_manifest, run_peers
 from sb3_ua2c.checks import check_int
-from sb3_ua2c.cli_args import json_object_arg
 
 PROG = "python -m experiments peers"
 PARENT = harness_parent(
     seeds="0 1 2 3 4; with --quick: 0 1", work="<out>/peers_work", workers=None,
     workers_help="local processes at once, each unit in a fresh process (default: 2; with --quick: 1); 1 runs the "
     "units one after the other in this process",
-    quick="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test")
+    quick="tiny budget (4-s episodes, a few updates) and 200 bootstrap replications: a smoke test",
+    budget="PeersBudget overrides as JSON, on top of the default (or --quick) budget; \"ua2c\" overrides Fig2Budget "
+    "keys one by one, e.g. '{\"rlpd_updates_per_step\": 8, \"ua2c\": {\"algo_kwargs\": {\"q_weight\": 0.5}}}' "
+    "(a tuning configuration), or @FILE for a JSON file (the tuning's selected.json)",
+    raw="<out>/peers_raw", scenarios=True, rerun=True)
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
@@ -49,28 +51,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help=f"arms to run (default: all): {' '.join(ARMS)}")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
-    parser.add_argument("--budget", type=budget_arg, default={},
-                        help="PeersBudget overrides as JSON, on top of the default (or --quick) budget; \"ua2c\" "
-                        "overrides Fig2Budget keys one by one, e.g. '{\"rlpd_updates_per_step\": 8, \"ua2c\": "
-                        "{\"algo_kwargs\": {\"q_weight\": 0.5}}}' (a tuning configuration), or @FILE for a JSON "
-                        "file (the tuning's selected.json)")
-    parser.add_argument("--scenarios", choices=list(SCENARIO_BASES), default="test",
-                        help="evaluation scenarios: validation (choices, tuning), test (reported numbers; default), "
-                        "figure2 (Figure 2's held-out scenarios, used by UA2C's earlier choices)")
-    parser.add_argument("--raw", default=None, help="per-unit records (default: <out>/peers_raw)")
-    parser.add_argument("--rerun", action="store_true",
-                        help="delete the stored records of the selected arms and seeds first, so they run again")
     return parser
-
-
-def budget_arg(text: str) -> dict[str, Any]:
-    """argparse type of ``--budget``: a JSON object, or ``@FILE`` naming a file that holds one."""
-    if text.startswith("@"):
-        try:
-            text = Path(text[1:]).read_text()
-        except OSError as exc:
-            raise argparse.ArgumentTypeError(f"cannot read {text[1:]!r}: {exc.strerror}") from exc
-    return json_object_arg(text)
 
 
 def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> tuple[list[int], list[str]]:
@@ -159,39 +140,37 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
           f"{time.perf_counter() - t0:.0f} s", flush=True)
 
 
-def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument or a missing extra, 1 when units failed)."""
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
-    try:
-        if args.workers is None:  # --quick: tiny units, where starting a process costs more than the unit
-            args.workers = 1 if args.quick else 2
-        seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
-        budget = _budget(args)
-        check_extras(needed_extras(arms, args.ray_address, args.report_only))
-    except ValueError as exc:
-        parser.error(str(exc))
+def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]:
+    if args.workers is None:  # --quick: tiny units, where starting a process costs more than the unit
+        args.workers = 1 if args.quick else 2
+    seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
+    budget = _budget(args)
+    check_extras(needed_extras(arms, args.ray_address, args.report_only))
+    return seeds, arms, budget
+
+
+def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str], PeersBudget], command: str) -> int:
+    seeds, arms, budget = checked
     paths = PeersPaths.under(args.out, args.raw, args.work)
     previous = paths.out / "peers.json"
-    command, date = run_header(command_line(prog, sys.argv[1:] if argv is None else argv),
-                               previous if args.report_only else None)
+    command, date = run_header(command, previous if args.report_only else None)
+    estimate = None
+    if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
+        recorded = json.loads(previous.read_text()) if previous.is_file() else {}
+        budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
+                                          else budget)
+        estimate = recorded.get("estimate")
+    else:
+        _run(args, seeds, arms, budget, paths)
+    summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000,
+                            estimate=estimate)
+    files = write_report(summary, paths.out)
+    for line in verdicts(summary):
+        print(line)
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
 
-    def run() -> int:
-        nonlocal budget
-        estimate = None
-        if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
-            recorded = json.loads(previous.read_text()) if previous.is_file() else {}
-            budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
-                                              else budget)
-            estimate = recorded.get("estimate")
-        else:
-            _run(args, seeds, arms, budget, paths)
-        summary = build_summary(paths, budget, args.workers, command, date, reps=200 if args.quick else 2000,
-                                estimate=estimate)
-        files = write_report(summary, paths.out)
-        for line in verdicts(summary):
-            print(line)
-        print("wrote " + ", ".join(str(f) for f in files))
-        return 0
 
-    return run_command(run)
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit code (2 on a bad argument or a missing extra, 1 when units failed)."""
+    return harness_main(build_parser(prog), argv, prog, _check, _run_and_report)

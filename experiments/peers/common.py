@@ -230,20 +230,10 @@ def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
 
 
 
-def unit_record(
-    arm: str,
-    seed: int,
-    dataset: OfflineDataset,
-    protocol: EvalProtocol,
-    online_steps: int,
-    hyperparams: Mapping[str, Any],
-    evaluation: Mapping[str, Any],
-    curve: list[dict[str, Any]],
-    clock: PhaseClock,
-    offline_steps: int = 0,
-    offline_evaluation: Mapping[str, Any] | None = None,
-    notes: str = "",
-) -> dict[str, Any]:
+def unit_record(arm: str, seed: int, dataset: OfflineDataset, protocol: EvalProtocol, online_steps: int,
+                hyperparams: Mapping[str, Any], evaluation: Mapping[str, Any], curve: list[dict[str, Any]],
+                clock: PhaseClock, offline_steps: int = 0, offline_evaluation: Mapping[str, Any] | None = None,
+                notes: str = "") -> dict[str, Any]:
     """The JSON record every peer unit returns (``evaluation`` / ``offline_evaluation`` from
     :func:`evaluation_record`, ``curve`` from :func:`learning_curve`)."""
     from sb3_ua2c.pipeline import env_settings

@@ -1,30 +1,15 @@
 """Peer arms built on d3rlpy: IQL, Cal-QL and ReBRAC, offline on the seed's dataset, then online; and
 behaviour cloning (BC), offline only, as a reference row.
 
-Install. d3rlpy 2.8.1 pins ``gymnasium==1.0.0`` while this package runs a newer gymnasium; its code
-paths used here work on ours (``tests/test_peers.py`` runs them), so it is installed without its
-pins, next to the runtime dependencies it imports (the ``peers`` extra)::
+d3rlpy 2.8.1 pins ``gymnasium==1.0.0``; the code paths used here work on ours (``tests/harness/test_peers.py``),
+so it is installed without its pins (:data:`~experiments.common.cli.D3RLPY_INSTALL`); ``gym`` without
+``gym-notices`` keeps it from printing a notice on every import of Stable-Baselines3.
 
-    pip install "sb3-ua2c[peers]"
-    pip install --no-deps d3rlpy==2.8.1 gym==0.26.2
-
-``gym`` is imported by d3rlpy for its space checks; installing it without ``gym-notices`` keeps it
-from printing a notice on every import of Stable-Baselines3 (which looks for ``gym``).
-
-Protocol. The offline phase fits on the seed's transitions for ``offline_steps`` gradient steps
-(the UA2C arms' ``pretrain_steps``) and is evaluated on the held-out scenarios; the online phase
-continues with ``fit_online`` for ``online_steps`` env steps, one update per step, with
-``offline_ratio`` of each minibatch drawn from the offline data (d3rlpy's ``MixedReplayBuffer``, as
-UA2C and the offline-mix SAC keep their offline data), and the final policy is evaluated again.
-Actions are scaled to [-1, 1] by d3rlpy's ``MinMaxActionScaler`` over the action space's bounds
-(its squashed Gaussian policies act in [-1, 1]). d3rlpy writes its logs and models under the unit's
-directory (``<out_dir>/d3rlpy/{offline,online}``), never to ``d3rlpy_logs/``.
-
-Data. The dataset's episodes become d3rlpy episodes with every transition intact: a truncated
-episode keeps its final observation (as the next observation of its last step, which bootstraps)
-and a terminated one ends with a terminal transition (next observation zeros, no bootstrap).
-Online, d3rlpy drops the last transition of each truncated episode (its own buffer's rule).
-"""
+The online phase continues with ``fit_online``, one update per env step, with ``offline_ratio`` of each
+minibatch from the offline data (as UA2C and the offline-mix SAC keep theirs). Actions are scaled to [-1, 1]
+by ``MinMaxActionScaler``. Logs and models go under ``<out_dir>/d3rlpy/{offline,online}``. A truncated
+episode keeps its final observation (its last step bootstraps); a terminated one ends with a terminal
+transition. Online, d3rlpy drops the last transition of each truncated episode (its own buffer's rule)."""
 
 from __future__ import annotations
 
@@ -84,13 +69,8 @@ class D3rlpyPolicy:
         self.observation_space = observation_space
         self.action_space = action_space
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
         """The greedy action (``deterministic``) or one drawn from the policy; ``state`` is ignored.
 
         :param observation: ``obs_shape`` or ``(n, *obs_shape)``

@@ -19,6 +19,7 @@ import numpy as np
 
 from experiments.common.stats import (
     LOWER_IS_BETTER,
+    interval,
     iqm_with_ci,
     learning_curve_area,
     mean_with_ci,
@@ -200,8 +201,8 @@ def figure2_lines(summary: Mapping[str, Any]) -> list[str]:
         return ["The run lacks the UA2C arms these claims compare (fixed, one-step, adaptive)."]
     lines = ["| claim | X | Y | paired difference, X better when > 0 [95 % CI] | X ahead in |", "|---|---|---|---|---|"]
     for claim, c in claims.items():
-        lines.append(f"| {claim} | {c['x_mean']:.2f} | {c['y_mean']:.2f} | {c['difference']:+.2f} "
-                     f"[{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] | {c['x_better_runs']} of {c['runs']} |")
+        lines.append(f"| {claim} | {c['x_mean']:.2f} | {c['y_mean']:.2f} | {interval(c)} | {c['x_better_runs']} of "
+                     f"{c['runs']} |")
     return lines
 
 
@@ -228,7 +229,7 @@ def verdicts(summary: Mapping[str, Any]) -> list[str]:
         o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
         poi = pair["reward"]
         head = verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
-        lines.append(f"{head}; P({o} > {p}) = {poi['probability']:.2f} [{poi['ci_low']:.2f}, {poi['ci_high']:.2f}]")
+        lines.append(f"{head}; P({o} > {p}) = {interval(poi, 'probability', sign='')}")
     return lines
 
 
@@ -259,7 +260,7 @@ def _mean(arm: Mapping[str, Any], metric: str) -> float:
 def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
     if stat is None:
         return "–"
-    return f"{stat[key]:.{digits}f} [{stat['ci_low']:.{digits}f}, {stat['ci_high']:.{digits}f}]"
+    return interval(stat, key, digits, sign="")
 
 
 def results_table(summary: Mapping[str, Any]) -> list[str]:
@@ -301,7 +302,7 @@ def pairs_table(summary: Mapping[str, Any]) -> list[str]:
     lines = ["| UA2C arm | peer | " + " | ".join(f"P(better) {m}" for m in POI_METRICS) + " |",
              "|---|---|" + "---|" * len(POI_METRICS)]
     for pair in summary["pairs"].values():
-        cells = [f"{pair[m]['probability']:.2f} [{pair[m]['ci_low']:.2f}, {pair[m]['ci_high']:.2f}]" for m in POI_METRICS]
+        cells = [interval(pair[m], "probability", sign="") for m in POI_METRICS]
         lines.append(f"| {ARM_LABELS.get(pair['ua2c'])} | {ARM_LABELS.get(pair['peer'], pair['peer'])} | "
                      + " | ".join(cells) + " |")
     return lines

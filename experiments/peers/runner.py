@@ -137,14 +137,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
     return Unit(f"seed{seed}/{arm}", fn, {"inputs": inputs, **kwargs}, paths.record(seed, arm))
 
 
-def run_peers(
-    seeds: Sequence[int],
-    arms: Sequence[str],
-    budget: PeersBudget,
-    paths: PeersPaths,
-    executor: Executor,
-    printer: Callable[[str], Any] | None = print,
-) -> list[UnitResult]:
+def run_peers(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths, executor: Executor,
+              printer: Callable[[str], Any] | None = print) -> list[UnitResult]:
     """Run (or resume) the three stages; return the results of the arm units (in the order run).
 
     Arm units are submitted most expensive first, so the cores stay busy to the end.

@@ -105,8 +105,7 @@ class OfflineMixReplayBuffer(ReplayBuffer):
             parts.append(super().sample(batch_size - n_offline, env))
         # each field (n_offline, ...) + (batch - n_offline, ...) -> (batch, ...); optional fields stay None
         return ReplayBufferSamples(*(
-            None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)
-        ))
+            None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)))
 
 
 def _algorithm(algo: str) -> type:
@@ -125,15 +124,8 @@ def _algorithm(algo: str) -> type:
     raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
 
 
-def _train_and_evaluate(
-    arm: str,
-    algo: str,
-    inputs: ArmInputs,
-    ds: OfflineDataset,
-    params: dict[str, Any],
-    offline_ratio: float | None,
-    notes: str,
-) -> dict[str, Any]:
+def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, ds: OfflineDataset, params: dict[str, Any],
+                        offline_ratio: float | None, notes: str) -> dict[str, Any]:
     from envs.collection import make_traffic_env
     from sb3_ua2c.pipeline import env_settings
 
@@ -166,12 +158,8 @@ def _train_and_evaluate(
                        clock, notes=notes)
 
 
-def run_sb3_online(
-    inputs: ArmInputs,
-    algo: str = "sac",
-    hyperparams: Mapping[str, Any] | None = None,
-    conf_file: str | os.PathLike | None = None,
-) -> dict[str, Any]:
+def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
+                   conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
     """One unit: SB3 SAC, sb3-contrib TQC or sb3-contrib CrossQ trained online from scratch for ``online_steps`` env
     steps on the dataset's environment, then evaluated on the held-out scenarios.
 

@@ -1,29 +1,17 @@
 """The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
 
-Each tuned method (:data:`TUNED_ARMS`, UA2C included) has three configurations in :data:`GRID`: its
-published settings first, then two moves of the knob that matters most for it (its conservatism, its
-learning rate or start, its update-to-data ratio), fixed before any run. Configuration ``i`` of every
-method runs in one run directory, ``<out>/c<i>``, on the **validation** scenarios and the validation
-seeds, at the head-to-head's default budget, through :func:`~experiments.peers.runner.run_peers` (resumable,
-local processes or Ray).
-
-The choice: per method, the configuration with the highest mean final reward over its runs (one score
-per run, the mean over its evaluation episodes), once every configuration has a record for every seed;
-a tie keeps the earlier one. ``<out>/selected.json`` holds the ``--budget`` overrides of the chosen
-configurations, written once every method is chosen, for the test run on other seeds and the test
-scenarios::
-
-    python -m experiments peers --seeds 10 11 ... 19 --budget @results/peers_tuning/selected.json
-
-The report, ``<out>/tuning.md`` / ``tuning.json``, gives every configuration's per-run scores.
-"""
+Each tuned method has three configurations in :data:`GRID`, fixed before any run: its published settings,
+then two moves of the knob that matters most for it. Configuration ``i`` of every method runs in
+``<out>/c<i>`` on the validation seeds and scenarios at the head-to-head's default budget. Per method the
+configuration with the highest mean final reward over its runs is chosen (a tie keeps the earlier one);
+once every method is chosen, ``<out>/selected.json`` holds the ``--budget`` of the test run
+(``python -m experiments peers --budget @results/peers_tuning/selected.json ...``)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.cli import check_extras
+from experiments.common.cli import check_extras, harness_main
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import command_line, run_header
-from experiments.common.runner import UnitsFailedError, make_executor
+from experiments.common.records import run_header
+from experiments.common.runner import make_executor
 from experiments.common.stats import run_scores
 from experiments.peers.budget import (
     ARM_LABELS,
@@ -200,17 +188,6 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
-def _check(args: argparse.Namespace) -> None:
-    check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
-    check_extras(needed_extras(args.arms, args.ray_address, args.report_only))
-    unknown = [a for a in args.arms if a not in GRID]
-    if unknown:
-        raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")
-    bad = [c for c in args.configs if not 0 <= c < N_CONFIGS]
-    if bad:
-        raise ValueError(f"--configs must be in [0, {N_CONFIGS}), got {bad}")
-
-
 def _run(args: argparse.Namespace, base: PeersBudget) -> None:
     budgets = {i: config_budget(i, args.arms, base) for i in args.configs}
     walls = [estimate_units(b, args.arms, len(args.seeds), args.workers) for b in budgets.values()]
@@ -224,25 +201,24 @@ def _run(args: argparse.Namespace, base: PeersBudget) -> None:
         print(f"configuration {i}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
-def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument, 1 when units failed)."""
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
-    try:
-        _check(args)
-    except ValueError as exc:
-        parser.error(str(exc))
+def _check(args: argparse.Namespace) -> PeersBudget:
+    check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
+    check_extras(needed_extras(args.arms, args.ray_address, args.report_only))
+    unknown = [a for a in args.arms if a not in GRID]
+    if unknown:
+        raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")
+    bad = [c for c in args.configs if not 0 <= c < N_CONFIGS]
+    if bad:
+        raise ValueError(f"--configs must be in [0, {N_CONFIGS}), got {bad}")
     args.seeds, args.arms = list(dict.fromkeys(args.seeds)), [a for a in TUNED_ARMS if a in args.arms]
-    base = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
+    return QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
+
+
+def _run_and_report(args: argparse.Namespace, base: PeersBudget, command: str) -> int:
     out = Path(args.out)
-    command, date = run_header(command_line(prog, sys.argv[1:] if argv is None else argv),
-                               out / "tuning.json" if args.report_only else None)
-    try:
-        if not args.report_only:
-            _run(args, base)
-    except UnitsFailedError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    command, date = run_header(command, out / "tuning.json" if args.report_only else None)
+    if not args.report_only:
+        _run(args, base)
     methods = collect(out, args.arms, args.seeds)
     summary = {"command": command, "date": date, "seeds": args.seeds, "online_steps": base.online_steps,
                "eval_episodes": base.ua2c.eval_episodes, "methods": methods,
@@ -261,3 +237,8 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     selected.write_text(json.dumps(summary["selected"], indent=1) + "\n")
     print(f"wrote {out / 'tuning.md'}, {out / 'tuning.json'}, {selected}")
     return 0
+
+
+def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
+    """Entry point; returns the exit code (2 on a bad argument, 1 when units failed)."""
+    return harness_main(build_parser(prog), argv, prog, _check, _run_and_report)

@@ -77,14 +77,8 @@ def ua2c_evaluation_record(checkpoint: str | os.PathLike, settings: Mapping[str,
     return {"summary": summarize(episodes), "episodes": rows}
 
 
-def run_ua2c_arm(
-    inputs: ArmInputs,
-    arm: str,
-    checkpoint: str | os.PathLike,
-    delta: float | None,
-    finetune_overrides: Mapping[str, Any],
-    pretrain_record: Mapping[str, Any],
-) -> dict[str, Any]:
+def run_ua2c_arm(inputs: ArmInputs, arm: str, checkpoint: str | os.PathLike, delta: float | None,
+                 finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any]) -> dict[str, Any]:
     """One unit: a UA2C arm from its pre-trained ``checkpoint`` (shared by the arms of the seed), evaluated
     offline with its own execution rule, fine-tuned online for ``online_steps`` env steps with the
     seed's offline data kept in its buffer, evaluated again.

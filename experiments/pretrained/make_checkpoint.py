@@ -44,12 +44,6 @@ SCRIPT = "python -m experiments make-checkpoint"
 #: The budget of ``python -m envs main`` (``MAIN_BUDGET["full"]`` of ``envs/cli.py``), taken from there.
 EPISODES, PRETRAIN_STEPS, EVAL_EPISODES = (MAIN_BUDGET["full"][k] for k in ("episodes", "pretrain_steps", "eval_episodes"))
 
-#: Seconds per collected episode, per evaluated episode and per gradient step, measured on one
-#: thread of a busy 2-core machine (for the estimate printed before the run).
-COLLECT_SECONDS_PER_EPISODE = 0.08
-EVAL_SECONDS_PER_EPISODE = 0.6
-PRETRAIN_SECONDS_PER_STEP = 0.125
-
 
 def experiment_dir(out: str | os.PathLike) -> Path:
     """``<out>/ua2c/MixedTraffic-v0_1``: where rl-zoo's ``enjoy -f <out>`` looks by default."""
@@ -63,10 +57,8 @@ def checkpoint_path(out: str | os.PathLike) -> Path:
 
 def zoo_train_argv(log_folder: str, conf_file: str, seed: int) -> list[str]:
     """rl-zoo3 ``train`` arguments whose ``config.yml`` / ``args.yml`` go with the checkpoint."""
-    return [
-        "--algo", ALGO, "--env", ENV_ID, "--gym-packages", "envs", "--conf-file", conf_file,
-        "-f", log_folder, "--seed", str(seed),
-    ]
+    return ["--algo", ALGO, "--env", ENV_ID, "--gym-packages", "envs", "--conf-file", conf_file,
+            "-f", log_folder, "--seed", str(seed)]
 
 
 @contextlib.contextmanager
@@ -202,14 +194,10 @@ def readme(info: dict[str, Any]) -> str:
     s = info["summary"]
     rows = "\n".join(
         f"| {name} | {value} |" for name, value in (
-            ("reward (mean)", f"{s['reward']:.2f}"),
-            ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
-            ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"),
-            ("collision rate", f"{s['collision']:.2f}"),
-            ("merge success rate", f"{s['merge_success']:.2f}"),
-            ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
-            ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}"),
-        )
+            ("reward (mean)", f"{s['reward']:.2f}"), ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
+            ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"), ("collision rate", f"{s['collision']:.2f}"),
+            ("merge success rate", f"{s['merge_success']:.2f}"), ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
+            ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}"))
     )
     episodes = "\n".join(
         f"| {r.seed} | {r.reward:.2f} | {r.length} | {r.cumulative_jerk:.1f} | {'yes' if r.collision else 'no'} "
@@ -285,11 +273,6 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     episodes = EPISODES if args.episodes is None else args.episodes
     steps = PRETRAIN_STEPS if args.steps is None else args.steps
     eval_episodes = EVAL_EPISODES if args.eval_episodes is None else args.eval_episodes
-    print(
-        f"estimate: ~{episodes * COLLECT_SECONDS_PER_EPISODE + eval_episodes * EVAL_SECONDS_PER_EPISODE + steps * PRETRAIN_SECONDS_PER_STEP:.0f} s "
-        f"({episodes} + {eval_episodes} episodes, {steps} gradient steps)",
-        flush=True,
-    )
 
     out = Path(args.out)
     log_folder = os.path.relpath(out) if out.is_absolute() else str(out)
@@ -315,13 +298,10 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
         dataset_dir, full_ckpt = work / "dataset", work / "pretrained.zip"
         collect_argv = [
             "collect", "--episodes", str(episodes), "--seed", str(args.seed), "--out", str(dataset_dir),
-            "--overwrite", "--no-progress", "--threads", "1",
-        ] + (["--style-classifier", style] if style else [])
-        pretrain_argv = [
-            "pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(steps),
-            "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
-            "--no-progress", "--threads", "1",
-        ]
+            "--overwrite", "--no-progress", "--threads", "1"] + (["--style-classifier", style] if style else [])
+        pretrain_argv = ["pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(steps),
+                         "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
+                         "--no-progress", "--threads", "1"]
         collect_seconds = run_cli(collect_argv)
         pretrain_seconds = run_cli(pretrain_argv)
 
@@ -377,6 +357,3 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     print(f"checkpoint: {shipped} ({info['size']} bytes)")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -107,7 +107,7 @@ def test_peers_quick_on_a_ray_head_gives_the_local_numbers(tmp_path):
 
     quick = ["--quick", "--seeds", "0", "--arms", "ua2c_adaptive", "sac", "iql"]  # UA2C, SB3 and d3rlpy units
     assert cli.main([*quick, "--workers", "1", "--out", str(tmp_path / "local")]) == 0
-    proc = _run_on_ray_head(tmp_path, [sys.executable, "-m", "experiments.peers", *quick, "--ray-address",
+    proc = _run_on_ray_head(tmp_path, [sys.executable, "-m", "experiments", "peers", *quick, "--ray-address",
                                        f"127.0.0.1:{PORT}", "--out", str(tmp_path / "ray")])
     assert "[3/3] unit seed0/" in proc.stdout  # every arm ran as a Ray task
     local, on_ray = _arm_numbers(tmp_path / "local"), _arm_numbers(tmp_path / "ray")
