@@ -131,6 +131,12 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
     wall = [r["wall_seconds"]["total"] for r in records]
     cpu = [r["cpu_seconds"]["total"] for r in records]
     first = records[0]
+    training = None  # the online training episodes: one collision rate and one mean reward per run
+    if all(r["online_episodes"] and all("collision" in e for e in r["online_episodes"]) for r in records):
+        runs = {key: np.array([[np.mean([float(e[key]) for e in r["online_episodes"]])] for r in ordered])
+                for key in ("collision", "reward")}  # key -> (n_runs, 1)
+        training = {"episodes_per_run": float(np.mean([len(r["online_episodes"]) for r in records])),
+                    **mean_with_ci(runs, reps=reps)}
     return {
         "label": ARM_LABELS.get(first["arm"], first["arm"]),
         "seeds": seeds,
@@ -146,6 +152,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "length_shares": {"offline": arm_length_shares(records, "offline_evaluation"),
                           "online": arm_length_shares(records)},
         "curve": curve,
+        "training_episodes": training,
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
         "cpu_seconds": {"mean_per_seed": float(np.mean(cpu)), "total": float(np.sum(cpu))},
         "hyperparams": first["hyperparams"],
@@ -285,6 +292,16 @@ def means_table(summary: Mapping[str, Any]) -> list[str]:
         lines.append(f"| {arm['label']} | {_cell(m['reward'], key='mean')} | {_cell(m['collision'], key='mean')} "
                      f"| {_cell(m['merge_success'], key='mean')} | {_cell(m['cumulative_jerk'], 1, 'mean')} "
                      f"| {_cell(m['jerk_per_step'], key='mean')} | {_cell(area, key='mean') if 'mean' in area else '–'} |")
+    return lines
+
+
+def training_table(summary: Mapping[str, Any]) -> list[str]:
+    """What each arm did while it learned online: per run, the collision rate and the mean reward of its
+    online training episodes, then their mean over runs [95 % CI] (Markdown)."""
+    rows = [(arm["label"], arm.get("training_episodes")) for arm in summary["arms"].values()]
+    lines = ["| arm | training episodes per run | collision rate | reward per episode |", "|---|---|---|---|"]
+    lines += [f"| {label} | {t['episodes_per_run']:.0f} | {_cell(t['collision'], key='mean')} "
+              f"| {_cell(t['reward'], 1, 'mean')} |" for label, t in rows if t]
     return lines
 
 
@@ -448,6 +465,10 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "## Means over runs [95 % CI], and the area under each run's online learning curve",
         "",
         *means_table(summary),
+        "",
+        "## While learning: the online training episodes (means over runs [95 % CI])",
+        "",
+        *training_table(summary),
         "",
         "## Executed lengths L_t (evaluation plans, pooled over runs)",
         "",

@@ -30,6 +30,7 @@ from experiments.peers.report import (
     means_table,
     readme_table,
     results_table,
+    training_table,
     verdicts,
 )
 from sb3_ua2c.presets import preset
@@ -197,7 +198,7 @@ def _record(arm, seed, rewards, curve, offline=None):
     return {"arm": arm, "seed": seed, "online_steps": 100, "offline_steps": 0 if offline is None else 50,
             "evaluation": evaluation, "offline_evaluation": None if offline is None else {"episodes": [
                 {**e, "reward": o} for e, o in zip(episodes, offline, strict=True)]},
-            "online_episodes": [{"end_step": s, "reward": r} for s, r in curve],
+            "online_episodes": [{"end_step": s, "reward": r, "collision": i == 0} for i, (s, r) in enumerate(curve)],
             "wall_seconds": {"total": 60.0 * (seed + 1)}, "cpu_seconds": {"total": 30.0}, "hyperparams": {}, "notes": ""}
 
 
@@ -236,6 +237,15 @@ def test_report_builders_on_hand_made_records():
     assert adaptive["means"]["collision"]["mean"] == pytest.approx(0.5)
     assert adaptive["means"]["cumulative_jerk"]["mean"] == pytest.approx(25.0)
     assert means_table(summary)[2].startswith("| UA2C adaptive, one update per k env steps | 2.50 [")
+    # training episodes: adaptive runs collide in 1 of 2 episodes each, earn (1 + 3) / 2 and (2 + 5) / 2;
+    # SAC runs have one episode each, both collisions
+    training = adaptive["training_episodes"]
+    assert training["episodes_per_run"] == 2.0
+    assert training["collision"]["mean"] == pytest.approx(0.5)
+    assert training["reward"]["mean"] == pytest.approx((2.0 + 3.5) / 2)
+    rows = training_table(summary)
+    assert rows[2].startswith("| UA2C adaptive, one update per k env steps | 2 | 0.50 [0.50, 0.50] | 2.8 [")
+    assert rows[3].startswith("| SB3 SAC (online) | 1 | 1.00 [1.00, 1.00] | 2.0 [")
 
 
 def test_binned_curve_carries_the_last_return_forward():
