@@ -1,5 +1,7 @@
 """Small UA2C settings shared by the algorithm tests (seconds per test on one core)."""
 
+import hashlib
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -59,3 +61,12 @@ def model_objective(model, data, q_weight=None, generator=None):
 
     policy = model.policy
     return actor_objective(policy.actor_type, policy.actor_inputs(), data, model.actor_weights(q_weight), generator)
+
+
+def state_hash(model) -> str:
+    """SHA-256 of a model's policy state dict (keys and float bytes): equal only when every weight is."""
+    h = hashlib.sha256()
+    for key, value in model.policy.state_dict().items():
+        h.update(key.encode())
+        h.update(value.detach().cpu().numpy().tobytes())
+    return h.hexdigest()

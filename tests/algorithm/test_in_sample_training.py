@@ -4,7 +4,6 @@ advantage-weighted extraction (``actor_extraction="awr"``) and softmax explorati
 (learn's rollouts, not ``predict``), checkpoints with the value network, seeding, switching after
 Phase 1, bad values, and the defaults left bit for bit as they were."""
 
-import hashlib
 import math
 import platform
 from types import SimpleNamespace
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 import torch as th
 from torch import nn
-from ua2c_helpers import FAST, TINY, rollout_actions, tiny_policy
+from ua2c_helpers import FAST, TINY, rollout_actions, state_hash, tiny_policy
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.buffers import ChunkReplaySamples
@@ -29,14 +28,6 @@ ALL = dict(critic_target="in_sample", actor_extraction="awr", exploration="softm
 #: the state-dict hash of ``trained()`` with the defaults, recorded before the options existed
 #: (torch 2.13.0+cpu, x86_64): float results may differ on other builds, where the check is skipped
 DEFAULTS_HASH = ("2.13.0+cpu", "x86_64", "38016077f199f609fea01723e8742ac4a62870a15e9b8b980cefdad45dae2172")
-
-
-def state_hash(model: UA2C) -> str:
-    h = hashlib.sha256()
-    for key, value in model.policy.state_dict().items():
-        h.update(key.encode())
-        h.update(value.detach().cpu().numpy().tobytes())
-    return h.hexdigest()
 
 
 def trained(steps: int = 150, **kwargs) -> UA2C:

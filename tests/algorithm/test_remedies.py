@@ -1,7 +1,6 @@
 """The remedies as switches: history dropout and an actor without past actions (copycat), the value term
 without normalisation, QC-FQL's one-step policy, and the paper preset. Defaults leave training as it was."""
 
-import hashlib
 import inspect
 from pathlib import Path
 
@@ -9,7 +8,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.noise import ActionNoise
-from ua2c_helpers import FAST, TINY, model_objective, rollout_actions, tiny_policy
+from ua2c_helpers import FAST, TINY, model_objective, rollout_actions, state_hash, tiny_policy
 
 from sb3_ua2c import UA2C, UA2CPolicy
 from sb3_ua2c.diagnostics import METRICS, diagnose, plan_sensitivity, policy_gap, value_term_strength
@@ -27,14 +26,6 @@ ONE_STEP = dict(actor_type="one_step")
 def chunks(*rows) -> th.Tensor:
     """Chunks of one-dimensional actions: ``len(rows)`` chunks of ``k = len(row)`` -> ``(B, k, 1)``."""
     return th.tensor(rows, dtype=th.float32).unsqueeze(-1)
-
-
-def state_hash(model: UA2C) -> str:
-    h = hashlib.sha256()
-    for key, value in model.policy.state_dict().items():
-        h.update(key.encode())
-        h.update(value.detach().cpu().numpy().tobytes())
-    return h.hexdigest()
 
 
 def trained(steps: int = 150, **kwargs) -> UA2C:
