@@ -243,8 +243,8 @@ def episode_intervals(results: list[EpisodeMetrics], confidence: float = 0.95) -
 
 
 def _interval_cell(low: float, high: float) -> str:
-    digits = 2 if max(abs(low), abs(high)) < 10 else 1 if max(abs(low), abs(high)) < 1000 else 0
-    return f"{low:.{digits}f}–{high:.{digits}f}"
+    digits = 2 if max(abs(low), abs(high)) < 10 else 1 if max(abs(low), abs(high)) < 100 else 0
+    return f"{low:.{digits}f}..{high:.{digits}f}"
 
 
 def format_table(
@@ -255,7 +255,7 @@ def format_table(
 
     :param rows: ``{method: summary}`` (:func:`summarize`)
     :param intervals: ``{method: intervals}`` (:func:`episode_intervals`): each such method's row is followed
-        by a row ``95 % CI`` of ``low–high`` cells
+        by a row ``95 % CI`` of ``low..high`` cells
     """
     lines = [" | ".join(f"{h:>11}" for h in ("method", *(header for header, _ in TABLE_COLUMNS)))]
     lines.append("-|-".join("-" * 11 for _ in range(len(TABLE_COLUMNS) + 1)))

@@ -395,8 +395,8 @@ def test_episode_intervals_hand_computed() -> None:
     assert ci["merge_success"] == pytest.approx((0.510109, 1.0), abs=1e-5)
     assert ci["cumulative_jerk"] == (10.0, 10.0)  # no spread: the mean itself
     lines = format_table({"finetuned": summarize(episodes)}, {"finetuned": ci}).splitlines()
-    assert lines[3] == ("    95 % CI |   0.45–4.55 |   10.0–10.0 |   0.05–0.70 |   0.51–1.00 |   20.0–20.0 |"
-                        "   2.00–2.00")
+    assert lines[3] == ("    95 % CI |  0.45..4.55 |  10.0..10.0 |  0.05..0.70 |  0.51..1.00 |  20.0..20.0 |"
+                        "  2.00..2.00")
     assert {len(line) for line in lines} == {95}
 
 
