@@ -1,10 +1,11 @@
 """UA2C speed and learning benchmarks, each next to SB3 SAC measured in the same run.
 
-    python benchmarks/bench_ua2c.py latency      # replanning (S=32, k=10, N=10) vs SAC predict
+    python benchmarks/bench_ua2c.py latency      # replanning (S=32, k=10, the defaults' N) vs SAC predict
     python benchmarks/bench_ua2c.py throughput   # learn() env steps/s on Pendulum-v1, default hyperparameters
     python benchmarks/bench_ua2c.py throughput --ua2c-kwargs "{'policy_kwargs': {'torch_compile': True}}"
     python benchmarks/bench_ua2c.py throughput --env envs:MixedTraffic-v0   # the SUMO env, both at defaults
     python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
+    python benchmarks/bench_ua2c.py learning --seeds 0 1 2 3 4 --json results/pendulum/pendulum.json
     python benchmarks/bench_ua2c.py learning --algos UA2C --ua2c-kwargs "{'chunk_size': 1}"
     python benchmarks/bench_ua2c.py profile --env envs:MixedTraffic-v0   # where a step and a replanning go
 
@@ -15,10 +16,13 @@ from __future__ import annotations
 
 import argparse
 import ast
+import json
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -66,11 +70,11 @@ def flops(fn: Callable[[], object]) -> int:
 
 
 def latency(repeats: int, ua2c_kwargs: dict) -> None:
-    """One replanning of UA2C (S=32 candidates, k=10, N=10 Euler steps unless ``ua2c_kwargs`` say
+    """One replanning of UA2C (S=32 candidates, k=10, the defaults' Euler steps N unless ``ua2c_kwargs`` say
     otherwise; min-Q selection, entropy, prefix length) next to SAC's predict on the same observation."""
     env = gym.make(ENV_ID)
     obs, _ = env.reset(seed=0)
-    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0, **{"chunk_size": 10, "n_candidates": 32, "flow_steps": 10, **ua2c_kwargs})
+    ua2c = UA2C("MlpPolicy", ENV_ID, seed=0, **{"chunk_size": 10, "n_candidates": 32, **ua2c_kwargs})
     sac = SAC("MlpPolicy", ENV_ID, seed=0)
     policy = ua2c.policy
     obs_h = np.repeat(obs[None, None], ua2c.history_len, axis=1).astype(np.float32)  # (1, ℓ, obs_dim)
@@ -168,9 +172,11 @@ def throughput(steps: int, ua2c_kwargs: dict, env_id: str = ENV_ID) -> None:
     )
 
 
-def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str], ua2c_kwargs: dict) -> None:
+def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str], ua2c_kwargs: dict,
+             json_path: str | None = None) -> None:
     """Mean deterministic return after ``steps`` env steps, SAC at default hyperparameters and UA2C at
-    its defaults updated with ``ua2c_kwargs``."""
+    its defaults updated with ``ua2c_kwargs``; ``json_path``: also write ``{"ua2c": [per-seed mean
+    return], "sac": [...], "seeds": [...], ...}`` there."""
     classes = {"UA2C": UA2C, "SAC": SAC}
     if ua2c_kwargs:
         print(f"UA2C arguments: {ua2c_kwargs}")
@@ -204,21 +210,29 @@ def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str],
         )
     if lengths:
         print(f"UA2C mean executed length L_t: {np.mean(lengths):.2f}")
+    if json_path:
+        record = {name.lower(): values for name, values in results.items()}
+        record |= {"seeds": seeds, "steps": steps, "eval_episodes": eval_episodes, "env": ENV_ID,
+                   "ua2c_kwargs": ua2c_kwargs,
+                   "ua2c_mean_executed_length": [None if np.isnan(v) else v for v in lengths],
+                   "command": " ".join(["python", *sys.argv]), "torch": th.__version__,
+                   "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_path).write_text(json.dumps(record, indent=1) + "\n")
 
 
-#: configurations of ``profile``: the defaults, the paper preset and one speed lever each (on the defaults)
+#: configurations of ``profile``: the defaults, the paper preset, the defaults before 2026-12-07 and one
+#: speed lever each (on the defaults)
 PROFILE_CONFIGS: dict[str, dict] = {
     "defaults": {},
     "paper": preset("paper"),
-    "field 256x2": {"policy_kwargs": {"net_arch": [256, 256]}},
+    "2026-12-06 (3x512, N=10)": {"flow_steps": 10, "policy_kwargs": {"net_arch": [512, 512, 512]}},
     "field 128x2": {"policy_kwargs": {"net_arch": [128, 128]}},
-    "N=5 acting": {"flow_steps": 5},
+    "N=2 acting": {"flow_steps": 2},
     "one-step actor": {"policy_kwargs": {"actor_type": "one_step"}},
     "MLP critic": {"policy_kwargs": {"critic_arch": "mlp"}},
-    "fast 256": {"flow_steps": 5, "policy_kwargs": {"net_arch": [256, 256], "critic_arch": "mlp"}},
-    "fast 128": {"flow_steps": 5, "policy_kwargs": {"net_arch": [128, 128], "critic_arch": "mlp"}},
-    "fast 256, Q=1": {"flow_steps": 5, "n_target_candidates": 1,
-                      "policy_kwargs": {"net_arch": [256, 256], "critic_arch": "mlp"}},
+    "in-sample + AWR": {"critic_target": "in_sample", "actor_extraction": "awr"},
+    "fast 128": {"policy_kwargs": {"net_arch": [128, 128], "critic_arch": "mlp"}},
 }
 
 
@@ -341,6 +355,7 @@ def main() -> None:
     parser.add_argument("--configs", nargs="+", choices=list(PROFILE_CONFIGS), default=list(PROFILE_CONFIGS),
                         help="profile: the configurations to measure")
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
+    parser.add_argument("--json", default=None, help="learning: write the per-seed returns to this JSON file")
     args = parser.parse_args()
     th.set_num_threads(1)
     print(f"torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
@@ -351,7 +366,7 @@ def main() -> None:
     elif args.part == "throughput":
         throughput(args.steps or 1000, args.ua2c_kwargs, args.env)
     else:
-        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos, args.ua2c_kwargs)
+        learning(args.steps or 20_000, args.seeds, args.eval_episodes, args.algos, args.ua2c_kwargs, args.json)
 
 
 if __name__ == "__main__":

@@ -15,10 +15,10 @@ import copy
 from typing import Any
 
 #: The paper as written ("UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online
-#: Decision-Making in Mixed Traffic"). The constructors' defaults of this release differ from it in four
+#: Decision-Making in Mixed Traffic"). The constructors' defaults of this release differ from it in five
 #: values, chosen on validation seeds and scenarios of ``MixedTraffic-v0`` (docs/algorithm.md,
 #: "Defaults and the paper preset"): ``gradient_steps`` 1 (one update per env step), ``q_weight`` 0.3,
-#: ``policy_kwargs`` ``net_arch`` [512, 512, 512] and ``n_elite`` 8. The preset:
+#: ``flow_steps`` 5, ``policy_kwargs`` ``net_arch`` [256, 256] and ``n_elite`` 8. The preset:
 #:
 #: - ``q_weight`` 1.0, ``normalize_q`` True: Eq. 2's value term ``λ Q(x̂1)``, divided by the batch mean
 #:   ``|Q|`` (TD3+BC's normalisation, so that λ does not depend on the reward scale)
@@ -43,7 +43,7 @@ PAPER: dict[str, Any] = {
     "normalize_q": True,  # same as default: the paper's
     "smooth_weight": 0.0,  # same as default: the paper's
     "past_action_dropout": 0.0,  # same as default: the paper's
-    "flow_steps": 10,  # same as default: the paper's
+    "flow_steps": 10,
     "n_candidates": 32,  # same as default: the paper's
     "target_flow_steps": 2,  # same as default: the paper's
     "n_target_candidates": 2,  # same as default: the paper's

@@ -203,7 +203,7 @@ class UA2C(ChunkRollouts, OfflineTraining, TrainingOptions, Checkpoints):
         replay_buffer_kwargs: dict[str, Any] | None = None,
         chunk_size: int = 5,
         history_len: int = 4,
-        flow_steps: int = 10,
+        flow_steps: int = 5,
         target_flow_steps: int = 2,
         n_candidates: int = 32,
         n_target_candidates: int = 2,

@@ -323,7 +323,10 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
         import rl_zoo3
         import stable_baselines3
 
+        from sb3_ua2c.defaults import defaults
         from sb3_ua2c.version import __version__
+
+        algo_kwargs = {**defaults(), **algo_kwargs}  # what the checkpoint was trained with
 
         def shown(cmd: list[str]) -> str:
             text = "python -m envs " + " ".join(_quote(a) for a in cmd)

@@ -9,7 +9,7 @@ default ``name: T = LIT``, an annotated or plain assignment ``name = LIT``, a di
 a YAML file's ``name: LIT`` lines and its ``policy_kwargs: "dict(...)"`` strings likewise. Comments and
 docstrings are never read. A literal equal to the default is a second home and fails the test unless
 its line carries the marker :data:`MARKER` followed by the reason, e.g.
-``"flow_steps": 10,  # same as default: the paper's N, stated so the preset stays the paper's``.
+``"n_candidates": 32,  # same as default: the paper's S, stated so the preset stays the paper's``.
 The declarations themselves (:data:`DECLARATIONS`) are skipped. Defaults of ``None`` and the SB3
 plumbing arguments (:data:`NOT_SCANNED`) are not scanned.
 """
@@ -56,13 +56,13 @@ ATTRIBUTE = {"critic_target": "critic_target_name"}
 # ---------------------------------------------------------------------------- (a) the defaults
 def test_defaults_by_hand():
     out = defaults()
-    assert (out["chunk_size"], out["history_len"], out["flow_steps"], out["n_candidates"]) == (5, 4, 10, 32)
+    assert (out["chunk_size"], out["history_len"], out["flow_steps"], out["n_candidates"]) == (5, 4, 5, 32)
     assert (out["q_weight"], out["gradient_steps"], out["execution_rule"], out["entropy_threshold"]) == (
         0.3, 1, "threshold", 0.0)
     assert out["target_plan_length"] is None and out["entropy_quantile"] is None
     policy = out["policy_kwargs"]
     assert (policy["n_elite"], policy["net_arch"], policy["actor_type"], policy["critic_arch"]) == (
-        8, [512, 512, 512], "flow", "transformer")
+        8, [256, 256], "flow", "transformer")
     assert policy["critic_kwargs"] == {"embed_dim": 32, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
     assert critic_defaults("mlp") == {"net_arch": (256, 256), "layer_norm": True}
     assert (out["critic_target"], out["actor_extraction"], out["exploration"]) == ("candidates", "value_term", "plan")
@@ -236,8 +236,8 @@ FAKE_PRESET = '''
 # a comment with n_elite=8 (not read)
 FAST = {"n_elite": 8, "q_weight": 0.5, "chunk_size": 5}
 PAPER = {
-    "flow_steps": 10,  # same as default: the paper's N, stated so the preset stays the paper's
-    "flow_steps_note": 10,
+    "flow_steps": 5,  # same as default: stated so the preset keeps it when the default changes
+    "flow_steps_note": 5,
 }
 def run(model_class, env, n_elite=8, learning_starts=1000, normalize_q: bool = True):
     return model_class("MlpPolicy", env, n_candidates=32, policy_kwargs=dict(n_elite=8, embed_dim=32))
@@ -263,13 +263,13 @@ def test_the_scan_reads_zoo_yaml():
     text = (
         "# n_elite: 8 in a comment\n"
         "Pendulum-v1:\n"
-        "  flow_steps: 10\n"
+        "  flow_steps: 5\n"
         "  n_candidates: 32  # same as default: the paper's S\n"
         "  q_weight: 1.0\n"
         "  online_targets: auto\n"
         "  policy_kwargs: \"dict(n_elite=8, net_arch=[128, 128], critic_kwargs=dict(ff_dim=64))\"\n"
     )
-    assert scan_yaml(text, names) == ["<yaml>:3: flow_steps=10", "<yaml>:6: online_targets='auto'",
+    assert scan_yaml(text, names) == ["<yaml>:3: flow_steps=5", "<yaml>:6: online_targets='auto'",
                                       "<yaml>:7: n_elite=8", "<yaml>:7: ff_dim=64"]
 
 

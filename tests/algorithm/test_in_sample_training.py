@@ -25,9 +25,12 @@ from sb3_ua2c.policies import UA2CPolicy
 from sb3_ua2c.targets import ChunkValue, InSampleTarget, TargetInputs
 
 ALL = dict(critic_target="in_sample", actor_extraction="awr", exploration="softmax")
-#: the state-dict hash of ``trained()`` with the defaults, recorded before the options existed
-#: (torch 2.13.0+cpu, x86_64): float results may differ on other builds, where the check is skipped
-DEFAULTS_HASH = ("2.13.0+cpu", "x86_64", "38016077f199f609fea01723e8742ac4a62870a15e9b8b980cefdad45dae2172")
+#: the state-dict hashes of ``trained()`` with the defaults, recorded before the options existed
+#: (torch 2.13.0+cpu, x86_64): one per CPU kernel set seen so far (torch picks AVX2 or AVX-512
+#: kernels by the CPU, and they round differently); float results may differ on other builds, where
+#: the check is skipped
+DEFAULTS_HASH = ("2.13.0+cpu", "x86_64", {"38016077f199f609fea01723e8742ac4a62870a15e9b8b980cefdad45dae2172",
+                                          "d646c24424f46962f2033c2ba2ec59ddad9713b8ed982e683a6eba58ae72982b"})
 
 
 def trained(steps: int = 150, **kwargs) -> UA2C:
@@ -273,7 +276,7 @@ def test_the_defaults_train_as_before():
     torch_version, machine, recorded = DEFAULTS_HASH
     if (th.__version__, platform.machine()) != (torch_version, machine):
         pytest.skip(f"the recorded hash is of torch {torch_version} on {machine}")
-    assert state_hash(plain) == recorded
+    assert state_hash(plain) in recorded
 
 
 def test_policy_kwargs_in_the_tiny_settings_are_untouched():
