@@ -31,15 +31,8 @@ def harness_parent(*, seeds: str, work: str, workers: int | None = 2,
                    quick: str = "a tiny budget: a smoke test", budget: str | None = None, raw: str | None = None,
                    scenarios: bool = False, rerun: bool = False) -> argparse.ArgumentParser:
     """The parent parser of the options every harness has (``--seeds --out --work --workers --ray-address
-    --quick --report-only``) and of those some have (``--budget --raw --scenarios --rerun``).
-
-    :param seeds: the default seeds, as the help text says them (``--seeds`` defaults to ``None``)
-    :param work: the default work directory, as the help text says it (``--work`` defaults to ``None``)
-    :param workers: the default of ``--workers`` (``None``: the experiment chooses after parsing)
-    :param budget: help text of ``--budget`` (a JSON object or ``@FILE``; ``None``: no such option)
-    :param raw: the default record directory, as the help text says it (``None``: no ``--raw``)
-    :param scenarios: add ``--scenarios``; ``rerun``: add ``--rerun``
-    """
+    --quick --report-only``) and of those some have (``--budget``, ``--raw``: given their help; ``--scenarios``,
+    ``--rerun``); ``seeds``, ``work`` and ``raw`` are the defaults as the help text says them."""
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--seeds", type=int, nargs="+", default=None, metavar="SEED",
                         help=f"run seeds (default: {seeds})")
@@ -78,13 +71,8 @@ def budget_arg(text: str) -> dict[str, Any]:
 
 
 def select_seeds(seeds: Sequence[int] | None, default: Sequence[int], high: int = MAX_SEED) -> list[int]:
-    """The seeds of ``--seeds`` without repeats, in the order given (``default`` when not given).
-
-    :param seeds: the parsed ``--seeds`` (``None``: not given)
-    :param default: the seeds of a run without ``--seeds``
-    :param high: seeds must lie in ``[0, high)`` (seed ranges of the datasets and scenarios)
-    :raises ValueError: naming ``--seeds``
-    """
+    """The seeds of ``--seeds`` (``default`` when ``None``) without repeats, each in ``[0, high)``, or a
+    ``ValueError`` naming ``--seeds``."""
     chosen = list(default if seeds is None else seeds)
     if not chosen or any(isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < high for s in chosen):
         raise ValueError(f"--seeds must be integers in [0, {high}), got {chosen!r}")
@@ -92,12 +80,8 @@ def select_seeds(seeds: Sequence[int] | None, default: Sequence[int], high: int 
 
 
 def check_extras(modules: Iterable[str]) -> None:
-    """Refuse a run whose optional modules are missing, before any unit runs (a missing report
-    dependency would otherwise fail only after hours of units).
-
-    :param modules: top-level module names, keys of :data:`EXTRAS`
-    :raises MissingExtraError: naming the missing modules and the ``pip install "sb3-ua2c[<extra>]"`` that adds them
-    """
+    """Refuse a run whose optional ``modules`` (keys of :data:`EXTRAS`) are missing before any unit runs,
+    naming the ``pip install`` that adds them."""
     missing = [m for m in dict.fromkeys(modules) if find_spec(m) is None]
     if not missing:
         return
@@ -133,6 +117,3 @@ def harness_main(parser: argparse.ArgumentParser, argv: Sequence[str] | None, pr
         parser.error(str(exc))
     return run_command(lambda: run(args, checked, command_line(prog, argv)))
 
-
-__all__ = ["D3RLPY_INSTALL", "EXTRAS", "MissingExtraError", "budget_arg", "check_extras", "harness_main",
-           "harness_parent", "run_command", "select_seeds"]

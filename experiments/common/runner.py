@@ -1,28 +1,9 @@
-"""Run independent units of work in fresh processes: locally (a process pool) or on a Ray cluster.
-
-A :class:`Unit` is a picklable top-level function, its keyword arguments and, optionally, the
-JSON file its result is stored in. :func:`run_units` runs a list of units with one of three
-executors and returns one :class:`UnitResult` per unit, in the order given:
-
-* :class:`SerialExecutor`: one after the other in this process (debugging, tests);
-* :class:`ProcessExecutor`: ``workers`` processes, each unit in a fresh ``spawn``-ed process
-  (libsumo holds one simulation per process, and nothing leaks from one unit into the next);
-  a unit owns one CPU: torch runs one intra-op thread in it;
-* :class:`RayExecutor`: each unit a Ray task with one CPU and its own worker process
-  (``num_cpus=1, max_calls=1``) on the cluster at ``address`` (``pip install "sb3-ua2c[peers]"``).
-
-Resuming. A unit with a ``result_file`` that exists is not run: its stored result is returned
-(``skipped=True``). Otherwise the unit's return value is written there (JSON, atomically) by this
-process once the unit finishes, so an interrupted run resumes with the units not yet stored. Units
-without a ``result_file`` always run (they may resume internally, as the Figure-2 seeds do).
-
-Failures. A unit that raises does not stop the others: every unit runs, then
-:class:`UnitsFailedError` names the failed units with their tracebacks (the stored results of the
-units that succeeded are kept).
-
-On a Ray cluster the units run on other machines: the code (``sb3_ua2c`` and ``envs``) must be
-installed on every node, and the paths a unit reads or writes (datasets, output directories) must
-name a filesystem every node shares. Result files are written by the calling process.
+"""Run independent units of work in fresh processes: in this process (:class:`SerialExecutor`), in local
+``spawn``-ed processes with one torch thread each (:class:`ProcessExecutor`), or as Ray tasks of one CPU
+(:class:`RayExecutor`). A unit whose ``result_file`` exists is skipped (its stored result is returned), so
+an interrupted run resumes; a unit that raises does not stop the others (:class:`UnitsFailedError` names
+them at the end). On a Ray cluster the code must be installed on every node and the paths a unit uses
+must name a shared filesystem (``docs/peers.md``).
 """
 
 from __future__ import annotations
@@ -44,14 +25,8 @@ from sb3_ua2c.checks import check_int
 
 @dataclass(frozen=True)
 class Unit:
-    """One independent unit of work.
-
-    :param name: unique name of the unit (e.g. ``"seed0/sac"``), used in progress lines and errors
-    :param fn: a top-level (importable, picklable) function; called as ``fn(**kwargs)``
-    :param kwargs: its keyword arguments (picklable)
-    :param result_file: JSON file of the unit's result; when it exists the unit is skipped, and
-        ``fn``'s return value (JSON-serialisable) is written there when it finishes
-    """
+    """``fn(**kwargs)`` (a picklable top-level function) under a unique ``name``; its JSON result is stored in
+    ``result_file``, whose existence skips the unit."""
 
     name: str
     fn: Callable[..., Any]
@@ -71,14 +46,7 @@ class Unit:
 
 @dataclass(frozen=True)
 class UnitResult:
-    """What running (or skipping) a unit gave.
-
-    :param name: the unit's name
-    :param value: ``fn``'s return value, or the stored result of a skipped unit
-    :param skipped: the unit's result file existed: nothing ran
-    :param wall_seconds: wall-clock seconds of ``fn`` in its worker (0 when skipped)
-    :param cpu_seconds: CPU seconds of the worker process during ``fn`` (all its threads; 0 when skipped)
-    """
+    """A unit's value (or stored result, ``skipped``) and the wall and CPU seconds of its run (0 when skipped)."""
 
     name: str
     value: Any
@@ -114,9 +82,8 @@ def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
 
 
 def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
-    """:func:`_call_unit_safely` in a worker process that owns one CPU: torch's intra-op pool is cut
-    to one thread first (two units of two threads each on two cores oversubscribe them, and torch's
-    threads then spin waiting for each other: the same work took several times the CPU seconds)."""
+    """:func:`_call_unit_safely` with torch cut to one intra-op thread: a unit owns one CPU (oversubscribed
+    cores made torch's threads spin, several times the CPU seconds for the same work)."""
     try:
         import torch
     except ImportError:  # a unit that does not use torch
@@ -135,10 +102,7 @@ class SerialExecutor:
 
 
 class ProcessExecutor:
-    """Run units in ``workers`` processes at a time, each unit in a fresh ``spawn``-ed process.
-
-    :param workers: processes at once (>= 1)
-    """
+    """Run units in ``workers`` processes at a time, each unit in a fresh ``spawn``-ed process."""
 
     def __init__(self, workers: int = 1) -> None:
         check_int("workers", workers)
@@ -161,12 +125,8 @@ class ProcessExecutor:
 
 
 class RayExecutor:
-    """Run each unit as a Ray task with one CPU in its own worker process (``max_calls=1``).
-
-    :param address: the cluster's address (``"auto"``, ``"HOST:PORT"`` of ``ray start --head``, or
-        ``"ray://HOST:10001"``); ``None`` starts a local single-machine Ray instance
-    :param runtime_env: Ray runtime environment of the tasks (e.g. ``{"env_vars": {...}}``)
-    """
+    """Run each unit as a Ray task with one CPU in its own worker process, on the cluster at ``address``
+    (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``; ``None``: a local Ray instance)."""
 
     def __init__(self, address: str | None = "auto", runtime_env: Mapping[str, Any] | None = None) -> None:
         if address is not None and (not isinstance(address, str) or not address):
@@ -206,11 +166,7 @@ Executor = SerialExecutor | ProcessExecutor | RayExecutor
 
 @contextmanager
 def ray_session(address: str | None) -> Iterator[None]:
-    """One connection to the Ray cluster at ``address`` for several :func:`run_units` calls (a
-    :class:`RayExecutor` connects once per call otherwise); nothing when ``address`` is ``None``.
-
-    :raises ValueError: when ray is not installed (``pip install "sb3-ua2c[peers]"``)
-    """
+    """One connection to the Ray cluster at ``address`` for several :func:`run_units` calls (nothing for ``None``)."""
     if address is None:
         yield
         return
@@ -227,12 +183,7 @@ def ray_session(address: str | None) -> Iterator[None]:
 
 
 def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool = False) -> Executor:
-    """The executor a command line asks for: Ray when ``ray_address`` is given, else local processes.
-
-    :param workers: local processes at once (ignored on Ray, where the cluster's CPUs decide)
-    :param ray_address: address of a Ray cluster (see :class:`RayExecutor`)
-    :param serial: run in this process instead of fresh processes (only without ``ray_address``)
-    """
+    """Ray when ``ray_address`` is given, else ``workers`` local processes, or this process with ``serial``."""
     check_int("workers", workers)
     if ray_address is not None:
         if serial:
@@ -242,14 +193,8 @@ def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool
 
 
 def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
-    """Wall time of units run in the given order on ``workers`` workers, each unit starting on the first
-    worker that is free (how :class:`ProcessExecutor`, or Ray on ``workers`` CPUs, takes them; submit the
-    longest first, ``sorted(durations, reverse=True)``, and the workers stay busy to the end).
-
-    :param durations: the units' seconds, in submission order
-    :param workers: workers at once (>= 1)
-    :return: the time at which the last unit ends (0 without units)
-    """
+    """When the last of ``durations`` (seconds, in submission order) ends, each unit starting on the first of
+    ``workers`` workers that is free, as the executors take them."""
     check_int("workers", workers)
     free = [0.0] * min(workers, max(len(durations), 1))
     for seconds in durations:
@@ -260,13 +205,8 @@ def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
 def run_units(
     units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
 ) -> list[UnitResult]:
-    """Run ``units`` (skipping those whose result file exists) and return their results in order.
-
-    :param units: the units; their names must be unique
-    :param executor: where they run (default: :class:`SerialExecutor`)
-    :param printer: receives one progress line per finished unit (``None``: silent)
-    :raises UnitsFailedError: after every unit ran, if some raised
-    """
+    """Run ``units`` (skipping the stored ones) on ``executor``, one progress line per unit to ``printer``; return
+    their results in order, or raise :class:`UnitsFailedError` once every unit ran."""
     from sb3_ua2c.pipeline import write_json
 
     names = [unit.name for unit in units]
@@ -307,6 +247,3 @@ def run_units(
         raise UnitsFailedError(failures, results)
     return [r for r in results if r is not None]
 
-
-__all__ = ["Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
-           "call_unit", "list_schedule_seconds", "make_executor", "ray_session", "run_units"]

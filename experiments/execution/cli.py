@@ -116,7 +116,7 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
 
 def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[str, Any], prog: str) -> int:
     """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
-    from experiments.common.records import run_header
+    from experiments.common.records import previous_report, run_header
     from experiments.common.runner import Unit, make_executor, run_units
     from experiments.execution import report
 
@@ -140,7 +140,7 @@ def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[s
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
     name, metric = setup["name"], setup["metric"]
-    command, date = run_header(command, out / f"{name}.json" if args.report_only else None)
+    command, date = run_header(command, previous_report(out / f"{name}.json", args.report_only))
     summary = report.summarize(records, metric)
     online = report.online_protocol(records, metric)
     header = [f"Command: `{command}`", f"Date: {date}",

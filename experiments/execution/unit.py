@@ -6,7 +6,6 @@ noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +15,7 @@ import torch as th
 from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
 from envs.evaluation import evaluate
 from experiments.common.names import DATASET_SEED_BASE
+from experiments.common.records import episode_rows
 from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
@@ -25,10 +25,6 @@ BUDGETS = {
     "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 20},
     "quick": {"episodes": 3, "pretrain_steps": 8, "finetune_steps": 30, "eval_episodes": 1, "time_limit": 4.0},
 }
-
-
-def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:
-    return [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in results]
 
 
 #: ``run_episodes(model, deterministic) -> (episode rows, executed lengths L_t of every plan)``: one evaluation
@@ -41,7 +37,7 @@ def traffic_episodes(scenario_seed: int, n_episodes: int, settings: Mapping[str,
     def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
         results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
                            deterministic=deterministic)
-        return _episode_rows(results), [n for e in results for n in e.plan_lengths]
+        return episode_rows(results), [n for e in results for n in e.plan_lengths]
 
     return run
 

@@ -21,7 +21,7 @@ from experiments.common.names import (
     replicate_name,
     sampled_name,
 )
-from experiments.common.stats import compare, t_confidence_interval
+from experiments.common.stats import compare, t_summary
 from experiments.fig2.budget import Fig2Budget
 from experiments.fig2.manifest import RunPaths
 
@@ -44,8 +44,8 @@ def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[
 def online_curve(
     episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int, n_bins: int = 10
 ) -> dict[str, list[float]]:
-    """Learning curve of one arm: the mean return of the episodes that end in each of ``n_bins`` equal
-    windows of the ``total_steps`` online steps, averaged over seeds (NaN where no episode ended)."""
+    """One arm's learning curve: the mean return of the episodes ending in each of ``n_bins`` equal windows of
+    the ``total_steps`` online steps, averaged over seeds (NaN where no episode ended)."""
     edges = np.linspace(0, total_steps, n_bins + 1)
     per_seed = []
     for episodes in episodes_per_seed:
@@ -61,8 +61,8 @@ def online_curve(
 
 
 def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: float = 0.25) -> dict[str, float]:
-    """Phase-2 training episodes of one arm and seed: mean return and collision rate over all of them and
-    over the last ``last_fraction`` (at least one episode), and their number."""
+    """Mean return and collision rate of one arm's Phase-2 training episodes of one seed, the mean return of the
+    last ``last_fraction`` of them, and their number."""
     if not episodes:
         return {"reward": math.nan, "reward_last": math.nan, "collision": math.nan, "episodes": 0}
     last = episodes[-max(1, int(round(last_fraction * len(episodes)))) :]
@@ -77,10 +77,7 @@ def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: flo
 def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
     out: dict[str, Any] = {"seeds": list(seeds)}
     for key in METRICS:  # a key missing from the raw data of an earlier version counts as NaN
-        values = [float(per_seed[s].get(key, math.nan)) for s in seeds]
-        finite = [v for v in values if math.isfinite(v)]
-        mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
-        out[key] = {"mean": mean, "ci95": half, "per_seed": values}
+        out[key] = t_summary([float(per_seed[s].get(key, math.nan)) for s in seeds])
     if all("length_shares" in per_seed[s] for s in seeds):  # the L_t histogram, recorded since 2026-12-04
         out["length_shares"] = np.mean([per_seed[s]["length_shares"] for s in seeds], axis=0).tolist()
     return out
@@ -88,14 +85,8 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
 
 def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
               default_elite: int | None = None) -> dict[str, Any]:
-    """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
-
-    :param raw: output of :func:`load_raw`
-    :param seeds: the seeds to aggregate (all must be present for every method)
-    :param budget: the run's budget (recorded, and it names the sweep arms)
-    :param default_elite: the ``n_elite`` the checkpoints acted with when the budget leaves it to the library
-        (``None``: today's default; a rebuilt report passes the one it recorded)
-    """
+    """Everything ``fig2.json`` holds, from the raw results (:func:`load_raw`) of ``seeds`` only; ``default_elite``:
+    the ``n_elite`` the checkpoints acted with where the budget left it to the library (``None``: today's)."""
     seeds = list(seeds)
     methods = _methods(raw, seeds)
     online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
@@ -120,16 +111,11 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         result["online_phase"] = training
     if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
         comparisons.update(_sampled_comparisons(methods, online_phases))
-        result["sampled"] = {
-            paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
-            for paper_key, key in CLAIM_COMPARISONS.items()
-        }
+        result["sampled"] = {paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
+                             for paper_key, key in CLAIM_COMPARISONS.items()}
     if "adaptive_style" in methods:
-        result["style_context"] = {
-            "with": "adaptive_style",
-            "without": "adaptive",
-            "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward"),
-        }
+        result["style_context"] = {"with": "adaptive_style", "without": "adaptive",
+                                   "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward")}
     return result
 
 
@@ -138,11 +124,8 @@ def _methods(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence
     missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
     if missing:
         raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
-    return {
-        m: _stats(raw[m], seeds)
-        for m in raw
-        if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)
-    }
+    return {m: _stats(raw[m], seeds) for m in raw
+            if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)}
 
 
 def _per_seed(methods: Mapping[str, Any], method: str, key: str) -> list[float]:
@@ -156,25 +139,19 @@ def _compare(methods: Mapping[str, Any], new: str, base: str, key: str) -> dict[
 
 def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int]:
     """The online phases whose two arms were evaluated on every seed: (c) pools their paired runs."""
-    return [
-        r for r in range(budget.online_replicates)
-        if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
-    ]
+    return [r for r in range(budget.online_replicates)
+            if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
 
 
 def _claim_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
     """(a), (b) and (c): the comparisons behind the paper's three numbers (:data:`CLAIM_COMPARISONS`)."""
-    return {
-        "offline_reward": _compare(methods, "chunk", "onestep", "reward"),
-        "offline_jerk": _compare(methods, "chunk", "onestep", "cumulative_jerk"),
-        "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"]),
-    }
+    return {"offline_reward": _compare(methods, "chunk", "onestep", "reward"),
+            "offline_jerk": _compare(methods, "chunk", "onestep", "cumulative_jerk"),
+            "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])}
 
 
 def _further_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """The comparisons beyond the paper's numbers, for the arms the run has: (c''') the execution rule
-    alone, (a') and (b') the offline chunk policy with Eq. 7 execution, (c') and (c'') the Phase-2
-    training episodes (pooled over the online phases like (c)), (b'') jerk per step."""
+    """The comparisons beyond the paper's numbers that the run's arms allow (the claims table names them)."""
     out: dict[str, Any] = {}
     if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
         out["online_execution_rule"] = _compare(methods, "fixed_adaptive", "fixed", "reward")
@@ -213,18 +190,17 @@ def _sampled_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str,
 
 
 def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -> dict[str, Any]:
-    """(d): ``style_macro_accuracy`` (NaN without style results for every seed) and ``style``, the
-    classifier's accuracies and its confusion matrix summed over seeds."""
+    """(d): ``style_macro_accuracy`` (NaN without every seed's style results) and ``style``, the classifier's
+    accuracies and its confusion matrix summed over seeds."""
     if not ("style" in raw and all(s in raw["style"] for s in seeds)):
         return {"style_macro_accuracy": math.nan}
     styles = [raw["style"][s] for s in seeds]
-    macro = [float(r["macro_accuracy"]) for r in styles]
-    mean, half = t_confidence_interval(macro)
+    macro = t_summary([float(r["macro_accuracy"]) for r in styles])
     matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
     return {
-        "style_macro_accuracy": mean,
+        "style_macro_accuracy": macro["mean"],
         "style": {
-            "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
+            "macro_accuracy": macro,
             "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
             "baseline_macro_accuracy_per_seed": [
                 float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
@@ -249,16 +225,13 @@ def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[st
 def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
     """The chunk policies pre-trained with each chunk length k of the sweep."""
     keys = ("reward", "cumulative_jerk", "collision")
-    return [
-        {"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
-        for k in budget.k_sweep
-        if f"k{k}" in methods
-    ]
+    return [{"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
+            for k in budget.k_sweep if f"k{k}" in methods]
 
 
 def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
-    """``acting_sweep``: the offline one-step and chunk checkpoints acting with each other rule (Euler
-    steps N, elite size m) and the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
+    """``acting_sweep``: the offline checkpoints acting with each other rule (Euler steps N, elite size m) and
+    the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
     default_n = int(budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
     default_elite = budget.default_elite if default_elite is None else default_elite
     rows = []
@@ -276,31 +249,24 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
 
 
 def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
-    """Phase-2 training episodes of each logged arm (:data:`ONLINE_ARMS`, first online phase): mean return,
-    over the last quarter, collision rate and episode count over seeds, and the learning curve."""
+    """Per logged arm (:data:`ONLINE_ARMS`, first online phase), the :func:`online_phase_stats` over seeds and the
+    learning curve."""
     out: dict[str, Any] = {}
     for arm in ONLINE_ARMS:
         if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
             continue
         logs = raw[f"online/{arm}"]
         rows = [online_phase_stats(logs[s]["episodes"]) for s in seeds]
-        stats: dict[str, Any] = {}
-        for key in ("reward", "reward_last", "collision", "episodes"):
-            values = [r[key] for r in rows]
-            mean, half = t_confidence_interval(values)
-            stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
-        stats["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
-        out[arm] = stats
+        out[arm] = {key: t_summary([r[key] for r in rows]) for key in ("reward", "reward_last", "collision", "episodes")}
+        out[arm]["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
     return out
 
 
 def _online_phases(
     raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int], phases: Sequence[int]
 ) -> dict[str, Any]:
-    """The online phases behind (c): which were pooled, (c) within each, and the pooled per-run
-    rewards of both arms (``runs``: phase-major, ``len(phases) · len(seeds)``): final evaluations
-    (``adaptive``, ``fixed``, and ``*_sampled`` when every phase has them) and Phase-2 training
-    episodes (``training_episodes``: empty unless every run has its log)."""
+    """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards (phase-major):
+    final evaluations (and ``*_sampled`` when every phase has them) and training episodes (when all logged)."""
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
         return [v for r in phases for v in methods[replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
@@ -318,13 +284,9 @@ def _online_phases(
         for suffix in ("", "_sampled"):
             if suffix and not all(sampled_name(replicate_name(arm, r)) in methods for r in phases):
                 continue
-            values = rewards(arm, suffix)
-            mean, half = t_confidence_interval(values) if values else (math.nan, math.nan)
-            out[arm + suffix] = {"mean": mean, "ci95": half, "per_seed": values}  # per run
-    logs = {
-        arm: [raw.get(f"online/{replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
-        for arm in ("adaptive", "fixed")
-    }
+            out[arm + suffix] = t_summary(rewards(arm, suffix))  # per run
+    logs = {arm: [raw.get(f"online/{replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
+            for arm in ("adaptive", "fixed")}
     out["training_episodes"] = {}
     if phases and all(log is not None for runs in logs.values() for log in runs):
         for arm, runs in logs.items():

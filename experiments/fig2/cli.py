@@ -8,11 +8,10 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import PAPER
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header
 from experiments.fig2.aggregation import aggregate, load_raw
 from experiments.fig2.budget import (
     FULL_BUDGET,
@@ -28,12 +27,8 @@ from sb3_ua2c.checks import check_int
 
 
 def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
-    """The budget a report ran with: the ``budget`` key of its ``fig2.json`` (``report`` is that file or
-    the directory holding it). Fields newer than the report take their class defaults, which are the
-    values every report made before them ran with.
-
-    :raises ValueError: naming the path, when it holds no readable ``fig2.json`` with a budget
-    """
+    """The budget of a ``fig2.json`` (or of the directory holding it; fields newer than it take their defaults,
+    which every earlier report ran with); a ``ValueError`` names a path without one."""
     path = Path(report)
     path = path / "fig2.json" if path.is_dir() else path
     try:
@@ -94,14 +89,11 @@ def _run_units(args: argparse.Namespace, seeds: list[int], budget: Fig2Budget, p
 def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], command: str) -> int:
     seeds, budget = checked
     paths = RunPaths.under(args.out, args.raw, args.work)
-    previous = paths.out / "fig2.json"  # a rebuilt report keeps the command and date of the run
-    command, date = run_header(command, previous if args.report_only else None)
+    recorded = previous_report(paths.out / "fig2.json", args.report_only)
+    command, date = run_header(command, recorded)  # a rebuilt report keeps the command and date of the run
     est = None if args.report_only else _run_units(args, seeds, budget, paths)
-    recorded: dict[str, Any] = {}
     default_elite = None
     if args.report_only:
-        if previous.is_file():
-            recorded = json.loads(previous.read_text())
         # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
         # its checkpoints acted with where the budget left it to the library (whose default may have changed)
         manifest = read_manifest(paths)

@@ -46,20 +46,17 @@ class UnitLog(list):
         self.seconds[name] = time.perf_counter() - start
 
 
-def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any], style_classifier: str | None,
-             log: UnitLog, unit: str):
-    """Load the dataset at ``path``, or collect it (unit ``unit``) when missing or damaged."""
-    from envs.collection import collect_dataset
+def complete_dataset(path: Path, n_episodes: int) -> Any:
+    """The dataset at ``path`` when it holds ``n_episodes`` episodes, else ``None`` (missing, damaged: collect it)."""
     from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
 
     if (path / METADATA_FILE).is_file():
         try:
-            return load_dataset(path)
+            ds = load_dataset(path)
         except OfflineDatasetError:
-            pass  # damaged: collect again
-    with log.timed(unit):
-        return collect_dataset(path, n_episodes, env_kwargs=env_kwargs, style_classifier=style_classifier, seed=seed,
-                               overwrite=True)
+            return None
+        return ds if len(ds) == n_episodes else None
+    return None
 
 
 def _evaluation(raw: Path, method: str, checkpoint: Path, seed: int, budget: Fig2Budget, settings: dict[str, Any],
@@ -176,8 +173,15 @@ class _SeedUnits:
 
     def dataset(self, name: str, style_classifier: str | None = None) -> Any:
         """The seed's offline dataset ``<work>/<name>`` (the style ablation's: with the style context)."""
-        return _dataset(self.work / name, self.budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * self.seed,
-                        dict(self.budget.env_kwargs), style_classifier, self.log, f"seed{self.seed}/{name}")
+        from envs.collection import collect_dataset
+
+        path, n_episodes = self.work / name, self.budget.dataset_episodes
+        ds = complete_dataset(path, n_episodes)
+        if ds is None:
+            with self.log.timed(f"seed{self.seed}/{name}"):
+                ds = collect_dataset(path, n_episodes, env_kwargs=dict(self.budget.env_kwargs), overwrite=True,
+                                     style_classifier=style_classifier, seed=DATASET_SEED_BASE + 10_000 * self.seed)
+        return ds
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
         """Phase 1 of the arm with chunk length ``k`` into ``<work>/<name>.zip``."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -12,7 +11,7 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header
 from experiments.common.runner import make_executor, ray_session
 from experiments.peers.budget import (
     ARMS,
@@ -152,11 +151,10 @@ def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]
 def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str], PeersBudget], command: str) -> int:
     seeds, arms, budget = checked
     paths = PeersPaths.under(args.out, args.raw, args.work)
-    previous = paths.out / "peers.json"
-    command, date = run_header(command, previous if args.report_only else None)
+    recorded = previous_report(paths.out / "peers.json", args.report_only)
+    command, date = run_header(command, recorded)
     estimate = None
     if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
-        recorded = json.loads(previous.read_text()) if previous.is_file() else {}
         budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
                                           else budget)
         estimate = recorded.get("estimate")

@@ -1,11 +1,6 @@
-"""Peer arms built on Stable-Baselines3: SAC and TQC online from scratch, and SAC with the offline
-dataset in its replay buffer (RLPD's symmetric sampling).
-
-Hyperparameters come from ``zoo_configs/{sac,tqc}.yml`` (:func:`~experiments.peers.common.zoo_hyperparams`),
-overridable key by key, and are stated in the unit's record. The environment is the dataset's
-(same observation, with or without the style context c_t, and the same ``Box`` action space); the
-zoo file's ``env_wrapper`` is not applied, so every arm sees the observation of the data.
-"""
+"""Peer arms built on Stable-Baselines3: SAC, TQC and CrossQ online from scratch, and SAC with the offline
+dataset in its replay buffer (RLPD's symmetric sampling), with the hyperparameters of ``zoo_configs/<algo>.yml``
+on the dataset's environment (the zoo's ``env_wrapper`` is not applied: every arm sees the data's observation)."""
 
 from __future__ import annotations
 
@@ -29,12 +24,10 @@ from experiments.peers.common import (
     episode_transitions,
     evaluation_record,
     learning_curve,
-    read_dataset,
     unit_record,
     zoo_hyperparams,
 )
 from sb3_ua2c.checks import check_int
-from sb3_ua2c.offline import OfflineDataset
 
 #: Differences of the offline-mix arm from RLPD (Ball et al. 2023), stated in its record.
 RLPD_DIFFERENCES = (
@@ -52,14 +45,10 @@ def scale_actions(actions: np.ndarray, action_space: spaces.Box) -> np.ndarray:
 
 
 class OfflineMixReplayBuffer(ReplayBuffer):
-    """SB3 replay buffer whose minibatches draw ``offline_ratio`` of their rows from fixed offline
-    transitions and the rest from the online transitions added as usual (RLPD's symmetric
-    sampling: half of each batch offline). While the online part is empty, the whole batch is offline.
+    """SB3 replay buffer whose minibatches draw ``offline_ratio`` of their rows from fixed offline transitions
+    (all of them while the online part is empty) and the rest from the online ones.
 
     Paper: Ball et al., "Efficient Online Reinforcement Learning with Offline Data" (RLPD), ICML 2023.
-
-    :param offline_ratio: fraction of each batch drawn from the offline transitions, in [0, 1]
-    (the other parameters are :class:`~stable_baselines3.common.buffers.ReplayBuffer`'s)
     """
 
     def __init__(
@@ -81,8 +70,7 @@ class OfflineMixReplayBuffer(ReplayBuffer):
         self.offline: ReplayBuffer | None = None
 
     def add_offline(self, transitions: Mapping[str, np.ndarray]) -> None:
-        """Store offline transitions (:func:`~experiments.peers.common.episode_transitions`; actions in the
-        environment's units, scaled here to [-1, 1] as SB3 stores them for SAC and TQC)."""
+        """Store offline transitions (:func:`~experiments.peers.common.episode_transitions`, actions scaled to [-1, 1])."""
         n = len(transitions["rewards"])
         if n == 0:
             raise ValueError("offline transitions must not be empty")
@@ -124,13 +112,15 @@ def _algorithm(algo: str) -> type:
     raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
 
 
-def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, ds: OfflineDataset, params: dict[str, Any],
-                        offline_ratio: float | None, notes: str) -> dict[str, Any]:
+def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, hyperparams: Mapping[str, Any] | None,
+                        conf_file: str | os.PathLike | None, offline_ratio: float | None, notes: str) -> dict[str, Any]:
     from envs.collection import make_traffic_env
     from sb3_ua2c.pipeline import env_settings
 
+    check_int("online_steps", inputs.online_steps)
+    ds = inputs.load_dataset()
+    params = {**zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
     th.set_num_threads(1)
-    seed, online_steps, protocol = inputs.seed, inputs.online_steps, inputs.protocol
     out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     settings = env_settings(ds)
@@ -141,42 +131,29 @@ def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, ds: OfflineDatas
         kwargs = copy.deepcopy(params)  # SB3 adds keys to policy_kwargs: keep the record as given
         if offline_ratio is not None:
             kwargs.update(replay_buffer_class=OfflineMixReplayBuffer, replay_buffer_kwargs={"offline_ratio": offline_ratio})
-        model = _algorithm(algo)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)  # same as default: quiet
+        model = _algorithm(algo)("MlpPolicy", env, seed=inputs.seed, device="cpu", verbose=0, **kwargs)
         if offline_ratio is not None:
             model.replay_buffer.add_offline(episode_transitions(ds.episodes))
         with clock.phase("online"):
-            model.learn(online_steps)
+            model.learn(inputs.online_steps)
         model.save(out / "model.zip")
     finally:
         env.close()
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(model, settings, protocol)
+        evaluation = evaluation_record(model, settings, inputs)
     hyper = {"algo": algo, **params}
     if offline_ratio is not None:
         hyper["offline_ratio"] = offline_ratio
-    return unit_record(arm, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                       clock, notes=notes)
+    return unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation, learning_curve(out / "online"), clock,
+                       notes=notes)
 
 
 def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
                    conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """One unit: SB3 SAC, sb3-contrib TQC or sb3-contrib CrossQ trained online from scratch for ``online_steps`` env
-    steps on the dataset's environment, then evaluated on the held-out scenarios.
-
-    The dataset only defines the environment (and is recorded); its transitions are not used.
-
-    :param inputs: the unit's directory (``model.zip``, ``online.monitor.csv``), dataset, seed, online steps
-        and evaluation scenarios (:class:`~experiments.peers.common.ArmInputs`)
-    :param algo: ``"sac"``, ``"tqc"`` or ``"crossq"``
-    :param hyperparams: constructor arguments that replace the zoo file's, key by key
-    :param conf_file: zoo YAML file (default ``zoo_configs/<algo>.yml``)
-    :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
-    """
-    check_int("online_steps", inputs.online_steps)
-    ds = read_dataset(inputs.dataset)
-    params = {**zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
+    """One unit: SB3 SAC, sb3-contrib TQC or CrossQ (``algo``) trained online from scratch on the dataset's
+    environment (its transitions are not used), then evaluated; ``hyperparams`` replace the zoo file's key by key."""
     notes = f"{algo.upper()} online from scratch, hyperparameters from zoo_configs/{algo}.yml"
-    return _train_and_evaluate(algo, algo, inputs, ds, params, None, notes)
+    return _train_and_evaluate(algo, algo, inputs, hyperparams, conf_file, None, notes)
 
 
 def run_sb3_offline_mix(
@@ -185,16 +162,6 @@ def run_sb3_offline_mix(
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
-    """One unit: SB3 SAC with the seed's offline transitions in its replay buffer, ``offline_ratio``
-    of every minibatch drawn from them (:class:`OfflineMixReplayBuffer`), trained online for
-    ``online_steps`` env steps, then evaluated on the held-out scenarios. What differs from RLPD is
-    in :data:`RLPD_DIFFERENCES` (also in the record's ``notes``).
-
-    Parameters as :func:`run_sb3_online` (the algorithm is SAC), plus:
-
-    :param offline_ratio: fraction of each batch drawn from the offline data (RLPD: 0.5)
-    """
-    check_int("online_steps", inputs.online_steps)
-    ds = read_dataset(inputs.dataset)
-    params = {**zoo_hyperparams("sac", ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
-    return _train_and_evaluate("sac_offline_mix", "sac", inputs, ds, params, offline_ratio, RLPD_DIFFERENCES)
+    """One unit: :func:`run_sb3_online` of SAC with the seed's offline transitions in ``offline_ratio`` of every
+    minibatch (:class:`OfflineMixReplayBuffer`; what differs from RLPD: :data:`RLPD_DIFFERENCES`)."""
+    return _train_and_evaluate("sac_offline_mix", "sac", inputs, hyperparams, conf_file, offline_ratio, RLPD_DIFFERENCES)

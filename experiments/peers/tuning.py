@@ -22,7 +22,7 @@ import numpy as np
 
 from experiments.common.cli import check_extras, harness_main
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header
 from experiments.common.runner import make_executor
 from experiments.common.stats import run_scores
 from experiments.peers.budget import (
@@ -216,7 +216,7 @@ def _check(args: argparse.Namespace) -> PeersBudget:
 
 def _run_and_report(args: argparse.Namespace, base: PeersBudget, command: str) -> int:
     out = Path(args.out)
-    command, date = run_header(command, out / "tuning.json" if args.report_only else None)
+    command, date = run_header(command, previous_report(out / "tuning.json", args.report_only))
     if not args.report_only:
         _run(args, base)
     methods = collect(out, args.arms, args.seeds)
