@@ -11,8 +11,9 @@ import shlex
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -119,3 +120,50 @@ def figure(path: Path, size: tuple[float, float]) -> Iterator[Any]:
 def episode_rows(episodes: Sequence[Any]) -> list[dict[str, Any]]:
     """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as JSON rows, with their jerk per step."""
     return [{**dataclasses.asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a run keeps its files: the report in ``out``, the per-seed records in ``raw`` (small, kept with the
+    report), datasets and checkpoints in ``work``, with the budget the run was made with (:attr:`manifest`).
+    A harness's subclass names its directories (:attr:`NAME`), budget class and the budget fields a resumed
+    run must keep (``None``: all)."""
+
+    NAME: ClassVar[str] = "run"
+    BUDGET: ClassVar[type] = dict
+    FIELDS: ClassVar[Sequence[str] | None] = None
+    out: Path
+    raw: Path
+    work: Path
+
+    @classmethod
+    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
+              work: str | os.PathLike | None = None) -> RunPaths:
+        """``<out>/<NAME>_raw`` and ``<out>/<NAME>_work`` unless given; absolute, as units on a Ray cluster use them."""
+        out = Path(out).resolve()
+        return cls(out, Path(raw).resolve() if raw else out / f"{cls.NAME}_raw",
+                   Path(work).resolve() if work else out / f"{cls.NAME}_work")
+
+    def seed_work(self, seed: int) -> Path:
+        return self.work / f"seed{seed}"
+
+    def seed_raw(self, seed: int) -> Path:
+        return self.raw / f"seed{seed}"
+
+    @property
+    def manifest(self) -> Path:
+        return self.work / f"{self.NAME}_budget.json"
+
+    def check_budget(self, budget: Any) -> None:
+        """Refuse to resume the run under another budget (:func:`check_budget_record`), then record ``budget``."""
+        check_budget_record(self.manifest, budget.to_dict(), f"the run in {self.work}", fields=self.FIELDS,
+                            read=lambda stored: self.BUDGET.from_dict(stored).to_dict())
+
+    def recorded_budget(self) -> Any:
+        """The budget of the last call on this run (``None`` if none); a ``ValueError`` names a bad record."""
+        if not self.manifest.is_file():
+            return None
+        try:
+            return self.BUDGET.from_dict(json.loads(self.manifest.read_text()))
+        except (json.JSONDecodeError, TypeError, ValueError) as exc:
+            raise ValueError(f"{self.manifest} is not a {self.BUDGET.__name__} record: {exc}") from exc

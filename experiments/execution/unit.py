@@ -151,18 +151,15 @@ def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str
     b = OGBenchBudget.from_dict(budget)
     root = Path(work) / f"seed{seed}"
     path, _ = ensure_dataset(task, b, Path(work) / "data")  # one dataset per domain, shared by the seeds
-    env_kwargs = {"sparse": b.sparse, "max_episode_steps": b.max_episode_steps}
-    ds = offline_dataset(task, path, env_kwargs)
-    kwargs = dict(b.algo_kwargs)  # UA2C's default k, as the OGBench harness's adaptive and fixed arms
-    kwargs.setdefault("buffer_size", max(b.finetune_steps, 1))
+    ds = offline_dataset(task, path, b.env_kwargs)
+    kwargs = b.arm_kwargs({})  # UA2C's default k, as the OGBench harness's adaptive and fixed arms
     checkpoints = {"offline": pretrain(ds, root / "pretrained.zip", b.pretrain_steps, seed=seed, algo_kwargs=kwargs)}
-    for rule in online_rules:  # the same cadence for every rule: one update per train_freq env steps
-        overrides = {**RULES[rule], "train_freq": b.train_freq, "gradient_steps": 1}  # same as default: the cadence
+    for rule in online_rules:  # the same cadence for every rule
         checkpoints[f"online_{rule}"] = finetune(checkpoints["offline"], root / f"online_{rule}.zip", b.finetune_steps,
-                                                 dataset=ds, seed=seed, algo_overrides=overrides)
+                                                 dataset=ds, seed=seed, algo_overrides={**RULES[rule], **b.cadence})
     record: dict[str, Any] = {"seed": seed, "task": task, "budget": b.to_dict(),
                               "scenario_seed": scenario_base + 1000 * seed, "checkpoints": {}}
-    env = OGBenchSingleTask(task, **env_kwargs)
+    env = OGBenchSingleTask(task, **b.env_kwargs)
     try:
         runner = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
         for name, ckpt in checkpoints.items():

@@ -20,7 +20,7 @@ from experiments.fig2.budget import (
     estimate_seconds,
     estimate_wall_seconds,
 )
-from experiments.fig2.manifest import RunPaths, read_manifest
+from experiments.fig2.manifest import RunPaths
 from experiments.fig2.report import format_pct, write_report
 from experiments.fig2.units import SEED_PARTS, measured_seconds, run_all
 from sb3_ua2c.checks import check_int
@@ -96,7 +96,7 @@ def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], comman
     if args.report_only:
         # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
         # its checkpoints acted with where the budget left it to the library (whose default may have changed)
-        manifest = read_manifest(paths)
+        manifest = paths.recorded_budget()
         if manifest is None and "budget" in recorded:
             manifest = Fig2Budget.from_dict(recorded["budget"])
             default_elite = recorded.get("acting_default", {}).get("n_elite")

@@ -23,7 +23,7 @@ from experiments.peers.budget import (
     format_estimate,
 )
 from experiments.peers.report import aggregate, verdicts, write_report
-from experiments.peers.runner import PeersPaths, load_records, read_manifest, run_peers
+from experiments.peers.runner import PeersPaths, load_records, run_peers
 from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments peers"
@@ -63,8 +63,7 @@ def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> 
 
 
 def needed_extras(arms: Sequence[str], ray_address: str | None, report_only: bool) -> list[str]:
-    """The optional modules a run needs (:func:`~experiments.common.cli.check_extras`): rliable for the
-    report, d3rlpy for its arms, ray for a cluster."""
+    """The optional modules a run needs: rliable for the report, d3rlpy for its arms, ray for a cluster."""
     units = [] if report_only else [*(["d3rlpy", "structlog"] if any(a in D3RLPY_ARMS for a in arms) else []),
                                     *(["ray"] if ray_address is not None else [])]
     return ["rliable", *units]
@@ -79,8 +78,7 @@ def _budget(args: argparse.Namespace) -> PeersBudget:
 
 
 def scenario_text(records: dict[str, list[dict[str, Any]]]) -> str:
-    """Which evaluation scenarios the records used (:data:`~experiments.common.names.SCENARIO_BASES`), from
-    their seeds: scenario base = evaluation seed - run seed."""
+    """Which evaluation scenarios the records used, from their seeds (base = evaluation seed - run seed)."""
     names = {base: name for name, base in SCENARIO_BASES.items()}
     bases = sorted({r["eval_seeds"][0] - r["seed"] for rs in records.values() for r in rs})
     return ", ".join(f"{names.get(b, 'unknown')} scenarios (SUMO seeds 1000 · ({b} + seed) + i)" for b in bases)
@@ -95,8 +93,7 @@ def observation_text(records: dict[str, list[dict[str, Any]]]) -> str:
 
 
 def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict[str, list[str]]:
-    """Arms whose records another run made (their dataset lies outside ``work``; records are reused where
-    seeds, data and scenarios are the same): ``{that run's work directory: arms}``."""
+    """Arms whose records another run made (their dataset lies outside ``work``): ``{that run's work: arms}``."""
     reused: dict[str, set[str]] = {}
     work = work.resolve()
     for arm, rs in records.items():
@@ -109,8 +106,8 @@ def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict
 
 def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command: str, date: str,
                   reps: int = 2000, estimate: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``peers.json``: the header (command, date, budget, estimate of the units run here, unless ``estimate``
-    gives the one printed before the run; records reused from other runs, observation) and :func:`aggregate`."""
+    """``peers.json``: its header (the estimate of the units run here unless ``estimate`` gives the one printed
+    before the run) and :func:`~experiments.peers.report.aggregate`."""
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})
@@ -155,7 +152,7 @@ def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str
     command, date = run_header(command, recorded)
     estimate = None
     if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
-        budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
+        budget = paths.recorded_budget() or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
                                           else budget)
         estimate = recorded.get("estimate")
     else:
