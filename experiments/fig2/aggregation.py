@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -24,6 +24,19 @@ from experiments.common.names import (
 from experiments.common.stats import compare, t_summary
 from experiments.fig2.budget import Fig2Budget
 from experiments.fig2.manifest import RunPaths
+
+#: Comparisons of a method with a baseline in a metric: (a), (b), (b'') jerk per step, (c''') the execution rule
+#: alone and, beyond the paper, (a') and (b'): the offline chunk policy with Eq. 7 execution
+METHOD_PAIRS = {
+    "offline_reward": ("chunk", "onestep", "reward"),
+    "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
+    "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
+    "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
+    "offline_reward_chunk_adaptive": ("chunk_adaptive", "onestep", "reward"),
+    "offline_jerk_chunk_adaptive": ("chunk_adaptive", "onestep", "cumulative_jerk"),
+}
+#: Those also compared between the evaluations with fresh candidate noise (``<key>_sampled``)
+SAMPLED_PAIRS = ("offline_reward", "offline_jerk", "offline_jerk_per_step", "online_execution_rule")
 
 
 def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[str, Any]]]:
@@ -90,7 +103,7 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     seeds = list(seeds)
     methods = _methods(raw, seeds)
     online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
-    comparisons = _claim_comparisons(methods, online_phases)
+    comparisons = _comparisons(methods, online_phases)
     result: dict[str, Any] = {
         **{paper_key: comparisons[key]["change_pct"] for paper_key, key in CLAIM_COMPARISONS.items()},
         "comparisons": comparisons,
@@ -105,12 +118,14 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         "k_sweep": _k_sweep(methods, budget),
         **_acting_sweep(methods, budget, default_elite),
     }
-    comparisons.update(_further_comparisons(methods, online_phases))
     training = _training_episodes(raw, seeds, budget)
     if training:
         result["online_phase"] = training
     if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
-        comparisons.update(_sampled_comparisons(methods, online_phases))
+        comparisons.update(_method_comparisons(methods, SAMPLED_PAIRS, "_sampled"))
+        if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):  # pooled over the online phases, like (c)
+            comparisons["online_reward_sampled"] = compare(online_phases["adaptive_sampled"]["per_seed"],
+                                                           online_phases["fixed_sampled"]["per_seed"])
         result["sampled"] = {paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
                              for paper_key, key in CLAIM_COMPARISONS.items()}
     if "adaptive_style" in methods:
@@ -143,49 +158,25 @@ def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int
             if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
 
 
-def _claim_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """(a), (b) and (c): the comparisons behind the paper's three numbers (:data:`CLAIM_COMPARISONS`)."""
-    return {"offline_reward": _compare(methods, "chunk", "onestep", "reward"),
-            "offline_jerk": _compare(methods, "chunk", "onestep", "cumulative_jerk"),
-            "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])}
-
-
-def _further_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """The comparisons beyond the paper's numbers that the run's arms allow (the claims table names them)."""
-    out: dict[str, Any] = {}
-    if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
-        out["online_execution_rule"] = _compare(methods, "fixed_adaptive", "fixed", "reward")
-    if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
-        out["offline_reward_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "reward")
-        out["offline_jerk_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "cumulative_jerk")
+def _comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
+    """(a)-(c), the comparisons behind the paper's numbers, and those beyond them the run's arms allow."""
+    out = {**_method_comparisons(methods, METHOD_PAIRS),
+           "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])}
     episodes = online_phases["training_episodes"]
     if episodes:  # (c') and (c''), pooled over the online phases like (c)
         out["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
         out["online_phase_reward_last"] = compare(episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"])
-    if {"chunk", "onestep"} <= set(methods) and all(
-        math.isfinite(v) for m in ("chunk", "onestep") for v in _per_seed(methods, m, "jerk_per_step")):
-        out["offline_jerk_per_step"] = _compare(methods, "chunk", "onestep", "jerk_per_step")
     return out
 
 
-def _sampled_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """(a)-(c), (b'') and (c''') between the evaluations with fresh candidate noise (``<key>_sampled``)."""
-    sampled = {
-        "offline_reward": ("chunk", "onestep", "reward"),
-        "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
-        "online_reward": ("adaptive", "fixed", "reward"),
-        "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
-        "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
-    }
-    out: dict[str, Any] = {}
-    for key, (new, base, metric) in sampled.items():
-        names = (sampled_name(new), sampled_name(base))
-        if key == "online_reward":  # pooled over the online phases, like (c)
-            if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
-                out[f"{key}_sampled"] = compare(
-                    online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"])
-        elif all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
-            out[f"{key}_sampled"] = _compare(methods, names[0], names[1], metric)
+def _method_comparisons(methods: Mapping[str, Any], keys: Iterable[str], suffix: str = "") -> dict[str, Any]:
+    """The :data:`METHOD_PAIRS` of ``keys`` (their methods with ``suffix``) that have finite values on every seed."""
+    out = {}
+    for key in keys:
+        new, base, metric = METHOD_PAIRS[key]
+        names = (new + suffix, base + suffix)
+        if all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
+            out[key + suffix] = _compare(methods, *names, metric)
     return out
 
 
