@@ -34,8 +34,7 @@ class SeedScores:
 
 
 def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
-    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``, or the ``<peer>_best_of_n`` row
-    that :func:`~experiments.peers.runner.load_records` derives from a peer's records), one score per run."""
+    """One score per run of ``arm`` (or of a peer's ``<peer>_best_of_n`` row) among the records under ``raw``."""
     records = load_records(PeersPaths(raw.parent, raw, raw.parent))
     base = arm.removesuffix("_best_of_n")
     if arm not in records and base in records:  # the peer ran, but was not evaluated by best of N
@@ -103,8 +102,7 @@ def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[st
 
 def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str,
                 higher_is_better: bool = True) -> str:
-    """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval
-    (X − Y, or Y − X for a cost), saying which way is better."""
+    """X's and Y's means over the shared seeds, then their paired difference, saying which way is better."""
     if not (x.conditions and y.conditions):  # a report's list: its metric is whatever the list holds
         metric = "score"
     if not higher_is_better:

@@ -1,6 +1,5 @@
-"""The base of every harness budget (:class:`Budget`): a frozen dataclass whose fields are checked by one
-table (:attr:`Budget.CHECKS`, built from the checks below; a bad value raises ``ValueError`` naming
-``<Class>.<field>``) and converted to and from plain JSON."""
+"""The base of every harness budget: a frozen dataclass whose fields are checked by one table
+(:attr:`Budget.CHECKS`, built from the checks below) and converted to and from plain JSON."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Run-time estimates from the CPU seconds the committed records already hold, printed before a run.
-
-A harness names the kind (an arm, a stage) and size (its steps) of each unit it is about to run;
-:func:`seconds_per_size` pools the recorded seconds per unit of size of each kind, :func:`estimate` scales
-them (a kind no record holds takes the median rate), and the wall time is their longest-first schedule.
-"""
+"""Run-time estimates printed before a run: the CPU seconds the committed records hold per unit of size
+(steps) of each kind of unit (an arm, a stage), scaled to the units about to run."""
 
 from __future__ import annotations
 

@@ -57,8 +57,7 @@ def delta_name(delta: float) -> str:
 
 
 def replicate_name(arm: str, replicate: int) -> str:
-    """Unit name of a fine-tuned arm in online phase ``replicate``: ``("fixed", 0) -> "fixed"``,
-    ``("fixed", 2) -> "fixed_r2"`` (see ``Fig2Budget.online_replicates``)."""
+    """Unit name of a fine-tuned arm in online phase ``replicate``: ``"fixed"``, ``"fixed_r2"``."""
     return arm if replicate == 0 else f"{arm}_r{replicate}"
 
 

@@ -1,5 +1,4 @@
-"""What every experiment report records: its command and date, paths relative to the working
-directory, JSON that strict parsers accept, and the budget a run directory was made with."""
+"""What every experiment report shares: its header, files, tables and figures, and a run's directories and budget."""
 
 from __future__ import annotations
 
@@ -35,8 +34,7 @@ def strict_json(obj: Any) -> Any:
 
 
 def recorded_path(path: str | os.PathLike) -> str:
-    """``path`` relative to the working directory when it lies inside it: committed records name no
-    directory of the machine that made them."""
+    """``path`` relative to the working directory when inside it: committed records name no machine's directory."""
     path = Path(path).absolute()
     try:
         return str(path.relative_to(Path.cwd()))
@@ -50,8 +48,7 @@ def previous_report(path: Path, report_only: bool) -> dict[str, Any]:
 
 
 def run_header(command: str, previous: Mapping[str, Any]) -> tuple[str, str]:
-    """The command and date (UTC, to the minute) a report records: now, or those of the ``previous`` report
-    (:func:`previous_report`), so that a rebuilt report keeps its run's."""
+    """The command and date a report records: now, or those of the ``previous`` report it rebuilds."""
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     return previous.get("command") or command, previous.get("date") or date
 
@@ -63,8 +60,7 @@ def command_line(prog: str, argv: Sequence[str]) -> str:
 
 def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str,
                  plots: Callable[[Path], Sequence[Path]] | None = None) -> list[Path]:
-    """Write ``<name>.json`` (``summary`` as strict JSON), ``<name>.md`` and the figures ``plots(out)`` into
-    ``out``; return their paths."""
+    """Write ``<name>.json`` (strict JSON), ``<name>.md`` and the figures ``plots(out)`` into ``out``."""
     from sb3_ua2c.pipeline import write_json
 
     out.mkdir(parents=True, exist_ok=True)
@@ -76,9 +72,8 @@ def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str
 def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what: str,
                         fields: Sequence[str] | None = None, read: Callable[[Any], Mapping[str, Any]] | None = None,
                         write: bool = True) -> None:
-    """Refuse to resume a run under another budget (its stored units would be silently reused): the budget
-    stored at ``path`` (through ``read``) must agree with ``budget`` on ``fields`` (default: every key);
-    then, with ``write``, ``budget`` is recorded there. ``what`` names the run in the error."""
+    """Refuse to resume a run whose budget stored at ``path`` (through ``read``) differs from ``budget`` on
+    ``fields`` (default: all); then, with ``write``, record ``budget`` there."""
     from sb3_ua2c.pipeline import write_json
 
     path, now = Path(path), strict_json(budget)
@@ -104,6 +99,11 @@ def _table_row(cells: Sequence[Any]) -> str:
     return "| " + " | ".join(map(str, cells)) + " |"
 
 
+def section(title: str, *lines: str) -> list[str]:
+    """A Markdown section: a blank line, the ``## title`` heading, a blank line and ``lines``."""
+    return ["", f"## {title}", "", *lines]
+
+
 @contextmanager
 def figure(path: Path, size: tuple[float, float]) -> Iterator[Any]:
     """A matplotlib figure (no pyplot: the caller's backend stays untouched), saved to ``path`` on leaving."""
@@ -124,10 +124,8 @@ def episode_rows(episodes: Sequence[Any]) -> list[dict[str, Any]]:
 
 @dataclass(frozen=True)
 class RunPaths:
-    """Where a run keeps its files: the report in ``out``, the per-seed records in ``raw`` (small, kept with the
-    report), datasets and checkpoints in ``work``, with the budget the run was made with (:attr:`manifest`).
-    A harness's subclass names its directories (:attr:`NAME`), budget class and the budget fields a resumed
-    run must keep (``None``: all)."""
+    """Where a run keeps its files: the report in ``out``, per-seed records in ``raw``, datasets and checkpoints in
+    ``work`` with the run's budget (:attr:`manifest`); a harness's subclass names them and its budget."""
 
     NAME: ClassVar[str] = "run"
     BUDGET: ClassVar[type] = dict

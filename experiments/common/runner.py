@@ -1,10 +1,5 @@
-"""Run independent units of work in fresh processes: in this process (:class:`SerialExecutor`), in local
-``spawn``-ed processes with one torch thread each (:class:`ProcessExecutor`), or as Ray tasks of one CPU
-(:class:`RayExecutor`). A unit whose ``result_file`` exists is skipped (its stored result is returned), so
-an interrupted run resumes; a unit that raises does not stop the others (:class:`UnitsFailedError` names
-them at the end). On a Ray cluster the code must be installed on every node and the paths a unit uses
-must name a shared filesystem (``docs/peers.md``).
-"""
+"""Run independent units of work in this process, in fresh local processes or as Ray tasks (``docs/peers.md``):
+a unit whose ``result_file`` exists is skipped, and one that raises does not stop the others."""
 
 from __future__ import annotations
 
@@ -25,8 +20,7 @@ from sb3_ua2c.checks import check_int
 
 @dataclass(frozen=True)
 class Unit:
-    """``fn(**kwargs)`` (a picklable top-level function) under a unique ``name``; its JSON result is stored in
-    ``result_file``, whose existence skips the unit."""
+    """``fn(**kwargs)`` under a unique ``name``, its JSON result stored in ``result_file`` (if it exists: skipped)."""
 
     name: str
     fn: Callable[..., Any]
@@ -56,8 +50,7 @@ class UnitResult:
 
 
 class UnitsFailedError(RuntimeError):
-    """Some units raised; ``failures`` maps their names to the formatted tracebacks and ``results``
-    holds the :class:`UnitResult` of every unit in order (``None`` for the failed ones)."""
+    """Some units raised: ``failures`` maps their names to their tracebacks, ``results`` holds every unit's."""
 
     def __init__(self, failures: Mapping[str, str], results: Sequence[UnitResult | None] = ()) -> None:
         self.failures = dict(failures)
@@ -82,8 +75,7 @@ def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
 
 
 def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
-    """:func:`_call_unit_safely` with torch cut to one intra-op thread: a unit owns one CPU (oversubscribed
-    cores made torch's threads spin, several times the CPU seconds for the same work)."""
+    """:func:`_call_unit_safely` with torch on one thread: a unit owns one CPU (oversubscribed, torch's threads spin)."""
     try:
         import torch
     except ImportError:  # a unit that does not use torch
@@ -125,8 +117,7 @@ class ProcessExecutor:
 
 
 class RayExecutor:
-    """Run each unit as a Ray task with one CPU in its own worker process, on the cluster at ``address``
-    (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``; ``None``: a local Ray instance)."""
+    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address`` (``None``: local)."""
 
     def __init__(self, address: str | None = "auto", runtime_env: Mapping[str, Any] | None = None) -> None:
         if address is not None and (not isinstance(address, str) or not address):
@@ -193,8 +184,7 @@ def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool
 
 
 def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
-    """When the last of ``durations`` (seconds, in submission order) ends, each unit starting on the first of
-    ``workers`` workers that is free, as the executors take them."""
+    """When the last of ``durations`` ends, each unit starting on the first of ``workers`` workers that is free."""
     check_int("workers", workers)
     free = [0.0] * min(workers, max(len(durations), 1))
     for seconds in durations:
@@ -205,8 +195,8 @@ def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
 def run_units(
     units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
 ) -> list[UnitResult]:
-    """Run ``units`` (skipping the stored ones) on ``executor``, one progress line per unit to ``printer``; return
-    their results in order, or raise :class:`UnitsFailedError` once every unit ran."""
+    """Run ``units`` (but the stored ones) on ``executor`` and return their results in order; raises
+    :class:`UnitsFailedError` once every unit ran if some failed."""
     from sb3_ua2c.pipeline import write_json
 
     names = [unit.name for unit in units]

@@ -1,11 +1,5 @@
-"""Run-level statistics of the experiment reports, after rliable (Agarwal et al., NeurIPS 2021).
-
-Every run (seed) is reduced to one score per metric, the mean over its evaluation episodes; an arm's
-scores form rliable's ``(n_runs, n_tasks)`` matrix, never with episodes as tasks (``docs/peers.md``).
-Costs (collision, jerk) are negated first, so a probability above 0.5 and a positive difference always
-mean that X does better. rliable resamples with NumPy's global generator, which every interval here
-seeds and restores: the same call gives the same interval.
-"""
+"""Run-level statistics of the experiment reports, after rliable (Agarwal et al., NeurIPS 2021): each run
+(seed) is one score, the mean over its evaluation episodes (``docs/peers.md``); every bootstrap is seeded."""
 
 from __future__ import annotations
 
@@ -53,8 +47,7 @@ def _interval_estimates(scores: Mapping[str, Any], func: Any, confidence: float,
 
 
 def run_scores(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
-    """``(n_runs,)``, in seed order: the mean of ``metric`` over each record's ``record[evaluation]["episodes"]``
-    (booleans as 0/1, so a rate)."""
+    """``(n_runs,)`` in seed order: the mean of ``metric`` over each record's evaluation episodes."""
     if not records:
         raise ValueError("records must not be empty")
     scores = []
@@ -97,8 +90,7 @@ def _aggregate_with_ci(scores: Mapping[str, np.ndarray], key: str, aggregate: An
 
 def iqm_with_ci(scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000,
                 seed: int = 0) -> dict[str, dict[str, float]]:
-    """Per arm (``{arm: (n_runs, n_tasks)}``), the IQM over runs with rliable's stratified bootstrap
-    interval: ``{"iqm", "ci_low", "ci_high"}``."""
+    """Per arm, the IQM of its ``(n_runs, n_tasks)`` scores with rliable's stratified bootstrap interval."""
     return _aggregate_with_ci(scores, "iqm", _rliable()[1].aggregate_iqm, confidence, reps, seed)
 
 
@@ -110,8 +102,7 @@ def mean_with_ci(scores: Mapping[str, np.ndarray], confidence: float = 0.95, rep
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: bool = True, confidence: float = 0.95,
                                reps: int = 2000, seed: int = 0) -> dict[str, float]:
-    """rliable's ``P(X > Y)`` over the runs of ``x`` and ``y`` (``(n_runs, n_tasks)`` each, ties count one
-    half), with its bootstrap interval: ``{"probability", "ci_low", "ci_high"}``."""
+    """rliable's ``P(X > Y)`` over the runs of ``x`` and ``y`` with its bootstrap interval (costs negated)."""
     x, y = _check_matrix("x", x), _check_matrix("y", y)
     if x.shape[1] != y.shape[1]:
         raise ValueError(f"x and y need the same tasks, got {x.shape[1]} and {y.shape[1]}")
@@ -126,8 +117,7 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: b
 
 def paired_difference(x: Sequence[float], y: Sequence[float], higher_is_better: bool = True,
                       confidence: float = 0.95) -> dict[str, float]:
-    """Mean per-seed difference ``x_s − y_s`` (``y_s − x_s`` for a cost) with its Student-t interval
-    (``scipy.stats.ttest_rel``): ``{"difference", "ci_low", "ci_high", "runs", "x_better_runs"}``."""
+    """Mean per-seed difference ``x_s − y_s`` (``y_s − x_s`` for a cost) with its Student-t interval."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     if x.ndim != 1 or x.shape != y.shape:
         raise ValueError(f"x and y must be paired 1-D score vectors, got shapes {x.shape} and {y.shape}")
@@ -161,8 +151,7 @@ def interval(stat: Mapping[str, float], key: str = "difference", digits: int = 2
 
 
 def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) -> float:
-    """Area under one run's online learning curve per env step, ``Σ_i R_i ℓ_i / Σ_i ℓ_i`` (``ℓ_i``: the
-    length of episode ``i``, from the increasing ``end_steps``)."""
+    """Area under one run's online learning curve per env step, ``Σ_i R_i ℓ_i / Σ_i ℓ_i``."""
     ends, rets = np.asarray(end_steps, dtype=np.float64), np.asarray(returns, dtype=np.float64)
     if ends.ndim != 1 or ends.shape != rets.shape or len(ends) == 0:
         raise ValueError(f"end_steps and returns must be non-empty and of one length, got {ends.shape}, {rets.shape}")
@@ -201,8 +190,7 @@ def relative_change_pct(new: float, base: float) -> float:
 
 
 def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
-    """Relative change of paired per-seed values: of the means (``change_pct``), per seed with its t interval,
-    and, with 2 or more seeds, the :func:`paired_difference` ``new − base`` in the metric's units."""
+    """Relative change of paired per-seed values (of the means, and per seed) and their paired difference."""
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
         raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")

@@ -1,8 +1,5 @@
-"""Command line of the execution-rule study: ``python -m experiments execution``.
-
-A development run evaluates on validation scenarios and is where rules are chosen; a confirmation run
-evaluates on test scenarios with seeds never used for a choice (OGBench: reset seeds 20,000,000 and
-10,000,000 + 1000 s + i)."""
+"""Command line of the execution-rule study: ``python -m experiments execution``; a development run chooses on
+validation scenarios, a confirmation run evaluates on test scenarios with seeds never used for a choice."""
 
 from __future__ import annotations
 
@@ -74,9 +71,8 @@ def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
                      own_rule_only: bool = False, env: str = "traffic") -> float:
-    """Wall minutes on ``workers`` cores: training plus the evaluations (a rule other than ``fixed`` comes with
-    its two controls) of ``(1 + n_online)`` checkpoints × rules × 2 modes × episodes (with ``own_rule_only``,
-    a fine-tuned checkpoint has at most 4 arms: fixed, its rule and the rule's controls)."""
+    """Wall minutes on ``workers`` cores: training plus the evaluations of every checkpoint, rule (with its two
+    controls), mode and episode."""
     training = TRAINING_SECONDS[env]
     per_seed = training["data_and_phase1"] + n_online * training["phase2"]
     arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)
@@ -108,8 +104,7 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument, a missing extra or missing runs, 1 when runs
-    failed)."""
+    """Entry point; returns the exit code (2 on a bad argument, a missing extra or runs, 1 when runs failed)."""
     return harness_main(build_parser(prog), argv, prog, _check,
                         lambda args, checked, command: _run(args, command, *checked, prog))
 

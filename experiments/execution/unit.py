@@ -1,7 +1,5 @@
-"""One run of the execution-rule study on ``MixedTraffic-v0`` (:func:`run_traffic_study`): collect the seed's data,
-pre-train (Phase 1), fine-tune one checkpoint per online rule (Phase 2), and evaluate every checkpoint
-under every screened rule and under its controls (:func:`evaluate_rules`), deterministic and with fresh
-noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, one seed per unit."""
+"""One run (seed) of the execution-rule study: data, Phase 1, one Phase-2 checkpoint per online rule, and every
+checkpoint evaluated under the screened rules and their controls (:func:`evaluate_rules`)."""
 
 from __future__ import annotations
 
@@ -44,8 +42,7 @@ def traffic_episodes(scenario_seed: int, n_episodes: int, settings: Mapping[str,
 
 def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], run_episodes: EpisodeRunner,
                    control_seed: int) -> dict[str, Any]:
-    """Each rule, deterministic and with fresh noise, then its controls (a random cut from the rule's own
-    ``L_t`` histogram in that mode, and fixed ``k' = round(mean L_t)``): ``{arm: {mode: {...}}}``."""
+    """Each rule in both modes, then its controls (a random cut from its ``L_t`` shares, fixed ``k'``)."""
     out: dict[str, Any] = {}
     for name in rules:
         for mode, deterministic in (("deterministic", True), ("sampled", False)):
@@ -69,8 +66,7 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
 
 
 def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bool) -> list[str]:
-    """The rules checkpoint ``name`` is evaluated under: every screened rule, or, for a fine-tuned checkpoint
-    (``online_<rule>``) with ``own_rule_only``, fixed chunks and the rule it was trained with."""
+    """Every screened rule, or with ``own_rule_only`` for a fine-tuned checkpoint fixed chunks and its own rule."""
     if own_rule_only and name != "offline":
         return list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
     return list(screened_rules)
@@ -78,9 +74,7 @@ def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bo
 
 def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
              screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
-    """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
-    the pre-trained checkpoint under ``screened_rules`` and their controls, and of every fine-tuned one
-    under the same (``own_rule_only=False``) or under fixed chunks and the rule it was trained with."""
+    """One run on ``MixedTraffic-v0`` with ``make main``'s pipeline and budget (see the module docstring)."""
     th.set_num_threads(1)
     root = Path(work) / f"seed{seed}"
     env_kwargs = {"time_limit": budget["time_limit"]} if "time_limit" in budget else None
@@ -119,8 +113,7 @@ OGBENCH_EVAL_EPISODES = 20
 
 
 def study_budget(task: str, quick: bool = False) -> Any:
-    """The OGBench harness's budget of ``task`` (:func:`~experiments.ogbench.runner.default_budget`; a bad task
-    raises ``ValueError`` naming ``--task``), with :data:`OGBENCH_EVAL_EPISODES` evaluation episodes unless ``quick``."""
+    """The OGBench harness's budget of ``task``, with :data:`OGBENCH_EVAL_EPISODES` evaluation episodes unless ``quick``."""
     import dataclasses
 
     from experiments.ogbench.runner import default_budget
@@ -141,9 +134,7 @@ def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -
 
 def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
                       screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
-    """One run (see the module docstring); the arguments are those of
-    :func:`run_traffic_study`, with ``budget`` an :class:`OGBenchBudget` as a dict and the
-    OGBench ``task``."""
+    """One run on an OGBench ``task`` (``budget``: an :class:`OGBenchBudget` as a dict)."""
     from experiments.ogbench.env import OGBenchSingleTask
     from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset
 

@@ -57,8 +57,7 @@ def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[
 def online_curve(
     episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int, n_bins: int = 10
 ) -> dict[str, list[float]]:
-    """One arm's learning curve: the mean return of the episodes ending in each of ``n_bins`` equal windows of
-    the ``total_steps`` online steps, averaged over seeds (NaN where no episode ended)."""
+    """One arm's learning curve: the mean return of the episodes ending in each window of online steps."""
     edges = np.linspace(0, total_steps, n_bins + 1)
     per_seed = []
     for episodes in episodes_per_seed:
@@ -74,8 +73,7 @@ def online_curve(
 
 
 def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: float = 0.25) -> dict[str, float]:
-    """Mean return and collision rate of one arm's Phase-2 training episodes of one seed, the mean return of the
-    last ``last_fraction`` of them, and their number."""
+    """Mean return and collision rate of one seed's Phase-2 training episodes, and the mean return of the last ones."""
     if not episodes:
         return {"reward": math.nan, "reward_last": math.nan, "collision": math.nan, "episodes": 0}
     last = episodes[-max(1, int(round(last_fraction * len(episodes)))) :]
@@ -98,8 +96,7 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
 
 def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
               default_elite: int | None = None) -> dict[str, Any]:
-    """Everything ``fig2.json`` holds, from the raw results (:func:`load_raw`) of ``seeds`` only; ``default_elite``:
-    the ``n_elite`` the checkpoints acted with where the budget left it to the library (``None``: today's)."""
+    """Everything ``fig2.json`` holds, from the raw results of ``seeds`` (``default_elite``: as the report recorded)."""
     seeds = list(seeds)
     methods = _methods(raw, seeds)
     online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
@@ -181,8 +178,7 @@ def _method_comparisons(methods: Mapping[str, Any], keys: Iterable[str], suffix:
 
 
 def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -> dict[str, Any]:
-    """(d): ``style_macro_accuracy`` (NaN without every seed's style results) and ``style``, the classifier's
-    accuracies and its confusion matrix summed over seeds."""
+    """(d): the style classifier's accuracies and confusion matrix summed over seeds."""
     if not ("style" in raw and all(s in raw["style"] for s in seeds)):
         return {"style_macro_accuracy": math.nan}
     styles = [raw["style"][s] for s in seeds]
@@ -221,8 +217,7 @@ def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, A
 
 
 def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
-    """``acting_sweep``: the offline checkpoints acting with each other rule (Euler steps N, elite size m) and
-    the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
+    """The offline checkpoints acting with each other rule (N, m), and how (a) and (b) act."""
     default_n = int(budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
     default_elite = budget.default_elite if default_elite is None else default_elite
     rows = []
@@ -240,8 +235,7 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
 
 
 def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
-    """Per logged arm (:data:`ONLINE_ARMS`, first online phase), the :func:`online_phase_stats` over seeds and the
-    learning curve."""
+    """Per logged arm (first online phase), its :func:`online_phase_stats` over seeds and its learning curve."""
     out: dict[str, Any] = {}
     for arm in ONLINE_ARMS:
         if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
@@ -256,8 +250,7 @@ def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int
 def _online_phases(
     raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int], phases: Sequence[int]
 ) -> dict[str, Any]:
-    """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards (phase-major):
-    final evaluations (and ``*_sampled`` when every phase has them) and training episodes (when all logged)."""
+    """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards."""
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
         return [v for r in phases for v in methods[replicate_name(arm, r) + suffix]["reward"]["per_seed"]]

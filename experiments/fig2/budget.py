@@ -87,8 +87,7 @@ class Fig2Budget(Budget):
         return _policy_elite(self, self.chunk_size)
 
     def acting_variants(self, default_elite: int | None = None) -> tuple[tuple[int | None, int], ...]:
-        """``(flow_steps, n_elite)`` pairs of the acting sweep (``None``: the checkpoint's ``N``), all but how (a)
-        and (b) act, ``(None, default_elite)`` (:attr:`default_elite` unless given)."""
+        """``(flow_steps, n_elite)`` pairs of the acting sweep, but how (a) and (b) act."""
         m0 = self.default_elite if default_elite is None else default_elite
         elites = (m0, *sorted({1, *self.elite_sweep} - {m0}))
         pairs = [(n, m) for n in (None, *self.flow_sweep) for m in elites]
@@ -106,8 +105,7 @@ class Fig2Budget(Budget):
 
 
 def _policy_elite(budget: Fig2Budget, k: int) -> int:
-    """``policy_kwargs["n_elite"]`` of the arm with chunk length ``k`` (UA2C's default when unset; a
-    ``policy_kwargs`` that is not a mapping is UA2C's to refuse when the arm is built)."""
+    """``policy_kwargs["n_elite"]`` of the arm with chunk length ``k`` (UA2C's default when unset)."""
     policy_kwargs = budget.arm_kwargs(k).get("policy_kwargs") or {}
     policy_kwargs = policy_kwargs if isinstance(policy_kwargs, Mapping) else {}
     return int(policy_kwargs.get("n_elite", library_default("policy_kwargs")["n_elite"]))
@@ -126,8 +124,7 @@ QUICK_BUDGET = Fig2Budget(dataset_episodes=3, pretrain_steps=8, finetune_steps=3
 
 
 def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
-    """Phase-2 attributes of every fine-tuned arm: ``finetune_kwargs`` and one gradient step per ``chunk_size`` env
-    steps (UA2C's one update per plan would give the adaptive arm up to ``k`` times the fixed arm's)."""
+    """Phase-2 attributes of every fine-tuned arm: ``finetune_kwargs`` and one update per ``chunk_size`` env steps."""
     return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}  # same as default: the cadence
 
 
@@ -158,8 +155,7 @@ def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping[str, Any]] | None = None,
                      ) -> dict[str, float]:
-    """CPU seconds per stage of a run and ``"total"``: the stage times of the ``reports`` (default: every committed
-    ``fig2.json``) scaled by :func:`stage_sizes`."""
+    """CPU seconds per stage of a run and ``"total"``, from the ``reports`` (default: the committed ones)."""
     from experiments.common.estimate import estimate, recorded, seconds_per_size
 
     reports = recorded("**/fig2.json") if reports is None else reports
@@ -174,8 +170,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping
 
 
 def estimate_wall_seconds(stages: Mapping[str, float], n_seeds: int, workers: int) -> float:
-    """Wall time of a run of ``stages`` CPU seconds: every seed's ``"main"`` part, then its ``"style"`` part
-    (:data:`STYLE_STAGES`), as :func:`experiments.fig2.units.run_all` submits them."""
+    """Wall time of a run of ``stages`` CPU seconds, its parts scheduled as :func:`~experiments.fig2.units.run_all` does."""
     from experiments.common.runner import list_schedule_seconds
 
     style = sum(stages.get(name, 0.0) for name in STYLE_STAGES) / n_seeds

@@ -27,8 +27,7 @@ from sb3_ua2c.checks import check_int
 
 
 def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
-    """The budget of a ``fig2.json`` (or of the directory holding it; fields newer than it take their defaults,
-    which every earlier report ran with); a ``ValueError`` names a path without one."""
+    """The budget of a ``fig2.json`` or of the directory holding it (newer fields take their defaults)."""
     path = Path(report)
     path = path / "fig2.json" if path.is_dir() else path
     try:

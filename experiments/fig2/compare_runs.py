@@ -1,9 +1,5 @@
 """An ablation against its control: two Figure-2 reports on the same seeds and datasets, paired run by run
-(``python -m experiments compare-runs A B --labels a b [--out FILE.md]``).
-
-Per method both reports hold, each report's mean reward and the paired difference ``B − A`` over the runs
-both hold (fine-tuned arms pooled over online phases) with its Student-t interval; and Figure 2 (c) of each
-report on the same runs."""
+(``python -m experiments compare-runs A B``): per method the paired difference ``B − A``, and each (c)."""
 
 from __future__ import annotations
 
@@ -36,8 +32,7 @@ def run_rewards(report: Path, method: str) -> dict[tuple[int, str], float]:
 
 
 def c_runs(report: Path, suffix: str = "") -> dict[tuple[int, str], tuple[float, float]]:
-    """``{(seed, unit): (adaptive reward, fixed reward)}``: Figure 2 (c)'s paired runs in every online phase of a
-    report directory (``suffix``: ``"_sampled"``)."""
+    """``{(seed, unit): (adaptive reward, fixed reward)}``: Figure 2 (c)'s paired runs in a report directory."""
     ad, fx = run_rewards(report, "adaptive" + suffix), run_rewards(report, "fixed" + suffix)
     return {(s, u): (ad[(s, u)], fx[(s, u.replace("adaptive", "fixed"))]) for s, u in sorted(ad)
             if (s, u.replace("adaptive", "fixed")) in fx}

@@ -1,6 +1,4 @@
-"""Where a Figure-2 run keeps its files (:class:`RunPaths`): the report in ``out``, per-seed raw results in
-``raw``, datasets and checkpoints in ``work``, with the budget manifest that refuses to resume a run under
-another budget."""
+"""Where a Figure-2 run keeps its files and budget (:class:`RunPaths`)."""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
 """Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``):
 ``python -m experiments pool-replicates REPORT [REPORT ...] [--sampled]``.
 
-Every online phase a report holds (``fig2_raw/seed*/{adaptive,fixed}[_r<r>].json``) is a run; the reports
-must share their pre-trained checkpoints and differ in the online seeds only (never pass a report and its
-own rerun). Prints per report and pooled: both arms' mean rewards, (c) as the change of the means, and the
-paired per-run changes with their 95 % Student-t interval. ``--sampled`` pools the evaluations with fresh
-candidate noise instead."""
+Every online phase of the reports, which share their pre-trained checkpoints, is a run (``docs/benchmarks.md``)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The Figure-2 report: ``fig2.md`` (:func:`format_markdown`, one builder per section), ``fig2.json``
-and the PNG panels (:func:`write_report`)."""
+"""The Figure-2 report: ``fig2.md`` (one builder per section), ``fig2.json`` and the PNG panels."""
 
 from __future__ import annotations
 
@@ -19,7 +18,7 @@ from experiments.common.names import (
     SAMPLED_METHODS,
     sampled_name,
 )
-from experiments.common.records import table
+from experiments.common.records import section, table
 from experiments.common.stats import interval, t_summary
 from experiments.fig2.budget import STAGES
 from experiments.fig2.manifest import RunPaths
@@ -51,9 +50,9 @@ def paper_verdict(paper_key: str, change_pct: float) -> str:
 def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
     """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
     sections = (_header(summary, command, date), _claims_table(summary), _methods_table(summary),
-                _online_phases_table(summary), _training_episodes_table(summary), _style_section(summary),
+                _online_phases_table(summary), _training_episodes_table(summary), _stylesection(summary),
                 _delta_sweep_table(summary), _k_sweep_table(summary), _acting_sweep_table(summary),
-                _style_context_section(summary), _budget_section(summary), _compute_table(summary))
+                _style_contextsection(summary), _budgetsection(summary), _compute_table(summary))
     return "\n".join([line for section in sections for line in section] + [""])
 
 
@@ -130,17 +129,13 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
     return lines
 
 
-def _section(title: str, *lines: str) -> Lines:
-    return ["", f"## {title}", "", *lines]
-
-
 def _methods_table(summary: Mapping[str, Any]) -> Lines:
     """Every metric of the main methods (and their "sampled" evaluations), mean ± interval over seeds."""
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
     methods = [m for m in (*order, *map(sampled_name, SAMPLED_METHODS)) if m in summary["methods"]]
     keys = ("reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed",
             "mean_executed_length")
-    lines = _section("Methods", *table(
+    lines = section("Methods", *table(
         ["method", "reward", "cum. jerk", "jerk per step", "collision rate", "merge success", "mean speed [m/s]",
          "mean L_t"],
         ([METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2) for k in keys)]
@@ -165,7 +160,7 @@ def _online_phases_table(summary: Mapping[str, Any]) -> Lines:
     rows.append([f"pooled ({op['runs']} runs)", _fmt(op["fixed"]), _fmt(op["adaptive"]),
                  format_pct(c["online_reward"]["change_pct"]),
                  format_pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""])
-    return _section(
+    return section(
         "(c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
         "The methods table and the Phase-2 table show the first online phase; (c), (c') and (c'') pool "
         f"the {op['runs']} paired runs of all phases. Phase r runs seed s with "
@@ -178,7 +173,7 @@ def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
     """The Phase-2 training episodes of each logged arm (first online phase)."""
     if not summary.get("online_phase"):
         return []
-    return _section(
+    return section(
         "Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
         + (", first online phase" if _n_phases(summary) > 1 else ""),
         *table(["arm", "mean return", "mean return, last quarter", "collision rate", "episodes"],
@@ -186,12 +181,12 @@ def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
                  _fmt(st["episodes"], 1)] for arm, st in summary["online_phase"].items())))
 
 
-def _style_section(summary: Mapping[str, Any]) -> Lines:
+def _stylesection(summary: Mapping[str, Any]) -> Lines:
     """(d): the confusion matrix summed over seeds and the logistic-regression baseline."""
     style = summary.get("style")
     if not style:
         return []
-    lines = _section("(d) Driving-style inference", f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
+    lines = section("(d) Driving-style inference", f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
                      *table(["inferred \\ truth", *style["classes"]],
                             ([name, *row] for name, row in zip(style["classes"], style["confusion_matrix"], strict=True))))
     if style["baseline_macro_accuracy_per_seed"]:
@@ -203,14 +198,14 @@ def _style_section(summary: Mapping[str, Any]) -> Lines:
 def _delta_sweep_table(summary: Mapping[str, Any]) -> Lines:
     rows = [[f"{row['delta']:g}", _fmt(row["mean_executed_length"]), _fmt(row["reward"]), _fmt(row["cumulative_jerk"], 1)]
             for row in summary["delta_sweep"]]
-    return _section("δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
+    return section("δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
                     *table(["δ", "mean L_t", "reward", "cum. jerk"], rows)) if rows else []
 
 
 def _k_sweep_table(summary: Mapping[str, Any]) -> Lines:
     rows = [[row["k"], _fmt(row["reward"]), _fmt(row["cumulative_jerk"], 1), _fmt(row["collision"])]
             for row in summary["k_sweep"]]
-    return _section("k sweep (offline, same data and gradient budget, full chunks)",
+    return section("k sweep (offline, same data and gradient budget, full chunks)",
                     *table(["k", "reward", "cum. jerk", "collision rate"], rows)) if rows else []
 
 
@@ -223,7 +218,7 @@ def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
              _fmt(row["onestep"]["cumulative_jerk"], 1), _fmt(row["chunk"]["cumulative_jerk"], 1),
              format_pct(row["jerk_change"]["change_pct"]), _fmt(row["chunk"]["jerk_per_step"]),
              _fmt(row["chunk"]["collision"])] for row in summary["acting_sweep"]]
-    return _section(
+    return section(
         "Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
         f"the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and "
         f"m = {default['n_elite']}",
@@ -231,23 +226,23 @@ def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
                 "chunk jerk per step", "chunk collision rate"], rows))
 
 
-def _style_context_section(summary: Mapping[str, Any]) -> Lines:
+def _style_contextsection(summary: Mapping[str, Any]) -> Lines:
     if "style_context" not in summary:
         return []
     cmp = summary["style_context"]["reward_gain_pct"]
     per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]})
-    return _section("Style context c_t (Eq. 6) in the observation",
+    return section("Style context c_t (Eq. 6) in the observation",
                     f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
                     f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).")
 
 
-def _budget_section(summary: Mapping[str, Any]) -> Lines:
+def _budgetsection(summary: Mapping[str, Any]) -> Lines:
     b = summary["budget"]
     phases = f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else ""
     onestep = f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else ""
     phase2 = f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else ""
     offset = f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}" if b.get("online_seed_offset") else ""
-    return _section(
+    return section(
         "Budget (per seed)",
         f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
         f"{b['finetune_steps']} online steps per fine-tuned arm{phases}; {b['eval_episodes']} evaluation "
@@ -281,8 +276,7 @@ _SHORT_LABELS = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "ada
 
 
 def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[tuple[str, Any]], str]]:
-    """Arguments of :func:`~experiments.fig2.plots.bar_panel` for (a)-(c), then for their "sampled" evaluations
-    when the run has them; (c) shows every pooled run when there are several phases."""
+    """Arguments of :func:`~experiments.fig2.plots.bar_panel` for (a)-(c), then for their "sampled" evaluations."""
     methods, op = summary["methods"], summary.get("online_phases", {})
     suffixes = ("", "_sampled") if "sampled" in summary else ("",)
     panels = []

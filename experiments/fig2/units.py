@@ -1,6 +1,5 @@
-"""Units of work of a Figure-2 run, one file each and skipped when it exists: the per-seed stages
-(:class:`SeedUnits`), their scheduler (:func:`run_fig2_seed`, :func:`run_all`), the seed lock and the measured
-unit times."""
+"""Units of work of a Figure-2 run, one file each and skipped when it exists (:class:`SeedUnits`), and their
+scheduler (:func:`run_all`)."""
 
 from __future__ import annotations
 
@@ -56,8 +55,7 @@ class SeedBusyError(ValueError):
 
 @contextmanager
 def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
-    """Hold an exclusive ``flock`` on ``<work>/<name>`` while inside (none without ``fcntl``): two processes on
-    one work directory would otherwise train the same unit at once; :class:`SeedBusyError` names the holder."""
+    """Hold an exclusive ``flock`` on ``<work>/<name>`` while inside: two processes would train the same unit."""
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows
@@ -82,9 +80,8 @@ def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
 
 
 def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
-    """Run (or resume) the units of one seed's ``part`` (of :data:`SEED_PARTS`, or ``"all"``) under the part's
-    lock; return the names of the units executed, whose wall-clock seconds are merged into the part's
-    ``<work>/seed<s>/unit_seconds[_style].json``."""
+    """Run (or resume) one seed's ``part`` under its lock, its units' seconds into its seconds file; return the
+    names of the units run."""
     import torch
 
     from sb3_ua2c.pipeline import write_json
@@ -112,8 +109,7 @@ def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "a
 
 @dataclass
 class SeedUnits:
-    """The units of one seed, each skipped when its file exists; ``seconds`` holds those run, in order, with
-    their wall-clock seconds."""
+    """The units of one seed, each skipped when its file exists; ``seconds``: those run, with their seconds."""
 
     seed: int
     budget: Fig2Budget
@@ -152,8 +148,7 @@ class SeedUnits:
         return path
 
     def finetuned(self, start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
-        """Phase 2 from ``start`` with threshold ``delta`` in online phase ``replicate``, into
-        ``<work>/<name>.zip``; its training episodes go to ``<raw>/online/<name>.json``."""
+        """Phase 2 from ``start`` with ``delta`` into ``<work>/<name>.zip``, its episodes into ``<raw>/online/``."""
         from sb3_ua2c.pipeline import finetune, read_monitor, write_json
 
         path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
@@ -170,8 +165,7 @@ class SeedUnits:
 
     def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None,
                  n_elite: int | None = None, flow_steps: int | None = None, deterministic: bool = True) -> None:
-        """Evaluate ``checkpoint`` acting with ``delta``, ``n_elite``, ``flow_steps`` and fixed candidate noise
-        (``deterministic``) on the seed's scenarios, into ``<raw>/<method>.json``."""
+        """Evaluate ``checkpoint`` on the seed's scenarios into ``<raw>/<method>.json``."""
         from envs.evaluation import evaluate, plan_length_shares, summarize
         from sb3_ua2c.pipeline import write_json
 
@@ -217,8 +211,7 @@ class SeedUnits:
                     self.evaluate(sampled_name(name), tuned, settings, threshold, deterministic=False)
 
     def offline(self, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
-        """(a), (b), the k sweep and the acting sweep: every chunk length pre-trained on the same data with the
-        same gradient budget, then evaluated; returns the checkpoints by chunk length."""
+        """(a), (b), the k and the acting sweeps; returns the checkpoints by chunk length."""
         budget = self.budget
         ckpt = {k: self.pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
         self.evaluate("onestep", ckpt[1], settings, None)
@@ -233,8 +226,7 @@ class SeedUnits:
         return ckpt
 
     def online(self, ds: Any, settings: dict[str, Any], start: Path) -> tuple[Path, Path]:
-        """(c) and the δ sweep, first online phase: adaptive and fixed fine-tuned from the same chunk checkpoint
-        ``start``; returns their checkpoints."""
+        """(c) and the δ sweep, first online phase; returns the adaptive and fixed checkpoints."""
         delta = self.budget.entropy_threshold
         adaptive = self.finetuned(start, ds, "adaptive", delta)
         fixed = self.finetuned(start, ds, "fixed", math.inf)
@@ -246,8 +238,7 @@ class SeedUnits:
         return adaptive, fixed
 
     def style(self) -> None:
-        """The units of part ``"style"``: (d), driving-style inference, then (beyond the paper) the style context
-        c_t appended to the observation (Eq. 6), pre-trained and fine-tuned on its own data."""
+        """The units of part ``"style"``: (d), then the arm with the style context c_t (Eq. 6)."""
         from envs import style
         from sb3_ua2c.pipeline import env_settings, write_json
 
@@ -281,8 +272,7 @@ class SeedUnits:
 
 
 def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
-    """Wall-clock seconds of the units run so far (``<work>/seed<s>/unit_seconds*.json``) per stage of
-    :func:`~experiments.fig2.budget.estimate_seconds` and ``"total"`` (stages without a record are absent)."""
+    """Wall-clock seconds of the units run so far per stage of :func:`~experiments.fig2.budget.estimate_seconds`."""
     out: dict[str, float] = {}
     for s in seeds:
         records: dict[str, float] = {}
@@ -306,9 +296,7 @@ def run_fig2_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part:
 
 def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print,
             ray_address: str | None = None) -> list[str]:
-    """Run (or resume) every seed as two executor units, its parts (:data:`SEED_PARTS`): every ``"main"`` part
-    first, then the shorter ``"style"`` parts, which fill the idle workers. A part resumes its own units, so the
-    executor's units have no result file; returns the units run over all seeds."""
+    """Run (or resume) every seed's parts as executor units, the ``"main"`` parts first; return the units run."""
     from experiments.common.runner import Unit, make_executor, run_units
 
     check_int("Fig2Budget.workers", workers)

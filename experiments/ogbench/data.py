@@ -1,7 +1,5 @@
-"""OGBench "play" and "navigate" datasets generated locally with OGBench's scripted oracles and procedure
-(``docs/ogbench.md``), in OGBench's ``.npz`` layout, and their conversion to UA2C's offline episodes.
-Unlike OGBench's scripts, the generator seeds NumPy's global generator and the environment: the same
-arguments write the same file."""
+"""OGBench "play" and "navigate" datasets generated locally with OGBench's scripted oracles and procedure, seeded
+(``docs/ogbench.md``), and their conversion to UA2C's offline episodes."""
 
 from __future__ import annotations
 
@@ -34,9 +32,7 @@ GENERATED = {"play": MANIPSPACE_DOMAINS, "navigate": ("pointmaze",)}
 
 @dataclass(frozen=True)
 class TaskName:
-    """The parts of an OGBench single-task name such as ``cube-single-play-singletask-task2-v0``: the environment
-    the data are collected in (``cube-single-v0``), the dataset type and the file of the data all five tasks
-    of a domain share (``cube-single-play-v0.npz``)."""
+    """The parts of an OGBench single-task name such as ``cube-single-play-singletask-task2-v0``."""
 
     dataset_name: str
     env_name: str
@@ -142,8 +138,7 @@ def _append_step(rows: dict[str, list], ob: Any, action: Any, done: bool, info: 
 
 
 def _maze_cells(maze_map: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """Free cells of a maze and its "vertex" cells (free cells that are not straight hallway
-    cells), from which ``generate_locomaze.py`` draws the navigation goals."""
+    """Free cells of a maze and its "vertex" cells, from which ``generate_locomaze.py`` draws the goals."""
     free, vertex = [], []
     for i, j in zip(*np.nonzero(maze_map == 0), strict=True):
         free.append((int(i), int(j)))
@@ -155,9 +150,7 @@ def _maze_cells(maze_map: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple
 
 
 def _collect_navigate_episode(env: Any, noise: float, seed: int | None) -> dict[str, list]:
-    """One ``navigate`` episode of ``pointmaze`` (``generate_locomaze.py``): the point moves along
-    the unit direction to the oracle's next subgoal plus Gaussian noise, and a new random goal
-    (a vertex cell) is set whenever the current one is reached."""
+    """One ``navigate`` episode of ``pointmaze``, as ``generate_locomaze.py`` collects it."""
     maze = env.unwrapped
     free, vertex = _maze_cells(maze.maze_map)
     init_ij = free[np.random.randint(len(free))]  # noqa: NPY002  (as OGBench draws it)
@@ -198,9 +191,8 @@ def val_path(path: str | os.PathLike) -> Path:
 def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
                           episode_steps: int = PLAY_EPISODE_STEPS, seed: int = 0, noise: float | None = None,
                           noise_smoothing: float = PLAY_NOISE_SMOOTHING) -> dict[str, Any]:
-    """Generate the dataset of ``task``'s domain, ``n_episodes`` of ``episode_steps`` into ``path`` and one
-    tenth more into :func:`val_path`, seeding the oracles' noise and the first reset with ``seed``; returns
-    the generation's measurements (steps, seconds, bytes)."""
+    """Generate the dataset of ``task``'s domain into ``path`` (and one tenth more into :func:`val_path`); return the
+    generation's measurements."""
     import gymnasium as gym
     import ogbench.locomaze  # noqa: F401  (registers the environments)
     import ogbench.manipspace  # noqa: F401
@@ -249,8 +241,7 @@ def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
 
 
 def load_singletask(task: str, path: str | os.PathLike, sparse: bool = False) -> tuple[Any, dict, dict]:
-    """``ogbench.make_env_and_datasets(task, dataset_path=path)``: env, train and validation data with OGBench's
-    rewards and masks for the task (:func:`sparse_reward` with ``sparse``)."""
+    """``ogbench.make_env_and_datasets(task, dataset_path=path)``: env, train and validation data."""
     import ogbench
 
     TaskName.parse(task)
@@ -270,9 +261,8 @@ def sparse_reward(rewards: np.ndarray) -> np.ndarray:
 
 
 def to_episodes(dataset: dict[str, np.ndarray]) -> list[Episode]:
-    """Cut a loaded single-task dataset (``compact_dataset=False``, arrays of ``N`` transitions) into UA2C offline
-    episodes: a segment ends terminated after a ``mask == 0`` (the task solved) or truncated after
-    ``terminals == 1`` (an OGBench trajectory's time limit)."""
+    """Cut a loaded single-task dataset into UA2C offline episodes: terminated where the task is solved
+    (``mask == 0``), truncated at an OGBench trajectory's end."""
     required = ("observations", "next_observations", "actions", "rewards", "masks", "terminals")
     missing = [k for k in required if k not in dataset]
     if missing:

@@ -1,7 +1,4 @@
-"""Report of the OGBench benchmark, ``ogbench.md``, ``ogbench.json`` and the learning-curve PNGs: each run's
-success rate after the offline and the online phase, per arm the mean and IQM over runs, per pair of arms
-the probability of improvement and paired difference (:mod:`experiments.common.stats`), and the ranking of
-fixed chunks against one-step next to Q-chunking's (Li, Zhou, Levine 2025)."""
+"""Report of the OGBench benchmark: ``ogbench.md``, ``ogbench.json`` and the learning-curve PNGs."""
 
 from __future__ import annotations
 
@@ -63,8 +60,7 @@ def ranking(poi: Mapping[str, float] | None) -> str:
 
 
 def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
-    """Everything the report shows: per arm and phase the mean, per-seed and IQM success [95 % CI]; per pair of
-    arms and phase the probability of improvement and paired difference."""
+    """Everything the report shows: per arm and phase the success rates, per pair of arms their comparisons."""
     groups = by_arm(records)
     tasks = sorted({r["task"] for r in records})
     if len(tasks) != 1:
@@ -143,11 +139,11 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
     else:
         lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
                   "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t "
-                  "interval:", "", "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",
-                  "|---|---|---|---|---|"]
-    for pair, p in summary["improvement"].items():
-        paired = [_iqm(p[f"{ph}_paired"], "difference") if f"{ph}_paired" in p else "–" for ph in PHASES]
-        lines.append("| " + " | ".join([pair, *(interval(p[ph], "probability", sign="") for ph in PHASES), *paired]) + " |")
+                  "interval:", "", *table(
+                      ["X > Y", "P offline [95 % CI]", "P online [95 % CI]", "X − Y offline", "X − Y online"],
+                      ([pair, *(interval(p[ph], "probability", sign="") for ph in PHASES),
+                        *(_iqm(p[f"{ph}_paired"], "difference") if f"{ph}_paired" in p else "–" for ph in PHASES)]
+                       for pair, p in summary["improvement"].items()))]
     r = summary["ranking"]
     lines += ["", "## Budget and ranking next to Q-chunking", "",
               "| | this run | Q-chunking |", "|---|---|---|",

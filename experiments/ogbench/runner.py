@@ -1,6 +1,4 @@
-"""The OGBench benchmark as executor units: the task's dataset first, then one unit per (arm, seed), each
-stored as a JSON file in the work directory (an interrupted run resumes; units stored under another budget
-are refused). Layout of ``<work>``::
+"""The OGBench benchmark as executor units, the task's dataset first, then one per (arm, seed); ``<work>``::
 
     data/<n>ep-<steps>-s<seed>/<dataset>.npz        the generated dataset (+ -val.npz)
     data/<n>ep-<steps>-s<seed>/<dataset>.json       its generation's measurements (stage 1's result)
@@ -35,8 +33,7 @@ _TASK_ID = re.compile(r"^task[1-5]$")
 
 
 def check_task(task: str) -> TaskName:
-    """``task`` parsed, or a ``ValueError`` naming ``--task``: an OGBench single-task name
-    (``<domain>-<type>-singletask-task<1..5>-v0``) whose dataset can be generated here."""
+    """``task`` parsed, or a ``ValueError`` naming ``--task`` unless it is a single task whose data can be made here."""
     try:
         name = TaskName.parse(task)
     except (TypeError, ValueError) as exc:
@@ -67,8 +64,8 @@ def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
 
 def estimate(arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
              reports: Sequence[dict[str, Any]] | None = None) -> dict[str, float]:
-    """CPU and wall seconds of a run (``{"units_cpu", "total_cpu", "wall"}``): each arm's unit seconds in the
-    ``reports`` (default: the committed ``ogbench.json``) scaled by its offline and online steps."""
+    """CPU and wall seconds of a run: each arm's unit seconds in the ``reports`` (default: the committed ones)
+    scaled by its steps."""
     from experiments.common.estimate import estimate as scaled
     from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
 
@@ -149,7 +146,6 @@ def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: s
 
 
 def seeds_arg(values: Iterable[int]) -> list[int]:
-    """The distinct seeds of ``--seeds`` in increasing order, each in ``[0, 1000)`` (episode ``i`` of seed ``s``
-    resets with ``base + 1000 * s + i``: a larger seed would meet the next base)."""
+    """The distinct seeds of ``--seeds`` in increasing order, each in ``[0, 1000)`` (below the next reset base)."""
     return sorted(select_seeds(list(values), [], high=1000))
 

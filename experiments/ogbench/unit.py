@@ -1,6 +1,5 @@
-"""One unit of the OGBench benchmark, (arm, task, seed): UA2C pre-trained on the locally generated data, its
-success rate evaluated, fine-tuned online with the offline data in its buffer and evaluated again; the three
-arms differ in their chunking only (:data:`ARMS`)."""
+"""One unit of the OGBench benchmark, (arm, task, seed): UA2C pre-trained, evaluated, fine-tuned online and
+evaluated again; the arms differ in their chunking only (:data:`ARMS`)."""
 
 from __future__ import annotations
 
@@ -94,8 +93,7 @@ def ensure_dataset(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike
 
 
 def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> OfflineDataset:
-    """The generated data as an :class:`~sb3_ua2c.offline.OfflineDataset` (OGBench's rewards) whose metadata
-    build :class:`OGBenchSingleTask` with ``env_kwargs``."""
+    """The generated data as an :class:`~sb3_ua2c.offline.OfflineDataset` of :class:`OGBenchSingleTask`."""
     env, train, _ = load_singletask(task, path, sparse=bool(env_kwargs.get("sparse", False)))
     env.close()
     probe = OGBenchSingleTask(task, **env_kwargs)
@@ -108,8 +106,8 @@ def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> Off
 
 def run_episodes(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int, deterministic: bool = True,
                  seed_base: int = EVAL_SEED_BASE) -> tuple[list[dict[str, float]], list[int]]:
-    """``n_episodes`` of ``model`` (stateful ``predict``), episode ``i`` reset with ``seed_base + 1000 * seed + i``:
-    one row per episode (``success`` 0/1, ``return``, ``length``) and the executed length ``L_t`` of every plan."""
+    """``n_episodes`` of ``model``, episode ``i`` reset with ``seed_base + 1000 * seed + i``: one row per episode and
+    the executed length ``L_t`` of every plan."""
     rows, plans = [], []
     for i in range(n_episodes):
         obs, _ = env.reset(seed=seed_base + 1000 * seed + i)
@@ -130,8 +128,7 @@ def run_episodes(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int,
 
 
 def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int) -> dict[str, Any]:
-    """Success rate of ``model`` with deterministic candidates over ``n_episodes`` (:func:`run_episodes`), and the
-    share of its plans with ``L_t = 1 .. k``."""
+    """Success rate of ``model`` over ``n_episodes`` (:func:`run_episodes`) and the shares of its ``L_t``."""
     rows, plans = run_episodes(model, env, n_episodes, seed)
     return {"success": float(np.mean([r["success"] for r in rows])), "successes": [r["success"] for r in rows],
             "lengths": [r["length"] for r in rows], "returns": [r["return"] for r in rows],
@@ -163,8 +160,7 @@ class _OnlineCurve(BaseCallback):
 
 def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_dir: str | os.PathLike,
                      data_dir: str | os.PathLike | None = None) -> dict[str, Any]:
-    """Run one unit (``seed``: of the networks, minibatches, online episodes and evaluation scenarios) into
-    ``out_dir``, the dataset in ``data_dir`` (default ``<out_dir>/data``); return its record (``record.json``)."""
+    """Run one unit into ``out_dir`` (the dataset in ``data_dir``, default ``<out_dir>/data``); return its record."""
     import torch as th
 
     from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json

@@ -1,6 +1,4 @@
-"""Peers of UA2C on the Figure-2 protocol: one function per arm kind trains one unit (one arm, one seed)
-and returns its record; ``python -m experiments peers`` (:mod:`~experiments.peers.cli`) runs them (see
-``docs/peers.md``)."""
+"""Peers of UA2C on the Figure-2 protocol, one unit per arm and seed: ``python -m experiments peers``."""
 
 from experiments.peers.common import ArmInputs, zoo_hyperparams
 from experiments.peers.sb3_arms import OfflineMixReplayBuffer, run_sb3_offline_mix, run_sb3_online

@@ -15,10 +15,8 @@ from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finet
 
 @dataclass(frozen=True)
 class UA2CArm:
-    """How a UA2C arm is built from the budget: its chunk length ``k`` (``"k"``: the budget's), the δ it acts
-    with (``"delta"``: the budget's; ``None``: its checkpoint's), its constructor arguments (``"budget"``: the
-    budget's ``algo_kwargs``; ``"paper"``: the preset with the budget's :data:`OPTIMISATION_KEYS`) and its
-    online update ``cadence`` (:data:`_CADENCE_TEXT`)."""
+    """How a UA2C arm is built from the budget (``"k"``, ``"delta"``, ``"budget"``: the budget's; ``None``: its
+    checkpoint's; ``"paper"``: the preset)."""
 
     k: str | int = "k"
     delta: str | None = "delta"
@@ -151,8 +149,7 @@ class PeersBudget(Budget):
         return None if d is None else float("inf") if d == "inf" else self.ua2c.entropy_threshold
 
     def pretrain_name(self, arm: str) -> str:
-        """The pre-trained checkpoint a UA2C arm starts from, shared by the arms of one configuration and chunk
-        length: ``pretrain_k<k>`` (``_paper`` for the preset)."""
+        """The pre-trained checkpoint a UA2C arm starts from: ``pretrain_k<k>`` (``_paper`` for the preset)."""
         suffix = "_paper" if UA2C_ARMS[arm].config == "paper" else ""
         return f"pretrain_k{self.chunk_length(arm)}{suffix}"
 
@@ -167,8 +164,7 @@ class PeersBudget(Budget):
         return self.ua2c.arm_kwargs(k)
 
     def finetune_overrides(self, arm: str) -> dict[str, Any]:
-        """Phase-2 attributes of a UA2C arm: its update cadence (:class:`UA2CArm`) and, for the budget's
-        configuration, the budget's ``finetune_kwargs``."""
+        """Phase-2 attributes of a UA2C arm: its update cadence and, but for the preset, ``finetune_kwargs``."""
         spec = UA2C_ARMS[arm]
         if spec.cadence == "own":
             return {} if spec.config == "paper" else dict(self.ua2c.finetune_kwargs)
@@ -213,8 +209,7 @@ def unit_steps(budget: PeersBudget, arm: str) -> float:
 
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, workers: int,
                    records: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
-    """CPU seconds of one unit of each arm (``per_unit``) from the arm ``records`` (default: the committed ones)
-    scaled by :func:`unit_steps`, and the run's ``cpu`` and ``wall`` seconds."""
+    """CPU seconds of one unit of each arm from the ``records`` (default: the committed ones), and the run's."""
     from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
 
     records = recorded("**/peers_raw/seed*/*.json") if records is None else records

@@ -106,8 +106,7 @@ def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict
 
 def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command: str, date: str,
                   reps: int = 2000, estimate: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``peers.json``: its header (the estimate of the units run here unless ``estimate`` gives the one printed
-    before the run) and :func:`~experiments.peers.report.aggregate`."""
+    """``peers.json``: its header and :func:`~experiments.peers.report.aggregate`."""
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})

@@ -1,6 +1,5 @@
-"""What every peer unit shares: its inputs (the seed's Figure-2 dataset, which defines the environment, the
-online step budget and the evaluation scenarios), zoo hyperparameters, offline transitions, the online learning
-curve, timing and the JSON record it returns (:func:`unit_record`)."""
+"""What every peer unit shares: its inputs, zoo hyperparameters, offline transitions, the online learning curve,
+timing and the JSON record it returns (:func:`unit_record`)."""
 
 from __future__ import annotations
 
@@ -29,9 +28,8 @@ ZOO_ONLY_KEYS = frozenset({
 
 @dataclass(frozen=True)
 class ArmInputs:
-    """What every arm unit of a seed gets: its directory, the seed's dataset (a directory or a loaded one), the
-    seed of its networks, minibatches and online env, its online env steps, and the evaluation scenarios
-    (episode ``i`` of evaluation seed ``e`` resets with ``1000 * e + i``, :func:`envs.evaluation.evaluate`)."""
+    """What every arm unit of a seed gets: its directory, the seed's dataset (it defines the environment), seed,
+    online env steps and evaluation scenarios (:func:`envs.evaluation.evaluate`'s)."""
 
     out_dir: str | os.PathLike
     dataset: str | os.PathLike | OfflineDataset
@@ -61,8 +59,7 @@ def repo_zoo_config(algo: str) -> Path:
 
 
 def zoo_hyperparams(algo: str, env_id: str = "MixedTraffic-v0", conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default
-    ``zoo_configs/<algo>.yml``), without rl-zoo3's own keys; ``policy_kwargs`` is read without ``eval``."""
+    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default ``zoo_configs/``)."""
     import yaml
 
     path = Path(conf_file) if conf_file is not None else repo_zoo_config(algo)
@@ -95,9 +92,7 @@ def literal_call(expression: str) -> Any:
 
 
 def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
-    """One row per step of ``episodes``, as an off-policy buffer holds them: ``observations``,
-    ``next_observations``, ``actions`` (environment units), ``rewards`` and ``terminations`` (a truncated
-    step keeps its next observation)."""
+    """One row per step of ``episodes``, as an off-policy buffer holds them (only a termination ends a bootstrap)."""
     if not episodes:
         raise ValueError("episodes must not be empty")
     return {
@@ -110,8 +105,7 @@ def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
 
 
 def learning_curve(monitor_file: str | os.PathLike) -> list[dict[str, Any]]:
-    """The online training episodes of a ``Monitor`` log: ``end_step`` (env steps so far, this episode
-    included), ``reward``, ``length`` and ``collision`` of each."""
+    """The online training episodes of a ``Monitor`` log, each with the env step at which it ended."""
     from sb3_ua2c.pipeline import read_monitor
 
     steps, out = 0, []
@@ -141,8 +135,7 @@ class PhaseClock:
 
 
 def evaluation_record(policy: Any, settings: Mapping[str, Any], inputs: ArmInputs, **kwargs: Any) -> dict[str, Any]:
-    """``policy`` (SB3 ``predict``, or a checkpoint acting with ``kwargs``) on the inputs' scenarios
-    (:func:`envs.evaluation.evaluate`): per-episode metrics and their means."""
+    """``policy`` (or a checkpoint acting with ``kwargs``) on the inputs' evaluation scenarios."""
     from envs.evaluation import evaluate
 
     return episodes_record(evaluate(policy, n_episodes=inputs.eval_episodes, seeds=inputs.eval_seeds,
@@ -157,8 +150,7 @@ def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
 
 
 def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
-    """One unit, the reference row of the data: the dataset's behaviour policy (its ``behaviour_config``) on
-    the evaluation scenarios; nothing is trained, and its one evaluation stands as the offline and final one."""
+    """One unit, the reference row of the data: the dataset's behaviour policy on the evaluation scenarios."""
     from envs.collection import BehaviourConfig
     from envs.evaluation import evaluate_behaviour
     from sb3_ua2c.pipeline import env_settings
@@ -180,8 +172,7 @@ def unit_record(arm: str, inputs: ArmInputs, dataset: OfflineDataset, online_ste
                 hyperparams: Mapping[str, Any], evaluation: Mapping[str, Any], curve: list[dict[str, Any]],
                 clock: PhaseClock, offline_steps: int = 0, offline_evaluation: Mapping[str, Any] | None = None,
                 notes: str = "") -> dict[str, Any]:
-    """The JSON record every peer unit returns (evaluations from :func:`evaluation_record`, ``curve`` from
-    :func:`learning_curve`)."""
+    """The JSON record every peer unit returns."""
     from sb3_ua2c.pipeline import env_settings
 
     record = {

@@ -1,7 +1,5 @@
-"""Peer arms built on d3rlpy: IQL, Cal-QL and ReBRAC offline on the seed's dataset, then online with
-``fit_online`` (``offline_ratio`` of each minibatch from the offline data); RLPD online only; and behaviour
-cloning (BC), offline only, as a reference row. d3rlpy 2.8.1 is installed without its pins
-(:data:`~experiments.common.cli.D3RLPY_INSTALL`; ``docs/peers.md``)."""
+"""Peer arms built on d3rlpy (``docs/peers.md``): IQL, Cal-QL and ReBRAC offline then online, RLPD online only,
+and behaviour cloning (BC) offline only, as a reference row."""
 
 from __future__ import annotations
 
@@ -57,8 +55,7 @@ class D3rlpyPolicy:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:
-        """The greedy action (``deterministic``) or one drawn from the policy, for ``obs_shape`` or
-        ``(n, *obs_shape)`` observations; ``state`` is ignored."""
+        """The greedy action (``deterministic``) or one drawn from the policy, for one or ``n`` observations."""
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.shape == self.observation_space.shape
         batch = obs[None] if single else obs  # (n, *obs_shape)
@@ -72,8 +69,7 @@ class D3rlpyPolicy:
 
 
 class BestOfNPolicy(D3rlpyPolicy):
-    """UA2C's way of acting for a d3rlpy peer: draw ``n`` actions from its policy and execute the one its
-    critic values most (``predict_value``), whatever ``deterministic`` says."""
+    """UA2C's way of acting for a d3rlpy peer: the best of ``n`` actions drawn from its policy, under its critic."""
 
     def __init__(self, algo: Any, observation_space: spaces.Space, action_space: spaces.Box, n: int) -> None:
         super().__init__(algo, observation_space, action_space)
@@ -88,8 +84,8 @@ class BestOfNPolicy(D3rlpyPolicy):
 
 
 def d3rlpy_episodes(episodes: Sequence[Episode]) -> list[Any]:
-    """Our episodes as d3rlpy ``Episode`` objects that keep every transition: d3rlpy drops the last transition
-    of a non-terminated episode, so a truncated one gets its final observation as an extra row (never sampled)."""
+    """Our episodes as d3rlpy ``Episode`` objects, a truncated one with its final observation as an extra row
+    (d3rlpy drops the last transition of an episode not terminated)."""
     from d3rlpy.dataset import Episode as D3Episode
 
     out = []
@@ -117,8 +113,7 @@ def _mixed_buffer(d3rlpy: Any, online: Any, offline: Any, offline_ratio: float) 
 
 
 def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
-    """The settings an algorithm is published with, where d3rlpy's defaults are not them: RLPD's (Ball et al.,
-    2023) on d3rlpy's SAC; for Cal-QL and ReBRAC those of d3rlpy's reproduction scripts (``docs/peers.md``)."""
+    """The settings an algorithm is published with where d3rlpy's defaults are not them (``docs/peers.md``)."""
     vector = d3rlpy.models.VectorEncoderFactory
     if algo == "rlpd":
         return {
@@ -142,8 +137,7 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
 
 
 def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: int, config_kwargs: Mapping[str, Any]) -> Any:
-    """The d3rlpy config of ``algo``: its defaults, its :func:`published_settings`, ``batch_size``, the
-    action scaler, then ``config_kwargs``."""
+    """The d3rlpy config of ``algo``: its :func:`published_settings`, ``batch_size``, then ``config_kwargs``."""
     configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig, "rebrac": d3rlpy.algos.ReBRACConfig,
                "rlpd": d3rlpy.algos.SACConfig, "bc": d3rlpy.algos.BCConfig}
     if algo not in configs:
@@ -167,10 +161,8 @@ def run_d3rlpy(
     best_of_n: int = 0,
     config_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """One unit: d3rlpy ``algo`` (:data:`ALGOS`) fitted offline for ``offline_steps`` (0, RLPD: none) on the
-    seed's dataset and evaluated, then fine-tuned online with ``updates_per_step`` gradient steps per env step
-    and evaluated again (:data:`OFFLINE_ONLY` algorithms stop after the offline evaluation); with ``best_of_n``,
-    also evaluated acting by :class:`BestOfNPolicy` (the record's ``evaluation_best_of_n``)."""
+    """One unit: d3rlpy ``algo`` fitted offline on the seed's dataset and evaluated, then (unless
+    :data:`OFFLINE_ONLY`) fine-tuned online and evaluated again, also by :class:`BestOfNPolicy` with ``best_of_n``."""
     import torch as th
 
     from sb3_ua2c.pipeline import env_settings

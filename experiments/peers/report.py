@@ -1,5 +1,4 @@
-"""Aggregation and report of the head-to-head, ``peers.json``, ``peers.md`` and the PNGs: run-level statistics
-(:mod:`experiments.common.stats`) per arm, per (UA2C arm, peer) pair and for Figure 2's claims."""
+"""Aggregation and report of the head-to-head: ``peers.json``, ``peers.md`` and the PNGs."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from experiments.common import records
-from experiments.common.records import figure, table
+from experiments.common.records import figure, section, table
 from experiments.common.stats import (
     LOWER_IS_BETTER,
     interval,
@@ -42,8 +41,8 @@ FIGURE2_CLAIMS = {
 
 
 def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
-    """``(bins,)``: the mean return of one seed's online episodes ending in each of ``bins`` equal bins of env
-    steps; an empty bin repeats the previous one (NaN before the first episode)."""
+    """``(bins,)``: the mean return of one seed's online episodes ending in each bin of env steps (an empty bin
+    repeats the previous one)."""
     width = online_steps / bins
     out = np.full(bins, np.nan)
     ends = np.array([e["end_step"] for e in episodes], dtype=float)
@@ -58,8 +57,7 @@ def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins:
 
 
 def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[str, list[float]]:
-    """Mean over seeds of binned curves ``(n_seeds, bins)`` with a 95 % percentile bootstrap band over seeds
-    (NaN where no seed has an episode yet)."""
+    """Mean over seeds of binned curves ``(n_seeds, bins)`` with a 95 % percentile bootstrap band over seeds."""
     n = per_seed.shape[0]
     rng = np.random.default_rng(seed)
     with np.errstate(all="ignore"), warnings.catch_warnings():  # all-NaN columns before the first episode
@@ -71,8 +69,7 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
 
 
 def arm_length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evaluation") -> list[float] | None:
-    """The share of an arm's evaluation plans with ``L_t = 1 .. k``, pooled over its runs (``None`` when a record
-    has no such evaluation or, made before 2026-12-04, no lengths)."""
+    """The share of an arm's evaluation plans with ``L_t = 1 .. k`` (``None`` where a record keeps none)."""
     if not all(r.get(evaluation) for r in records):
         return None
     episodes = [e for r in records for e in r[evaluation]["episodes"]]
@@ -162,8 +159,7 @@ def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, 
 
 def shared_seed_scores(records: Mapping[str, Sequence[Mapping[str, Any]]], x: str, y: str, metric: str,
                        evaluation: str = "evaluation") -> tuple[np.ndarray, np.ndarray] | None:
-    """The scores of arms ``x`` and ``y`` on the seeds both ran (``(n_shared,)`` each), or ``None`` under 2 shared
-    seeds or when a record lacks ``evaluation``."""
+    """The scores of arms ``x`` and ``y`` on the 2 or more seeds both ran, else ``None``."""
     shared = sorted({r["seed"] for r in records.get(x, ())} & {r["seed"] for r in records.get(y, ())})
     if len(shared) < 2:
         return None
@@ -174,8 +170,7 @@ def shared_seed_scores(records: Mapping[str, Sequence[Mapping[str, Any]]], x: st
 
 
 def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
-    """Per claim of :data:`FIGURE2_CLAIMS` whose arms share 2 or more seeds: the arms' means over those seeds and
-    their paired difference (positive: X does better)."""
+    """Per claim of :data:`FIGURE2_CLAIMS` whose arms share 2 or more seeds, their means and paired difference."""
     out = {}
     for claim, (x, y, metric, evaluation, higher) in FIGURE2_CLAIMS.items():
         scores = shared_seed_scores(records, x, y, metric, evaluation)
@@ -212,8 +207,7 @@ def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 20
 
 
 def verdicts(summary: Mapping[str, Any]) -> list[str]:
-    """Per (UA2C arm, peer), the :func:`~experiments.common.stats.verdict` of the paired reward difference and
-    the probability of improvement."""
+    """Per (UA2C arm, peer), the verdict of the paired reward difference and the probability of improvement."""
     lines = []
     for pair in summary["pairs"].values():
         o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
@@ -302,8 +296,7 @@ def pairs_table(summary: Mapping[str, Any]) -> list[str]:
 
 
 def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
-    """``peers_curves.png`` (online return against env steps, mean over seeds with a 95 % band) and
-    ``peers_iqm.png`` (IQM bars with 95 % CIs: reward, collision, jerk per step)."""
+    """``peers_curves.png`` (the online learning curves) and ``peers_iqm.png`` (IQM bars with 95 % CIs)."""
     arms = summary["arms"]
     curves, bars = out / "peers_curves.png", out / "peers_iqm.png"
     with figure(curves, (10, 4.5)) as fig:
@@ -339,8 +332,7 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
     obs = summary["observation"]
     calql = summary["budget"]["calql_offline_steps"]
     return [
-        "## Protocol",
-        "",
+        *section("Protocol"),
         f"- Online budget: **{b['finetune_steps']} env steps for every arm**; offline: {b['pretrain_steps']} gradient "
         f"steps for UA2C and the d3rlpy arms except RLPD" + (f" (Cal-QL: {calql})" if calql else "")
         + f", on the seed's Figure-2 "
@@ -407,59 +399,28 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         f"{est['workers']} worker(s).",
         *(f"Records reused from the run in `{run}` (the same seeds, data and scenarios): {', '.join(arms)}."
           for run, arms in summary.get("reused", {}).items()),
-        "",
         *_protocol_lines(summary),
-        "",
-        "## Verdict (final evaluation reward, paired per seed)",
-        "",
-        f"**{headline(summary)}**",
-        "",
-        *(f"- {v}" for v in verdicts(summary)),
-        "",
-        "## Results (IQM over runs [95 % CI]; one score per run = the mean over its evaluation episodes)",
-        "",
-        *results_table(summary),
-        "",
-        "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with an "
-        "offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared offline "
-        "checkpoint.",
-        "",
-        "For the 0/1 metrics (collision, merge success) a run's score is its rate; the IQM over runs trims the "
-        "quarter of runs at each end, so the means over runs are in the next table.",
-        "",
-        "## Means over runs [95 % CI], and the area under each run's online learning curve",
-        "",
-        *means_table(summary),
-        "",
-        "## While learning: the online training episodes (means over runs [95 % CI])",
-        "",
-        *training_table(summary),
-        "",
-        "## Executed lengths L_t (evaluation plans, pooled over runs)",
-        "",
-        *lengths_table(summary),
-        "",
-        "## Figure 2's claims among the UA2C arms of this run (paired per seed)",
-        "",
-        *figure2_lines(summary),
-        "",
-        "X and Y are the means over the shared seeds. (a), (b): the offline checkpoints, the chunk policy "
-        "executing whole chunks against the one-step baseline; (b) is a cost, so a positive difference means the "
-        "chunk policy is smoother. (c): after the online phase, δ = 0 against δ = inf from the same checkpoint.",
-        "",
-        "## Probability of improvement of each UA2C arm over each peer (over runs)",
-        "",
-        *pairs_table(summary),
-        "",
-        "Collision and jerk are costs: P(better) is the probability of a LOWER value.",
-        "",
-        "![online learning curves](peers_curves.png)",
-        "",
-        "![IQM bars](peers_iqm.png)",
-        "",
-        "## Short table (for the README)",
-        "",
-        *readme_table(summary),
+        *section("Verdict (final evaluation reward, paired per seed)", f"**{headline(summary)}**", "",
+                 *(f"- {v}" for v in verdicts(summary))),
+        *section("Results (IQM over runs [95 % CI]; one score per run = the mean over its evaluation episodes)",
+                 *results_table(summary), "",
+                 "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with "
+                 "an offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared "
+                 "offline checkpoint.", "",
+                 "For the 0/1 metrics (collision, merge success) a run's score is its rate; the IQM over runs trims "
+                 "the quarter of runs at each end, so the means over runs are in the next table."),
+        *section("Means over runs [95 % CI], and the area under each run's online learning curve", *means_table(summary)),
+        *section("While learning: the online training episodes (means over runs [95 % CI])", *training_table(summary)),
+        *section("Executed lengths L_t (evaluation plans, pooled over runs)", *lengths_table(summary)),
+        *section("Figure 2's claims among the UA2C arms of this run (paired per seed)", *figure2_lines(summary), "",
+                 "X and Y are the means over the shared seeds. (a), (b): the offline checkpoints, the chunk policy "
+                 "executing whole chunks against the one-step baseline; (b) is a cost, so a positive difference "
+                 "means the chunk policy is smoother. (c): after the online phase, δ = 0 against δ = inf from the "
+                 "same checkpoint."),
+        *section("Probability of improvement of each UA2C arm over each peer (over runs)", *pairs_table(summary), "",
+                 "Collision and jerk are costs: P(better) is the probability of a LOWER value.", "",
+                 "![online learning curves](peers_curves.png)", "", "![IQM bars](peers_iqm.png)"),
+        *section("Short table (for the README)", *readme_table(summary)),
         "",
     ]
     return "\n".join(lines)

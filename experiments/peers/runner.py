@@ -1,9 +1,5 @@
-"""The three stages of a head-to-head run, each a list of units (:mod:`experiments.common.runner`): the
-seed's Figure-2 dataset, the UA2C checkpoints the UA2C arms start from (one per chunk length and
-configuration), and one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``. Every unit has a
-result file and is skipped when it exists (deleting a record, or ``--rerun``, runs that unit again); a run
-refuses to resume under another budget.
-"""
+"""The three stages of a head-to-head run, each a list of units: the seeds' datasets, the checkpoints the UA2C
+arms start from, and one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``."""
 
 from __future__ import annotations
 
@@ -35,8 +31,7 @@ class PeersPaths(records.RunPaths):
 
 
 def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
-    """The budget's evaluation scenarios of ``seed`` (``PeersBudget.scenarios``): ``eval_seeds`` and
-    ``eval_episodes`` of every unit."""
+    """The ``eval_seeds`` and ``eval_episodes`` of every unit of ``seed``."""
     return {"eval_seeds": (SCENARIO_BASES[budget.scenarios] + seed,), "eval_episodes": budget.ua2c.eval_episodes}
 
 

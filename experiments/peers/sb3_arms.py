@@ -1,6 +1,5 @@
-"""Peer arms built on Stable-Baselines3: SAC, TQC and CrossQ online from scratch, and SAC with the offline
-dataset in its replay buffer (RLPD's symmetric sampling), with the hyperparameters of ``zoo_configs/<algo>.yml``
-on the dataset's environment (the zoo's ``env_wrapper`` is not applied: every arm sees the data's observation)."""
+"""Peer arms built on Stable-Baselines3 with the hyperparameters of ``zoo_configs/<algo>.yml``: SAC, TQC and
+CrossQ online from scratch, and SAC with the offline dataset in its replay buffer."""
 
 from __future__ import annotations
 
@@ -45,11 +44,8 @@ def scale_actions(actions: np.ndarray, action_space: spaces.Box) -> np.ndarray:
 
 
 class OfflineMixReplayBuffer(ReplayBuffer):
-    """SB3 replay buffer whose minibatches draw ``offline_ratio`` of their rows from fixed offline transitions
-    (all of them while the online part is empty) and the rest from the online ones.
-
-    Paper: Ball et al., "Efficient Online Reinforcement Learning with Offline Data" (RLPD), ICML 2023.
-    """
+    """SB3 replay buffer drawing ``offline_ratio`` of each minibatch (all while there are no online rows) from
+    fixed offline transitions: RLPD's symmetric sampling (Ball et al., ICML 2023)."""
 
     def __init__(
         self,
@@ -150,8 +146,7 @@ def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, hyperparams: Map
 
 def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
                    conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """One unit: SB3 SAC, sb3-contrib TQC or CrossQ (``algo``) trained online from scratch on the dataset's
-    environment (its transitions are not used), then evaluated; ``hyperparams`` replace the zoo file's key by key."""
+    """One unit: SB3 SAC, sb3-contrib TQC or CrossQ trained online from scratch, then evaluated."""
     notes = f"{algo.upper()} online from scratch, hyperparameters from zoo_configs/{algo}.yml"
     return _train_and_evaluate(algo, algo, inputs, hyperparams, conf_file, None, notes)
 
@@ -162,6 +157,5 @@ def run_sb3_offline_mix(
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
-    """One unit: :func:`run_sb3_online` of SAC with the seed's offline transitions in ``offline_ratio`` of every
-    minibatch (:class:`OfflineMixReplayBuffer`; what differs from RLPD: :data:`RLPD_DIFFERENCES`)."""
+    """One unit: :func:`run_sb3_online` of SAC with the offline transitions in its buffer (:data:`RLPD_DIFFERENCES`)."""
     return _train_and_evaluate("sac_offline_mix", "sac", inputs, hyperparams, conf_file, offline_ratio, RLPD_DIFFERENCES)

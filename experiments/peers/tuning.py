@@ -1,8 +1,5 @@
-"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
-
-Each tuned method has three configurations in :data:`GRID`, fixed before any run, the first its published
-settings; configuration ``i`` of every method runs in ``<out>/c<i>`` on the validation seeds and scenarios, and
-per method the highest mean final reward is chosen into ``<out>/selected.json``, the test run's ``--budget``."""
+"""The same small tuning budget for every method of the head-to-head (``python -m experiments peers-tuning``):
+the configurations of :data:`GRID` on validation scenarios, the choice in ``<out>/selected.json``."""
 
 from __future__ import annotations
 
@@ -38,8 +35,7 @@ PROG = "python -m experiments peers-tuning"
 
 @dataclass(frozen=True)
 class Setting:
-    """One configuration of one method: its label, its hyperparameters (UA2C's constructor arguments over the
-    budget's ``algo_kwargs``, a peer's ``peer_kwargs``) and :class:`~experiments.peers.budget.PeersBudget` keys."""
+    """One configuration of one method: its label, hyperparameters and :class:`PeersBudget` keys."""
 
     label: str
     kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -104,8 +100,7 @@ def config_paths(out: str | Path, index: int) -> PeersPaths:
 
 
 def collect(out: str | Path, arms: Sequence[str], seeds: Sequence[int]) -> dict[str, Any]:
-    """Per method, each configuration's final reward and collision rate per run, and the choice (``None`` while a
-    configuration lacks a seed's record; a tie keeps the earlier one)."""
+    """Per method, each configuration's rewards and collision rates per run, and the choice once all ran."""
     methods: dict[str, Any] = {}
     records = [load_records(config_paths(out, i), seeds) for i in range(N_CONFIGS)]
     for arm in arms:

@@ -1,6 +1,4 @@
-"""The UA2C side of the head-to-head: the per-seed shared stages (Figure 2's dataset and offline checkpoints,
-:mod:`experiments.fig2.units`) and one unit per UA2C arm (:data:`~experiments.peers.budget.UA2C_ARMS`),
-each returning the same record as the peer units."""
+"""The UA2C side of the head-to-head: Figure 2's per-seed dataset and checkpoints, and one unit per UA2C arm."""
 
 from __future__ import annotations
 
@@ -23,8 +21,7 @@ from experiments.peers.common import (
 
 
 def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage 1 of a seed: its offline dataset at ``path`` (Figure 2's behaviour policy and seed), collected
-    unless a complete one is there; returns its description."""
+    """Stage 1 of a seed: its offline dataset at ``path``, collected unless a complete one is there."""
     from envs.collection import collect_dataset
 
     path = Path(path)
@@ -51,9 +48,8 @@ def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrai
 
 def run_ua2c_arm(inputs: ArmInputs, arm: str, checkpoint: str | os.PathLike, delta: float | None,
                  finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any]) -> dict[str, Any]:
-    """One unit: a UA2C arm from the seed's pre-trained ``checkpoint`` (made by :func:`build_checkpoint`, whose
-    time it counts), acting with δ = ``delta`` (``None``: the checkpoint's), evaluated, fine-tuned online with
-    the offline data in its buffer and ``finetune_overrides``, and evaluated again."""
+    """One unit: a UA2C arm from the seed's ``checkpoint``, acting with ``delta``, evaluated, fine-tuned online and
+    evaluated again."""
     import torch as th
 
     from sb3_ua2c.pipeline import env_settings, finetune

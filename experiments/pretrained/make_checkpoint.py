@@ -1,9 +1,6 @@
 """Build the pretrained Phase-1 UA2C checkpoint of ``MixedTraffic-v0`` in rl-zoo's trained-agents layout.
 
-``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root) writes rl-zoo3's
-``config.yml`` and ``args.yml`` of the ``zoo_configs/ua2c.yml`` entry, collects and pre-trains as ``python -m
-envs main`` does with the entry's arguments, saves the weights without the optimizers' moments and evaluates
-them into ``README.md`` (``docs/zoo.md``). The dataset goes to a temporary directory (or ``--work``).
+``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root; ``docs/zoo.md``).
 """
 
 from __future__ import annotations
@@ -62,8 +59,7 @@ def _argv(argv: Sequence[str]) -> Iterator[None]:
 
 
 def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, dict[str, Any]]:
-    """Run rl-zoo3's ``train`` up to where its ``ExperimentManager`` saves ``config.yml`` and ``args.yml`` (nothing
-    is built or trained); return the params folder and the hyperparameters as saved."""
+    """Run rl-zoo3's ``train`` up to where it saves ``config.yml`` and ``args.yml``; return where, and what."""
     import rl_zoo3.train as zoo_train
 
     from sb3_ua2c.zoo import register
@@ -90,9 +86,8 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
 
 
 def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
-    """``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments (``policy_kwargs``
-    evaluated as rl-zoo3 does) without ``policy`` (``MlpPolicy``) and without the ``TRAFFIC_DEFAULTS`` that
-    ``pretrain`` adds itself, which must agree."""
+    """``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments but those
+    ``pretrain`` sets itself, which must agree."""
     from envs.collection import TRAFFIC_DEFAULTS
     from sb3_ua2c.zoo import ZOO_KEYS
 
@@ -108,8 +103,7 @@ def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
 
 
 def style_classifier_of(env_wrapper: Any) -> str | None:
-    """The ``--style-classifier`` that gives the observation of the zoo config's ``env_wrapper`` (which must keep
-    ``DrivingStyleContext``'s other defaults, as ``collect`` and ``pretrain`` do)."""
+    """The ``--style-classifier`` that gives the observation of the zoo config's ``env_wrapper``."""
     if env_wrapper is None:
         return None
     import inspect
