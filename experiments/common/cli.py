@@ -100,11 +100,13 @@ def run_command(run: Callable[[], int]) -> int:
 
 def harness_main(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: str,
                  check: Callable[[argparse.Namespace], Any], run: Callable[[argparse.Namespace, Any, str], int]) -> int:
-    """The skeleton of every harness command: parse ``argv``, ``check(args)`` (a ``ValueError`` is a usage error),
-    then ``run(args, checked, command)`` with the shell line a report records."""
+    """The skeleton of every harness command: parse ``argv``, check the Ray extra and ``check(args)`` (a ``ValueError``
+    is a usage error), then ``run(args, checked, command)`` with the shell line a report records."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     try:
+        if args.ray_address is not None and not args.report_only:
+            check_extras(["ray"])
         checked = check(args)
     except ValueError as exc:
         parser.error(str(exc))

@@ -117,25 +117,17 @@ class ProcessExecutor:
 
 
 class RayExecutor:
-    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address`` (``None``: local)."""
+    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address``
+    (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``)."""
 
-    def __init__(self, address: str | None = "auto", runtime_env: Mapping[str, Any] | None = None) -> None:
-        if address is not None and (not isinstance(address, str) or not address):
+    def __init__(self, address: str = "auto") -> None:
+        if not isinstance(address, str) or not address:
             raise ValueError(f"ray_address must be a non-empty string, got {address!r}")
         self.address = address
-        self.runtime_env = dict(runtime_env) if runtime_env else None
 
     def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
-        try:
-            import ray
-        except ImportError as exc:
-            raise ImportError('the Ray executor needs ray: pip install "sb3-ua2c[peers]"') from exc
-
-        started = not ray.is_initialized()
-        if started:
-            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-            ray.init(address=self.address, runtime_env=self.runtime_env, log_to_driver=False)
-        try:
+        ray = _import_ray()
+        with ray_session(None if ray.is_initialized() else self.address):  # within a session: its connection
             task = ray.remote(num_cpus=1, max_calls=1)(_call_unit_on_one_cpu)
             refs = {task.remote(unit): i for i, unit in enumerate(units)}
             pending = list(refs)
@@ -147,12 +139,17 @@ class RayExecutor:
                     except Exception:  # the worker died or the task could not be scheduled
                         outcome = (False, traceback.format_exc(), 0.0, 0.0)
                     on_done(refs[ref], outcome)
-        finally:
-            if started:
-                ray.shutdown()
 
 
 Executor = SerialExecutor | ProcessExecutor | RayExecutor
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError as exc:
+        raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
+    return ray
 
 
 @contextmanager
@@ -161,10 +158,7 @@ def ray_session(address: str | None) -> Iterator[None]:
     if address is None:
         yield
         return
-    try:
-        import ray
-    except ImportError as exc:
-        raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
+    ray = _import_ray()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     ray.init(address=address, log_to_driver=False)
     try:

@@ -59,8 +59,8 @@ def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
     if "fixed" not in args.rules:
         raise ValueError("--rules must include 'fixed' (the reference every rule is paired with)")
     check_int("--workers", args.workers)
-    if not args.report_only:
-        check_extras([*(["ogbench"] if args.env == "ogbench" else []), *(["ray"] if args.ray_address else [])])
+    if not args.report_only and args.env == "ogbench":
+        check_extras(["ogbench"])
     seeds = select_seeds(args.seeds, [0, 1] if args.quick else [0, 1, 2])
     setup = _setup(args)
     if args.episodes is not None:

@@ -87,18 +87,22 @@ def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_ru
     for rule in online_rules:
         checkpoints[f"online_{rule}"] = finetune(pre, root / f"online_{rule}.zip", budget["finetune_steps"], dataset=ds,
                                                  seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_traffic_env)
-    record: dict[str, Any] = {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
-                              "dataset_mean_return": ds.metadata["mean_return"], "checkpoints": {}}
-    env = make_traffic_env(**settings)
+    episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
+    return {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
+            "dataset_mean_return": ds.metadata["mean_return"],
+            "checkpoints": evaluate_checkpoints(checkpoints, make_traffic_env(**settings), episodes, ds.episodes,
+                                                screened_rules, own_rule_only, seed)}
+
+
+def evaluate_checkpoints(checkpoints: Mapping[str, Any], env: Any, run_episodes: EpisodeRunner,
+                         calibration: Sequence[Any], screened_rules: Sequence[str], own_rule_only: bool,
+                         seed: int) -> dict[str, Any]:
+    """:func:`evaluate_rules` of every checkpoint loaded on ``env`` (closed afterwards) under its rules."""
     try:
-        for name, path in checkpoints.items():
-            model = load_checkpoint(path, env)
-            episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
-            record["checkpoints"][name] = evaluate_rules(
-                model, checkpoint_rules(name, screened_rules, own_rule_only), ds.episodes, episodes, control_seed=seed)
+        return {name: evaluate_rules(load_checkpoint(path, env), checkpoint_rules(name, screened_rules, own_rule_only),
+                                     calibration, run_episodes, control_seed=seed) for name, path in checkpoints.items()}
     finally:
         env.close()
-    return record
 
 
 # ------------------------------------------------------------------------------------ OGBench
@@ -148,15 +152,8 @@ def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str
     for rule in online_rules:  # the same cadence for every rule
         checkpoints[f"online_{rule}"] = finetune(checkpoints["offline"], root / f"online_{rule}.zip", b.finetune_steps,
                                                  dataset=ds, seed=seed, algo_overrides={**RULES[rule], **b.cadence})
-    record: dict[str, Any] = {"seed": seed, "task": task, "budget": b.to_dict(),
-                              "scenario_seed": scenario_base + 1000 * seed, "checkpoints": {}}
     env = OGBenchSingleTask(task, **b.env_kwargs)
-    try:
-        runner = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
-        for name, ckpt in checkpoints.items():
-            rules = checkpoint_rules(name, screened_rules, own_rule_only)
-            record["checkpoints"][name] = evaluate_rules(load_checkpoint(ckpt, env), rules, ds.episodes, runner,
-                                                         control_seed=seed)
-    finally:
-        env.close()
-    return record
+    episodes = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
+    return {"seed": seed, "task": task, "budget": b.to_dict(), "scenario_seed": scenario_base + 1000 * seed,
+            "checkpoints": evaluate_checkpoints(checkpoints, env, episodes, ds.episodes, screened_rules, own_rule_only,
+                                                seed)}

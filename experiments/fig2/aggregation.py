@@ -22,8 +22,7 @@ from experiments.common.names import (
     sampled_name,
 )
 from experiments.common.stats import compare, t_summary
-from experiments.fig2.budget import Fig2Budget
-from experiments.fig2.manifest import RunPaths
+from experiments.fig2.budget import Fig2Budget, RunPaths
 
 #: Comparisons of a method with a baseline in a metric: (a), (b), (b'') jerk per step, (c''') the execution rule
 #: alone and, beyond the paper, (a') and (b'): the offline chunk policy with Eq. 7 execution

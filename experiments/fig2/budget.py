@@ -1,4 +1,4 @@
-"""Configuration of a Figure-2 run: :class:`Fig2Budget` and its default and ``--quick`` budgets."""
+"""Configuration of a Figure-2 run: :class:`Fig2Budget`, its default and ``--quick`` budgets, and its directories."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from experiments.common import records
 from experiments.common.budget import (
     Budget,
     Check,
@@ -121,6 +122,20 @@ QUICK_BUDGET = Fig2Budget(dataset_episodes=3, pretrain_steps=8, finetune_steps=3
                           style_max_epochs=2, delta_sweep=(0.0, math.inf), k_sweep=(1, 2, 3), elite_sweep=(2,),
                           flow_sweep=(2,), chunk_size=3, env_kwargs={"time_limit": 4.0},
                           algo_kwargs={"batch_size": 32}, online_replicates=2)
+
+
+#: Budget fields that change what an existing unit holds; the sweeps may grow between calls.
+UNIT_FIELDS = ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes", "chunk_size",
+               "entropy_threshold", "style_episodes", "style_max_epochs", "env_kwargs", "algo_kwargs",
+               "onestep_kwargs", "finetune_kwargs", "online_seed_offset")
+
+
+class RunPaths(records.RunPaths):
+    """Where a Figure-2 run keeps its files, and the budget manifest that refuses to resume it under another."""
+
+    NAME = "fig2"
+    BUDGET = Fig2Budget
+    FIELDS = UNIT_FIELDS
 
 
 def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:

@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
+from experiments.common.cli import harness_main, harness_parent, select_seeds
 from experiments.common.names import PAPER
 from experiments.common.records import previous_report, run_header
 from experiments.fig2.aggregation import aggregate, load_raw
@@ -17,10 +17,10 @@ from experiments.fig2.budget import (
     FULL_BUDGET,
     QUICK_BUDGET,
     Fig2Budget,
+    RunPaths,
     estimate_seconds,
     estimate_wall_seconds,
 )
-from experiments.fig2.manifest import RunPaths
 from experiments.fig2.report import format_pct, write_report
 from experiments.fig2.units import SEED_PARTS, measured_seconds, run_all
 from sb3_ua2c.checks import check_int
@@ -67,7 +67,6 @@ def _check(args: argparse.Namespace) -> tuple[list[int], Fig2Budget]:
     base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
     seeds = select_seeds(args.seeds, range(5))
     check_int("--workers", args.workers)
-    check_extras(["ray"] if args.ray_address is not None and not args.report_only else [])
     return seeds, base.replace(**args.budget) if args.budget else base
 
 

@@ -25,8 +25,7 @@ from experiments.common.names import (
     replicate_name,
     sampled_name,
 )
-from experiments.fig2.budget import Fig2Budget, finetune_overrides
-from experiments.fig2.manifest import RunPaths
+from experiments.fig2.budget import Fig2Budget, RunPaths, finetune_overrides
 from sb3_ua2c.checks import check_int
 
 #: The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the dataset,

@@ -51,8 +51,7 @@ def _run(args: argparse.Namespace, _: None, command: str) -> int:
     arms = runner.check_arms(args.arms)
     seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
-    # ogbench: the environments; rliable: the report's statistics
-    check_extras(["ogbench", "rliable", *(["ray"] if args.ray_address is not None and not args.report_only else [])])
+    check_extras(["ogbench", "rliable"])  # the environments, the report's statistics
     budget = runner.default_budget(args.task, quick=args.quick)
     if args.episodes is not None:
         check_int("--episodes", args.episodes)

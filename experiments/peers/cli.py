@@ -53,20 +53,17 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
-def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> tuple[list[int], list[str]]:
-    """Validated, de-duplicated seeds and arms (a ``ValueError`` names the bad parameter)."""
+def check_arms(arms: Sequence[str]) -> list[str]:
+    """The known arms of ``arms``, in :data:`ARMS`' order (a ``ValueError`` names an unknown one)."""
     unknown = [a for a in arms if a not in ARMS]
     if unknown:
         raise ValueError(f"--arms: unknown arm(s) {unknown}; choose from {list(ARMS)}")
-    check_int("--workers", workers)
-    return select_seeds(seeds, []), [a for a in ARMS if a in arms]
+    return [a for a in ARMS if a in arms]
 
 
-def needed_extras(arms: Sequence[str], ray_address: str | None, report_only: bool) -> list[str]:
-    """The optional modules a run needs: rliable for the report, d3rlpy for its arms, ray for a cluster."""
-    units = [] if report_only else [*(["d3rlpy", "structlog"] if any(a in D3RLPY_ARMS for a in arms) else []),
-                                    *(["ray"] if ray_address is not None else [])]
-    return ["rliable", *units]
+def needed_extras(arms: Sequence[str], report_only: bool) -> list[str]:
+    """The optional modules a run needs: rliable for the report, d3rlpy for its arms."""
+    return ["rliable", *([] if report_only or not set(arms) & set(D3RLPY_ARMS) else ["d3rlpy", "structlog"])]
 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
@@ -138,9 +135,10 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
 def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]:
     if args.workers is None:  # --quick: tiny units, where starting a process costs more than the unit
         args.workers = 1 if args.quick else 2
-    seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
-    budget = _budget(args)
-    check_extras(needed_extras(arms, args.ray_address, args.report_only))
+    seeds = select_seeds(args.seeds or ([0, 1] if args.quick else list(range(5))), [])
+    arms, budget = check_arms(args.arms), _budget(args)
+    check_int("--workers", args.workers)
+    check_extras(needed_extras(arms, args.report_only))
     return seeds, arms, budget
 
 

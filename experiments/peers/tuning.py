@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.cli import check_extras, harness_main
+from experiments.common.cli import check_extras, harness_main, select_seeds
 from experiments.common.names import SCENARIO_BASES
 from experiments.common.records import previous_report, run_header, table
 from experiments.common.runner import make_executor
@@ -27,8 +27,9 @@ from experiments.peers.budget import (
     PeersBudget,
     estimate_units,
 )
-from experiments.peers.cli import check_selection, needed_extras
+from experiments.peers.cli import needed_extras
 from experiments.peers.runner import PeersPaths, load_records, run_peers
+from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments peers-tuning"
 
@@ -189,8 +190,9 @@ def _run(args: argparse.Namespace, base: PeersBudget) -> None:
 
 
 def _check(args: argparse.Namespace) -> PeersBudget:
-    check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
-    check_extras(needed_extras(args.arms, args.ray_address, args.report_only))
+    select_seeds(args.seeds, [])  # the head-to-head's check of --seeds
+    check_int("--workers", args.workers)
+    check_extras(needed_extras(args.arms, args.report_only))
     unknown = [a for a in args.arms if a not in GRID]
     if unknown:
         raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")
