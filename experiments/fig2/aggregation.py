@@ -9,18 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common import names
 from experiments.common.budget import library_default
-from experiments.common.names import (
-    CLAIM_COMPARISONS,
-    MAIN_METHODS,
-    METRICS,
-    ONLINE_ARMS,
-    PAPER,
-    acting_name,
-    delta_name,
-    replicate_name,
-    sampled_name,
-)
 from experiments.common.stats import compare, t_summary
 from experiments.fig2.budget import Fig2Budget, RunPaths
 
@@ -86,7 +76,7 @@ def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: flo
 
 def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
     out: dict[str, Any] = {"seeds": list(seeds)}
-    for key in METRICS:  # a key missing from the raw data of an earlier version counts as NaN
+    for key in names.METRICS:  # a key missing from the raw data of an earlier version counts as NaN
         out[key] = t_summary([float(per_seed[s].get(key, math.nan)) for s in seeds])
     if all("length_shares" in per_seed[s] for s in seeds):  # the L_t histogram, recorded since 2026-12-04
         out["length_shares"] = np.mean([per_seed[s]["length_shares"] for s in seeds], axis=0).tolist()
@@ -101,9 +91,9 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
     comparisons = _comparisons(methods, online_phases)
     result: dict[str, Any] = {
-        **{paper_key: comparisons[key]["change_pct"] for paper_key, key in CLAIM_COMPARISONS.items()},
+        **{paper_key: comparisons[key]["change_pct"] for paper_key, key in names.CLAIM_COMPARISONS.items()},
         "comparisons": comparisons,
-        "paper": dict(PAPER),
+        "paper": dict(names.PAPER),
         "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
         "methods": methods,
         "seeds": seeds,
@@ -117,13 +107,13 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     training = _training_episodes(raw, seeds, budget)
     if training:
         result["online_phase"] = training
-    if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
+    if all(names.sampled_name(m) in methods for m in names.MAIN_METHODS):  # (a)-(c) with fresh candidate noise
         comparisons.update(_method_comparisons(methods, SAMPLED_PAIRS, "_sampled"))
         if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):  # pooled over the online phases, like (c)
             comparisons["online_reward_sampled"] = compare(online_phases["adaptive_sampled"]["per_seed"],
                                                            online_phases["fixed_sampled"]["per_seed"])
         result["sampled"] = {paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
-                             for paper_key, key in CLAIM_COMPARISONS.items()}
+                             for paper_key, key in names.CLAIM_COMPARISONS.items()}
     if "adaptive_style" in methods:
         result["style_context"] = {"with": "adaptive_style", "without": "adaptive",
                                    "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward")}
@@ -132,7 +122,7 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
 
 def _methods(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int]) -> dict[str, Any]:
     """:func:`_stats` of every method evaluated on all ``seeds``; the four arms of (a)-(c) must be."""
-    missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
+    missing = [m for m in names.MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
     if missing:
         raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
     return {m: _stats(raw[m], seeds) for m in raw
@@ -151,7 +141,7 @@ def _compare(methods: Mapping[str, Any], new: str, base: str, key: str) -> dict[
 def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int]:
     """The online phases whose two arms were evaluated on every seed: (c) pools their paired runs."""
     return [r for r in range(budget.online_replicates)
-            if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
+            if all(names.replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
 
 
 def _comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
@@ -170,9 +160,9 @@ def _method_comparisons(methods: Mapping[str, Any], keys: Iterable[str], suffix:
     out = {}
     for key in keys:
         new, base, metric = METHOD_PAIRS[key]
-        names = (new + suffix, base + suffix)
-        if all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
-            out[key + suffix] = _compare(methods, *names, metric)
+        pair = (new + suffix, base + suffix)
+        if all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in pair):
+            out[key + suffix] = _compare(methods, *pair, metric)
     return out
 
 
@@ -201,7 +191,7 @@ def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[st
     """The fine-tuned adaptive checkpoint executed with each threshold δ of the sweep."""
     rows = []
     for d in budget.delta_sweep:
-        name = f"delta_{delta_name(d)}"
+        name = f"delta_{names.delta_name(d)}"
         if name in methods:
             keys = ("reward", "mean_executed_length", "cumulative_jerk")
             rows.append({"delta": d, "method": name, **{k: methods[name][k] for k in keys}})
@@ -221,7 +211,7 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
     default_elite = budget.default_elite if default_elite is None else default_elite
     rows = []
     for n, m in budget.acting_variants(default_elite):  # other acting rules for the offline checkpoints
-        arms = {arm: acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
+        arms = {arm: names.acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
         row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
@@ -236,7 +226,7 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
 def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
     """Per logged arm (first online phase), its :func:`online_phase_stats` over seeds and its learning curve."""
     out: dict[str, Any] = {}
-    for arm in ONLINE_ARMS:
+    for arm in names.ONLINE_ARMS:
         if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
             continue
         logs = raw[f"online/{arm}"]
@@ -252,23 +242,23 @@ def _online_phases(
     """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards."""
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
-        return [v for r in phases for v in methods[replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
+        return [v for r in phases for v in methods[names.replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
 
     out: dict[str, Any] = {"phases": list(phases), "runs": len(phases) * len(seeds), "per_phase": []}
     for r in phases:
-        names = {arm: replicate_name(arm, r) for arm in ("adaptive", "fixed")}
-        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in names.items()}}
-        row["change"] = compare(methods[names["adaptive"]]["reward"]["per_seed"], methods[names["fixed"]]["reward"]["per_seed"])
-        if all(sampled_name(n) in methods for n in names.values()):
-            row["change_sampled"] = compare(methods[sampled_name(names["adaptive"])]["reward"]["per_seed"],
-                                            methods[sampled_name(names["fixed"])]["reward"]["per_seed"])
+        units = {arm: names.replicate_name(arm, r) for arm in ("adaptive", "fixed")}
+        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in units.items()}}
+        row["change"] = compare(methods[units["adaptive"]]["reward"]["per_seed"], methods[units["fixed"]]["reward"]["per_seed"])
+        if all(names.sampled_name(n) in methods for n in units.values()):
+            row["change_sampled"] = compare(methods[names.sampled_name(units["adaptive"])]["reward"]["per_seed"],
+                                            methods[names.sampled_name(units["fixed"])]["reward"]["per_seed"])
         out["per_phase"].append(row)
     for arm in ("adaptive", "fixed"):
         for suffix in ("", "_sampled"):
-            if suffix and not all(sampled_name(replicate_name(arm, r)) in methods for r in phases):
+            if suffix and not all(names.sampled_name(names.replicate_name(arm, r)) in methods for r in phases):
                 continue
             out[arm + suffix] = t_summary(rewards(arm, suffix))  # per run
-    logs = {arm: [raw.get(f"online/{replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
+    logs = {arm: [raw.get(f"online/{names.replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
             for arm in ("adaptive", "fixed")}
     out["training_episodes"] = {}
     if phases and all(log is not None for runs in logs.values() for log in runs):

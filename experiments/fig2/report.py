@@ -9,15 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common import records
-from experiments.common.names import (
-    CLAIM_COMPARISONS,
-    MAX_SEED,
-    METHOD_LABELS,
-    PAPER,
-    SAMPLED_METHODS,
-    sampled_name,
-)
+from experiments.common import names, records
 from experiments.common.records import figure, section, table
 from experiments.common.stats import interval, t_summary
 from experiments.fig2.budget import STAGES, RunPaths
@@ -40,7 +32,7 @@ def format_pct(x: float) -> str:
 def paper_verdict(paper_key: str, change_pct: float) -> str:
     """``"at or beyond"`` when our relative change is at least as good as the paper's, else ``"short"``."""
     better_is_lower = paper_key == "offline_jerk_change_pct"
-    ours, paper = float(change_pct), PAPER[paper_key]
+    ours, paper = float(change_pct), names.PAPER[paper_key]
     ok = ours <= paper if better_is_lower else ours >= paper
     return "at or beyond" if ok else "short"
 
@@ -115,7 +107,7 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
         cmp, paired = c[key], c[key].get("paired")
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
         diff = f"{interval(paired)} ({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else ""
-        paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
+        paper = "not in the paper" if paper_key is None else f"{names.PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
         rows.append([label, format_pct(cmp["change_pct"]), per_seed, diff, paper, verdict])
     lines = table(["claim", "ours", "per-seed changes", "paired difference [95 % CI]", "paper", "vs paper"], rows)
@@ -130,15 +122,15 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
 def _methods_table(summary: Mapping[str, Any]) -> Lines:
     """Every metric of the main methods (and their "sampled" evaluations), mean ± interval over seeds."""
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
-    methods = [m for m in (*order, *map(sampled_name, SAMPLED_METHODS)) if m in summary["methods"]]
+    methods = [m for m in (*order, *map(names.sampled_name, names.SAMPLED_METHODS)) if m in summary["methods"]]
     keys = ("reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed",
             "mean_executed_length")
     lines = section("Methods", *table(
         ["method", "reward", "cum. jerk", "jerk per step", "collision rate", "merge success", "mean speed [m/s]",
          "mean L_t"],
-        ([METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2) for k in keys)]
+        ([names.METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2) for k in keys)]
          for m in methods)))
-    shares = [[METHOD_LABELS[m], format_length_shares(summary["methods"][m]["length_shares"])] for m in methods
+    shares = [[names.METHOD_LABELS[m], format_length_shares(summary["methods"][m]["length_shares"])] for m in methods
               if "length_shares" in summary["methods"][m]]
     if shares:
         lines += ["", "Executed lengths (share of plans with L_t = 1..k, %, mean over seeds):", "",
@@ -162,7 +154,7 @@ def _online_phases_table(summary: Mapping[str, Any]) -> Lines:
         "(c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
         "The methods table and the Phase-2 table show the first online phase; (c), (c') and (c'') pool "
         f"the {op['runs']} paired runs of all phases. Phase r runs seed s with "
-        f"s + {MAX_SEED} × (online_seed_offset + r).",
+        f"s + {names.MAX_SEED} × (online_seed_offset + r).",
         "",
         *table(["online phase", "fixed", "adaptive", "(c)", "(c) sampled"], rows))
 
@@ -175,7 +167,7 @@ def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
         "Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
         + (", first online phase" if _n_phases(summary) > 1 else ""),
         *table(["arm", "mean return", "mean return, last quarter", "collision rate", "episodes"],
-               ([METHOD_LABELS[arm], _fmt(st["reward"]), _fmt(st["reward_last"]), _fmt(st["collision"]),
+               ([names.METHOD_LABELS[arm], _fmt(st["reward"]), _fmt(st["reward_last"]), _fmt(st["collision"]),
                  _fmt(st["episodes"], 1)] for arm, st in summary["online_phase"].items())))
 
 
@@ -239,7 +231,8 @@ def _budgetsection(summary: Mapping[str, Any]) -> Lines:
     phases = f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else ""
     onestep = f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else ""
     phase2 = f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else ""
-    offset = f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}" if b.get("online_seed_offset") else ""
+    offset = b.get("online_seed_offset")
+    offset = f"; Phase 2 seeds offset by {names.MAX_SEED} × {offset}" if offset else ""
     return section(
         "Budget (per seed)",
         f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
@@ -284,11 +277,11 @@ def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[
                 name, title = name.replace(".png", "_sampled.png"), f"{title}, sampled"
                 ours = summary["sampled"][paper_key]
             else:
-                ours = summary["comparisons"][CLAIM_COMPARISONS[paper_key]]["change_pct"]
+                ours = summary["comparisons"][names.CLAIM_COMPARISONS[paper_key]]["change_pct"]
             stats = {a: methods[a + suffix][metric] for a in arms}
             if paper_key == "online_reward_gain_pct" and len(op.get("phases", [0])) > 1:  # every pooled run
                 stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"
-            note = f"ours {format_pct(ours)}, paper {PAPER[paper_key]:+.2f}%"
+            note = f"ours {format_pct(ours)}, paper {names.PAPER[paper_key]:+.2f}%"
             panels.append((name, title, ylabel, [(_SHORT_LABELS[a], stats[a]) for a in arms], note))
     return panels
 
@@ -359,7 +352,7 @@ def curve_panel(path: Path, summary: Mapping[str, Any]) -> None:
         ax = fig.add_subplot()
         for arm, st in summary["online_phase"].items():
             curve = st["curve"]
-            ax.plot(curve["steps"], curve["reward"], "o-", label=METHOD_LABELS[arm], markersize=3)
+            ax.plot(curve["steps"], curve["reward"], "o-", label=names.METHOD_LABELS[arm], markersize=3)
         ax.set_xlabel("online environment steps")
         ax.set_ylabel("training episode return")
         ax.set_title(f"(c) Phase 2 training episodes, mean over {len(summary['seeds'])} seed(s)", fontsize=9)

@@ -14,17 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
-from experiments.common.names import (
-    DATASET_SEED_BASE,
-    EVAL_SEED_BASE,
-    MAX_SEED,
-    SAMPLED_METHODS,
-    STYLE_SEED_BASE,
-    acting_name,
-    delta_name,
-    replicate_name,
-    sampled_name,
-)
+from experiments.common import names
 from experiments.fig2.budget import Fig2Budget, RunPaths, finetune_overrides
 from sb3_ua2c.checks import check_int
 
@@ -132,7 +122,7 @@ class SeedUnits:
         if ds is None:
             with self.timed(name):
                 ds = collect_dataset(path, n_episodes, env_kwargs=dict(self.budget.env_kwargs), overwrite=True,
-                                     style_classifier=style_classifier, seed=DATASET_SEED_BASE + 10_000 * self.seed)
+                                     style_classifier=style_classifier, seed=names.DATASET_SEED_BASE + 10_000 * self.seed)
         return ds
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
@@ -154,7 +144,7 @@ class SeedUnits:
         if not path.is_file():
             with self.timed(f"finetune/{name}"):
                 finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                         seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
+                         seed=self.seed + names.MAX_SEED * (self.budget.online_seed_offset + replicate),
                          algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env)
         episodes = self.raw / "online" / f"{name}.json"  # not the wall times; none from a run of an earlier version
         if not episodes.is_file() and monitor.is_file():
@@ -172,13 +162,13 @@ class SeedUnits:
         if path.is_file():
             return
         with self.timed(f"evaluate/{method}"):
-            episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(EVAL_SEED_BASE + self.seed,),
+            episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(names.EVAL_SEED_BASE + self.seed,),
                                 env_settings_=settings, entropy_threshold=delta, n_elite=n_elite,
                                 flow_steps=flow_steps, deterministic=deterministic)
             write_json(path, {
                 "method": method, "seed": self.seed, "checkpoint": checkpoint.name,
-                "entropy_threshold": None if delta is None else delta_name(float(delta)),
-                "eval_seed": EVAL_SEED_BASE + self.seed, "n_elite": n_elite, "flow_steps": flow_steps,
+                "entropy_threshold": None if delta is None else names.delta_name(float(delta)),
+                "eval_seed": names.EVAL_SEED_BASE + self.seed, "n_elite": n_elite, "flow_steps": flow_steps,
                 "deterministic": deterministic,
                 "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
                             "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
@@ -197,17 +187,17 @@ class SeedUnits:
         if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
             sampled = {"onestep": (ckpt[1], None), "chunk": (ckpt[k], math.inf), "chunk_adaptive": (ckpt[k], delta),
                        "fixed": (fixed, math.inf), "adaptive": (adaptive, delta), "fixed_adaptive": (fixed, delta)}
-            for method in SAMPLED_METHODS:
+            for method in names.SAMPLED_METHODS:
                 checkpoint, threshold = sampled[method]
-                self.evaluate(sampled_name(method), checkpoint, settings, threshold, deterministic=False)
+                self.evaluate(names.sampled_name(method), checkpoint, settings, threshold, deterministic=False)
         # more online phases from the same checkpoint, pooled into (c) (the first one is in online())
         for r in range(1, budget.online_replicates):
             for arm, threshold in (("adaptive", delta), ("fixed", math.inf)):
-                name = replicate_name(arm, r)
+                name = names.replicate_name(arm, r)
                 tuned = self.finetuned(ckpt[k], ds, name, threshold, r)
                 self.evaluate(name, tuned, settings, threshold)
                 if budget.sampled_eval:
-                    self.evaluate(sampled_name(name), tuned, settings, threshold, deterministic=False)
+                    self.evaluate(names.sampled_name(name), tuned, settings, threshold, deterministic=False)
 
     def offline(self, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
         """(a), (b), the k and the acting sweeps; returns the checkpoints by chunk length."""
@@ -220,7 +210,7 @@ class SeedUnits:
             self.evaluate(f"k{k}", ckpt[k], settings, math.inf)
         for n, m in budget.acting_variants():  # other acting rules for the same two checkpoints
             for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
-                name = acting_name(arm, n, m, budget.default_elite)
+                name = names.acting_name(arm, n, m, budget.default_elite)
                 self.evaluate(name, ckpt[k], settings, None if k == 1 else math.inf, n_elite=m, flow_steps=n)
         return ckpt
 
@@ -233,7 +223,7 @@ class SeedUnits:
         self.evaluate("fixed", fixed, settings, math.inf)
         self.evaluate("fixed_adaptive", fixed, settings, delta)  # the execution rule alone
         for d in self.budget.delta_sweep:
-            self.evaluate(f"delta_{delta_name(d)}", adaptive, settings, d)
+            self.evaluate(f"delta_{names.delta_name(d)}", adaptive, settings, d)
         return adaptive, fixed
 
     def style(self) -> None:
@@ -243,8 +233,9 @@ class SeedUnits:
 
         budget, seed = self.budget, self.seed
         data = self._stored(self.work / "style_data.npz", style.StyleDataset.load, "style/collect",
-                            lambda: style.collect_style_dataset(budget.style_episodes, seed=STYLE_SEED_BASE + 10_000 * seed,
-                                                                env_kwargs=dict(budget.env_kwargs), progress_bar=False))
+                            lambda: style.collect_style_dataset(budget.style_episodes, env_kwargs=dict(budget.env_kwargs),
+                                                                seed=names.STYLE_SEED_BASE + 10_000 * seed,
+                                                                progress_bar=False))
         classifier = self.work / "style_classifier.pt"
         model = self._stored(classifier, style.DrivingStyleClassifier.load, "style/train",
                              lambda: style.train_style_classifier(data, progress_bar=False, train_config={

@@ -12,13 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from experiments.common.cli import D3RLPY_INSTALL
-from experiments.peers.common import (
-    ArmInputs,
-    PhaseClock,
-    evaluation_record,
-    learning_curve,
-    unit_record,
-)
+from experiments.peers import common
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset
 
@@ -152,7 +146,7 @@ def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: in
 
 
 def run_d3rlpy(
-    inputs: ArmInputs,
+    inputs: common.ArmInputs,
     algo: str = "iql",
     offline_steps: int = 6000,
     offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
@@ -187,29 +181,29 @@ def run_d3rlpy(
     learner = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {}).create(device="cpu:0")
     offline = d3rlpy.dataset.create_infinite_replay_buffer(episodes=d3rlpy_episodes(ds.episodes))
     policy = D3rlpyPolicy(learner, ds.observation_space, ds.action_space)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     offline_evaluation = None
     if offline_steps:
         with clock.phase("offline"):
             learner.fit(offline, n_steps=offline_steps, n_steps_per_epoch=offline_steps, experiment_name="offline",
                         with_timestamp=False, logger_adapter=logs, show_progress=False)
         with clock.phase("evaluate_offline"):
-            offline_evaluation = evaluation_record(policy, settings, inputs)
+            offline_evaluation = common.evaluation_record(policy, settings, inputs)
     hyper = {"algo": algo, "d3rlpy": d3rlpy.__version__, "config": learner.config.serialize_to_dict()}
     if algo in OFFLINE_ONLY:
         notes = f"d3rlpy {algo}: {offline_steps} offline gradient steps, no online phase (a reference row)"
-        return unit_record(algo, inputs, ds, 0, hyper, offline_evaluation, [], clock,
-                           offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+        return common.unit_record(algo, inputs, ds, 0, hyper, offline_evaluation, [], clock,
+                                  offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
     with clock.phase("online"):
         _fit_online(d3rlpy, learner, ds, settings, offline, seed, out, logs, online_steps, offline_ratio,
                     updates_per_step)
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(policy, settings, inputs)
+        evaluation = common.evaluation_record(policy, settings, inputs)
     extra = {}
     if best_of_n:
         with clock.phase("evaluate_best_of_n"):
             best = BestOfNPolicy(learner, ds.observation_space, ds.action_space, best_of_n)
-            extra["evaluation_best_of_n"] = {"n": best_of_n, **evaluation_record(best, settings, inputs)}
+            extra["evaluation_best_of_n"] = {"n": best_of_n, **common.evaluation_record(best, settings, inputs)}
     hyper.update(offline_ratio=float(offline_ratio), updates_per_step=updates_per_step)
     settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
     if algo == "rlpd":
@@ -217,8 +211,8 @@ def run_d3rlpy(
     else:
         notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with {updates_per_step} "
                  f"update(s) per env step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
-    record = unit_record(algo, inputs, ds, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                         clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+    record = common.unit_record(algo, inputs, ds, online_steps, hyper, evaluation, common.learning_curve(out / "online"),
+                                clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
     return {**record, **extra}
 
 

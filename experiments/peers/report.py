@@ -9,20 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common import records
+from experiments.common import records, stats
 from experiments.common.records import figure, section, table
-from experiments.common.stats import (
-    LOWER_IS_BETTER,
-    interval,
-    iqm_with_ci,
-    learning_curve_area,
-    mean_with_ci,
-    paired_difference,
-    probability_of_improvement,
-    run_scores,
-    score_matrix,
-    verdict,
-)
 from experiments.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
 from sb3_ua2c.execution import format_length_shares, length_shares
 
@@ -97,15 +85,16 @@ def lengths_table(summary: Mapping[str, Any]) -> list[str]:
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
-    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
-    metrics = iqm_with_ci(scores, reps=reps)
-    means = mean_with_ci(scores, reps=reps)
+    scores = {m: stats.score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
+    metrics = stats.iqm_with_ci(scores, reps=reps)
+    means = stats.mean_with_ci(scores, reps=reps)
     offline = None
     if all(r.get("offline_evaluation") for r in records):
-        offline = {m: iqm_with_ci({"x": score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
+        offline = {m: stats.iqm_with_ci({"x": stats.score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
                    for m in METRICS}
     ordered = sorted(records, key=lambda r: r["seed"])
-    areas = [learning_curve_area([e["end_step"] for e in r["online_episodes"]], [e["reward"] for e in r["online_episodes"]])
+    areas = [stats.learning_curve_area([e["end_step"] for e in r["online_episodes"]],
+                                       [e["reward"] for e in r["online_episodes"]])
              if r["online_episodes"] else float("nan") for r in ordered]
     online_steps = int(records[0]["online_steps"])
     curve = None  # an offline-only reference row, or an evaluation variant of another arm, has no curve
@@ -121,7 +110,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         runs = {key: np.array([[np.mean([float(e[key]) for e in r["online_episodes"]])] for r in ordered])
                 for key in ("collision", "reward")}  # key -> (n_runs, 1)
         training = {"episodes_per_run": float(np.mean([len(r["online_episodes"]) for r in records])),
-                    **mean_with_ci(runs, reps=reps)}
+                    **stats.mean_with_ci(runs, reps=reps)}
     return {
         "label": ARM_LABELS.get(first["arm"], first["arm"]),
         "seeds": seeds,
@@ -131,7 +120,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "metrics": metrics,
         "means": means,
         "per_seed": {m: scores[m][:, 0].tolist() for m in METRICS},
-        "curve_area": {"per_seed": areas, **(mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
+        "curve_area": {"per_seed": areas, **(stats.mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
                                              if np.all(np.isfinite(areas)) else {})},
         "offline_metrics": offline,
         "length_shares": {"offline": arm_length_shares(records, "offline_evaluation"),
@@ -148,12 +137,12 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
 def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, peer: str,
                  reps: int = 2000) -> dict[str, Any]:
     """``P(ours > peer)`` per metric and, over the seeds both ran, the paired per-seed reward difference."""
-    out: dict[str, Any] = {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
-                                                         higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
-                           for m in POI_METRICS}
+    out: dict[str, Any] = {m: stats.probability_of_improvement(
+        stats.score_matrix(records[ours], m), stats.score_matrix(records[peer], m),
+        higher_is_better=m not in stats.LOWER_IS_BETTER, reps=reps) for m in POI_METRICS}
     scores = shared_seed_scores(records, ours, peer, "reward")
     if scores is not None:
-        out["reward_paired"] = paired_difference(*scores)
+        out["reward_paired"] = stats.paired_difference(*scores)
     return out
 
 
@@ -166,7 +155,7 @@ def shared_seed_scores(records: Mapping[str, Sequence[Mapping[str, Any]]], x: st
     xs, ys = ([r for r in records[a] if r["seed"] in shared] for a in (x, y))
     if not all(r.get(evaluation) for r in (*xs, *ys)):
         return None
-    return run_scores(xs, metric, evaluation), run_scores(ys, metric, evaluation)
+    return stats.run_scores(xs, metric, evaluation), stats.run_scores(ys, metric, evaluation)
 
 
 def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
@@ -178,7 +167,7 @@ def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[s
             continue
         sx, sy = scores  # (n_shared,) each
         out[claim] = {"x": x, "y": y, "metric": metric, "evaluation": evaluation, "x_mean": float(sx.mean()),
-                      "y_mean": float(sy.mean()), **paired_difference(sx, sy, higher_is_better=higher)}
+                      "y_mean": float(sy.mean()), **stats.paired_difference(sx, sy, higher_is_better=higher)}
     return out
 
 
@@ -188,8 +177,8 @@ def figure2_lines(summary: Mapping[str, Any]) -> list[str]:
     if not claims:
         return ["The run lacks the UA2C arms these claims compare (fixed, one-step, adaptive)."]
     return table(["claim", "X", "Y", "paired difference, X better when > 0 [95 % CI]", "X ahead in"],
-                 ([claim, f"{c['x_mean']:.2f}", f"{c['y_mean']:.2f}", interval(c), f"{c['x_better_runs']} of {c['runs']}"]
-                  for claim, c in claims.items()))
+                 ([claim, f"{c['x_mean']:.2f}", f"{c['y_mean']:.2f}", stats.interval(c),
+                   f"{c['x_better_runs']} of {c['runs']}"] for claim, c in claims.items()))
 
 
 def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 2000) -> dict[str, Any]:
@@ -212,8 +201,8 @@ def verdicts(summary: Mapping[str, Any]) -> list[str]:
     for pair in summary["pairs"].values():
         o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
         poi = pair["reward"]
-        head = verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
-        lines.append(f"{head}; P({o} > {p}) = {interval(poi, 'probability', sign='')}")
+        head = stats.verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
+        lines.append(f"{head}; P({o} > {p}) = {stats.interval(poi, 'probability', sign='')}")
     return lines
 
 
@@ -227,7 +216,7 @@ def headline(summary: Mapping[str, Any]) -> str:
         return "Only one side was run: no head-to-head verdict."
     o, p = max(ours, key=reward.get), max(peers, key=reward.get)
     pair = summary["pairs"][f"{o}_vs_{p}"]
-    paired = (verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
+    paired = (stats.verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
               else "no shared seeds")
     return (f"Best UA2C arm by IQM reward over runs, {ARM_LABELS.get(o, o)} ({reward[o]:.2f}); best peer, "
             f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}). Paired per seed: {paired}; P(UA2C > peer) = "
@@ -244,7 +233,7 @@ def _mean(arm: Mapping[str, Any], metric: str) -> float:
 def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
     if stat is None:
         return "–"
-    return interval(stat, key, digits, sign="")
+    return stats.interval(stat, key, digits, sign="")
 
 
 def _digits(metric: str) -> int:
@@ -291,7 +280,7 @@ def readme_table(summary: Mapping[str, Any]) -> list[str]:
 def pairs_table(summary: Mapping[str, Any]) -> list[str]:
     return table(["UA2C arm", "peer", *(f"P(better) {m}" for m in POI_METRICS)],
                  ([ARM_LABELS.get(pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"]),
-                   *(interval(pair[m], "probability", sign="") for m in POI_METRICS)]
+                   *(stats.interval(pair[m], "probability", sign="") for m in POI_METRICS)]
                   for pair in summary["pairs"].values()))
 
 
@@ -316,9 +305,9 @@ def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
     with figure(bars, (11, 4.2)) as fig:
         for j, (metric, ylabel) in enumerate(panels):
             ax = fig.add_subplot(1, len(panels), j + 1)
-            stats = [arms[n]["metrics"][metric] for n in names]
-            iqms = np.array([s["iqm"] for s in stats])
-            err = np.array([[s["iqm"] - s["ci_low"] for s in stats], [s["ci_high"] - s["iqm"] for s in stats]])
+            cis = [arms[n]["metrics"][metric] for n in names]
+            iqms = np.array([s["iqm"] for s in cis])
+            err = np.array([[s["iqm"] - s["ci_low"] for s in cis], [s["ci_high"] - s["iqm"] for s in cis]])
             colors = ["#1f77b4" if n in UA2C_ARMS else "#9e9e9e" for n in names]
             ax.bar(range(len(names)), iqms, yerr=np.clip(err, 0, None), capsize=4, color=colors)
             ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)

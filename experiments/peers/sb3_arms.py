@@ -16,16 +16,8 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from experiments.peers import common
 from experiments.peers.budget import ONLINE_SB3_ARMS
-from experiments.peers.common import (
-    ArmInputs,
-    PhaseClock,
-    episode_transitions,
-    evaluation_record,
-    learning_curve,
-    unit_record,
-    zoo_hyperparams,
-)
 from sb3_ua2c.checks import check_int
 
 #: Differences of the offline-mix arm from RLPD (Ball et al. 2023), stated in its record.
@@ -108,19 +100,20 @@ def _algorithm(algo: str) -> type:
     raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
 
 
-def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, hyperparams: Mapping[str, Any] | None,
+def _train_and_evaluate(arm: str, algo: str, inputs: common.ArmInputs, hyperparams: Mapping[str, Any] | None,
                         conf_file: str | os.PathLike | None, offline_ratio: float | None, notes: str) -> dict[str, Any]:
     from envs.collection import make_traffic_env
     from sb3_ua2c.pipeline import env_settings
 
     check_int("online_steps", inputs.online_steps)
     ds = inputs.load_dataset()
-    params = {**zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
+    params = {**common.zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file),
+              **(hyperparams or {})}
     th.set_num_threads(1)
     out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     settings = env_settings(ds)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     env = Monitor(make_traffic_env(**settings), str(out / "online"), info_keywords=("collision",))
     try:
         ds.check_compatible(env)
@@ -129,22 +122,22 @@ def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, hyperparams: Map
             kwargs.update(replay_buffer_class=OfflineMixReplayBuffer, replay_buffer_kwargs={"offline_ratio": offline_ratio})
         model = _algorithm(algo)("MlpPolicy", env, seed=inputs.seed, device="cpu", verbose=0, **kwargs)
         if offline_ratio is not None:
-            model.replay_buffer.add_offline(episode_transitions(ds.episodes))
+            model.replay_buffer.add_offline(common.episode_transitions(ds.episodes))
         with clock.phase("online"):
             model.learn(inputs.online_steps)
         model.save(out / "model.zip")
     finally:
         env.close()
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(model, settings, inputs)
+        evaluation = common.evaluation_record(model, settings, inputs)
     hyper = {"algo": algo, **params}
     if offline_ratio is not None:
         hyper["offline_ratio"] = offline_ratio
-    return unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation, learning_curve(out / "online"), clock,
-                       notes=notes)
+    return common.unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation,
+                              common.learning_curve(out / "online"), clock, notes=notes)
 
 
-def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
+def run_sb3_online(inputs: common.ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
                    conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
     """One unit: SB3 SAC, sb3-contrib TQC or CrossQ trained online from scratch, then evaluated."""
     notes = f"{algo.upper()} online from scratch, hyperparameters from zoo_configs/{algo}.yml"
@@ -152,7 +145,7 @@ def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[st
 
 
 def run_sb3_offline_mix(
-    inputs: ArmInputs,
+    inputs: common.ArmInputs,
     offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,

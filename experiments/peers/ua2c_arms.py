@@ -10,14 +10,8 @@ from typing import Any
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from experiments.common.records import recorded_path
 from experiments.fig2.units import complete_dataset
+from experiments.peers import common
 from experiments.peers.budget import describe_ua2c_arm
-from experiments.peers.common import (
-    ArmInputs,
-    PhaseClock,
-    evaluation_record,
-    learning_curve,
-    unit_record,
-)
 
 
 def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -38,7 +32,7 @@ def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrai
     from sb3_ua2c.pipeline import pretrain
 
     th.set_num_threads(1)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     with clock.phase("offline"):
         path = pretrain(dataset, out, pretrain_steps, seed=seed, algo_kwargs={**TRAFFIC_DEFAULTS, **algo_kwargs},
                         make_env=make_traffic_env)
@@ -46,7 +40,7 @@ def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrai
             "algo_kwargs": dict(algo_kwargs), **clock.as_dict()}
 
 
-def run_ua2c_arm(inputs: ArmInputs, arm: str, checkpoint: str | os.PathLike, delta: float | None,
+def run_ua2c_arm(inputs: common.ArmInputs, arm: str, checkpoint: str | os.PathLike, delta: float | None,
                  finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any]) -> dict[str, Any]:
     """One unit: a UA2C arm from the seed's ``checkpoint``, acting with ``delta``, evaluated, fine-tuned online and
     evaluated again."""
@@ -59,20 +53,21 @@ def run_ua2c_arm(inputs: ArmInputs, arm: str, checkpoint: str | os.PathLike, del
     settings = env_settings(ds)
     out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     with clock.phase("evaluate_offline"):
-        offline_evaluation = evaluation_record(checkpoint, settings, inputs, entropy_threshold=delta)
+        offline_evaluation = common.evaluation_record(checkpoint, settings, inputs, entropy_threshold=delta)
     with clock.phase("online"):
         tuned = finetune(checkpoint, out / "model.zip", inputs.online_steps, dataset=ds, entropy_threshold=delta,
                          seed=inputs.seed, algo_overrides=dict(finetune_overrides), monitor_file=out / "online",
                          make_env=make_traffic_env)
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(tuned, settings, inputs, entropy_threshold=delta)
+        evaluation = common.evaluation_record(tuned, settings, inputs, entropy_threshold=delta)
     # the shared offline phase, counted in every arm that starts from it
     clock.wall["offline"] = float(pretrain_record["wall_seconds"]["offline"])
     clock.cpu["offline"] = float(pretrain_record["cpu_seconds"]["offline"])
     hyper = {"algo": "ua2c", "delta": "inf" if delta == float("inf") else delta,
              "algo_kwargs": dict(pretrain_record["algo_kwargs"]), "finetune_overrides": dict(finetune_overrides)}
-    return unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation, learning_curve(out / "online"),
-                       clock, offline_steps=int(pretrain_record["pretrain_steps"]),
-                       offline_evaluation=offline_evaluation, notes=describe_ua2c_arm(arm))
+    return common.unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation,
+                              common.learning_curve(out / "online"), clock,
+                              offline_steps=int(pretrain_record["pretrain_steps"]),
+                              offline_evaluation=offline_evaluation, notes=describe_ua2c_arm(arm))
