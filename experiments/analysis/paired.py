@@ -1,13 +1,6 @@
-"""The paired per-seed difference of any two arms, within one run or across two runs:
-``python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]``.
-
-``X`` and ``Y`` each name one score per seed: ``RAW_DIR:ARM``, the unit records of a head-to-head run (a
-run's score is the mean of ``--metric`` over its evaluation episodes; ``ARM_best_of_n`` reads a peer's
-best-of-N row; both arms must have used the same dataset and scenarios on every shared seed), or
-``FILE.json:KEY.KEY...``, a list of per-seed scores inside a report whose seeds are the nearest ``seeds``
-list on the key path (nothing checks that such lists pair). A positive difference always means X does
-better (with ``--lower-is-better`` it is Y − X). The cross-run differences quoted in ``docs/`` are
-reproduced this way from the committed records."""
+"""The paired per-seed difference of any two arms, within one run or across two runs (``docs/peers.md``):
+``python -m experiments paired X Y``, each side ``RAW_DIR:ARM`` (a head-to-head's records) or
+``FILE.json:KEY.KEY...`` (a per-seed list in a report, paired with the nearest ``seeds`` list)."""
 
 from __future__ import annotations
 

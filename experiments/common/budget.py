@@ -1,5 +1,4 @@
-"""The base of every harness budget: a frozen dataclass whose fields are checked by one table
-(:attr:`Budget.CHECKS`, built from the checks below) and converted to and from plain JSON."""
+"""The base of every harness budget, whose fields one table checks (:attr:`Budget.CHECKS`), and the checks."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""What every harness command line shares: its options, seeds and optional packages, and the skeleton
-parse → check → run → exit code (:func:`harness_main`)."""
+"""What every harness command line shares: options, seeds, optional packages and :func:`harness_main`."""
 
 from __future__ import annotations
 

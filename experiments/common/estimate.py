@@ -1,5 +1,4 @@
-"""Run-time estimates printed before a run: the CPU seconds the committed records hold per unit of size
-(steps) of each kind of unit (an arm, a stage), scaled to the units about to run."""
+"""Run-time estimates printed before a run: the committed records' CPU seconds per step of each kind of unit."""
 
 from __future__ import annotations
 

@@ -72,8 +72,7 @@ def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str
 def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what: str,
                         fields: Sequence[str] | None = None, read: Callable[[Any], Mapping[str, Any]] | None = None,
                         write: bool = True) -> None:
-    """Refuse to resume a run whose budget stored at ``path`` (through ``read``) differs from ``budget`` on
-    ``fields`` (default: all); then, with ``write``, record ``budget`` there."""
+    """Refuse a run whose budget stored at ``path`` differs from ``budget`` on ``fields``; then record ``budget``."""
     from sb3_ua2c.pipeline import write_json
 
     path, now = Path(path), strict_json(budget)
@@ -124,8 +123,7 @@ def episode_rows(episodes: Sequence[Any]) -> list[dict[str, Any]]:
 
 @dataclass(frozen=True)
 class RunPaths:
-    """Where a run keeps its files: the report in ``out``, per-seed records in ``raw``, datasets and checkpoints in
-    ``work`` with the run's budget (:attr:`manifest`); a harness's subclass names them and its budget."""
+    """Where a run keeps its report (``out``), records (``raw``), datasets and checkpoints (``work``) and budget."""
 
     NAME: ClassVar[str] = "run"
     BUDGET: ClassVar[type] = dict

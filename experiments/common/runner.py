@@ -59,19 +59,14 @@ class UnitsFailedError(RuntimeError):
         super().__init__(f"{len(self.failures)} unit(s) failed: {sorted(self.failures)}\n{details}")
 
 
-def call_unit(unit: Unit) -> tuple[Any, float, float]:
-    """Run ``unit.fn(**unit.kwargs)``; return its value, wall and CPU seconds (what a worker runs)."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    value = unit.fn(**unit.kwargs)
-    return value, time.perf_counter() - wall, time.process_time() - cpu
-
-
 def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
-    """:func:`call_unit` that returns a failure as ``(False, traceback, 0, 0)`` instead of raising."""
+    """Run ``unit``: ``(True, value, wall seconds, CPU seconds)``, or ``(False, traceback, 0, 0)`` if it raised."""
+    wall, cpu = time.perf_counter(), time.process_time()
     try:
-        return (True, *call_unit(unit))
+        value = unit.fn(**unit.kwargs)
     except Exception:  # reported by name once every unit has run
         return False, traceback.format_exc(), 0.0, 0.0
+    return True, value, time.perf_counter() - wall, time.process_time() - cpu
 
 
 def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
@@ -117,8 +112,7 @@ class ProcessExecutor:
 
 
 class RayExecutor:
-    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address``
-    (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``)."""
+    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address``."""
 
     def __init__(self, address: str = "auto") -> None:
         if not isinstance(address, str) or not address:
@@ -189,8 +183,7 @@ def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
 def run_units(
     units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
 ) -> list[UnitResult]:
-    """Run ``units`` (but the stored ones) on ``executor`` and return their results in order; raises
-    :class:`UnitsFailedError` once every unit ran if some failed."""
+    """Run ``units`` (but the stored ones) on ``executor``; their results in order, or :class:`UnitsFailedError`."""
     from sb3_ua2c.pipeline import write_json
 
     names = [unit.name for unit in units]

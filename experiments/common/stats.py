@@ -1,5 +1,4 @@
-"""Run-level statistics of the experiment reports, after rliable (Agarwal et al., NeurIPS 2021): each run
-(seed) is one score, the mean over its evaluation episodes (``docs/peers.md``); every bootstrap is seeded."""
+"""Run-level statistics of the reports after rliable (Agarwal et al., 2021; ``docs/peers.md``), seeded bootstraps."""
 
 from __future__ import annotations
 

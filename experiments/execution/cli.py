@@ -71,8 +71,7 @@ def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
                      own_rule_only: bool = False, env: str = "traffic") -> float:
-    """Wall minutes on ``workers`` cores: training plus the evaluations of every checkpoint, rule (with its two
-    controls), mode and episode."""
+    """Wall minutes on ``workers`` cores: training, and evaluations of every checkpoint, rule, control and mode."""
     training = TRAINING_SECONDS[env]
     per_seed = training["data_and_phase1"] + n_online * training["phase2"]
     arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)

@@ -1,2 +1,1 @@
-"""Reproduction of the paper's Figure 2 on ``MixedTraffic-v0`` over several seeds: ``python -m experiments fig2``
-(``docs/figure2.md``)."""
+"""The paper's Figure 2 on ``MixedTraffic-v0`` over several seeds: ``python -m experiments fig2``."""

@@ -28,8 +28,7 @@ def _deltas(label: str, values: Any) -> None:
 
 @dataclass(frozen=True)
 class Fig2Budget(Budget):
-    """Budget and hyperparameters of one Figure-2 run (per seed; ``docs/figure2.md``); an unknown key or a bad
-    value raises ``ValueError`` naming it."""
+    """Budget and hyperparameters of one Figure-2 run, per seed (``docs/figure2.md``)."""
 
     dataset_episodes: int = 200  # offline episodes per seed (the behaviour policy of envs.collection)
     pretrain_steps: int = 6000  # Phase-1 gradient steps of every pre-trained arm

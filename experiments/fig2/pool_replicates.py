@@ -1,7 +1,6 @@
 """Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``):
 ``python -m experiments pool-replicates REPORT [REPORT ...] [--sampled]``.
-
-Every online phase of the reports, which share their pre-trained checkpoints, is a run (``docs/benchmarks.md``)."""
+"""
 
 from __future__ import annotations
 

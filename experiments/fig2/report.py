@@ -40,10 +40,10 @@ def paper_verdict(paper_key: str, change_pct: float) -> str:
 def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
     """``fig2.md``: headline comparison with the paper, per-method table, style, sweeps."""
     sections = (_header(summary, command, date), _claims_table(summary), _methods_table(summary),
-                _online_phases_table(summary), _training_episodes_table(summary), _stylesection(summary),
+                _online_phases_table(summary), _training_episodes_table(summary), _style_section(summary),
                 _delta_sweep_table(summary), _k_sweep_table(summary), _acting_sweep_table(summary),
-                _style_contextsection(summary), _budgetsection(summary), _compute_table(summary))
-    return "\n".join([line for section in sections for line in section] + [""])
+                _style_context_section(summary), _budget_section(summary), _compute_table(summary))
+    return "\n".join([line for part in sections for line in part] + [""])
 
 
 def _n_phases(summary: Mapping[str, Any]) -> int:
@@ -171,7 +171,7 @@ def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
                  _fmt(st["episodes"], 1)] for arm, st in summary["online_phase"].items())))
 
 
-def _stylesection(summary: Mapping[str, Any]) -> Lines:
+def _style_section(summary: Mapping[str, Any]) -> Lines:
     """(d): the confusion matrix summed over seeds and the logistic-regression baseline."""
     style = summary.get("style")
     if not style:
@@ -216,7 +216,7 @@ def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
                 "chunk jerk per step", "chunk collision rate"], rows))
 
 
-def _style_contextsection(summary: Mapping[str, Any]) -> Lines:
+def _style_context_section(summary: Mapping[str, Any]) -> Lines:
     if "style_context" not in summary:
         return []
     cmp = summary["style_context"]["reward_gain_pct"]
@@ -226,7 +226,7 @@ def _style_contextsection(summary: Mapping[str, Any]) -> Lines:
                     f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).")
 
 
-def _budgetsection(summary: Mapping[str, Any]) -> Lines:
+def _budget_section(summary: Mapping[str, Any]) -> Lines:
     b = summary["budget"]
     phases = f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else ""
     onestep = f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else ""

@@ -1,5 +1,4 @@
-"""Units of work of a Figure-2 run, one file each and skipped when it exists (:class:`SeedUnits`), and their
-scheduler (:func:`run_all`)."""
+"""Units of work of a Figure-2 run, one file each and skipped when it exists, and their scheduler."""
 
 from __future__ import annotations
 
@@ -69,8 +68,7 @@ def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
 
 
 def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
-    """Run (or resume) one seed's ``part`` under its lock, its units' seconds into its seconds file; return the
-    names of the units run."""
+    """Run (or resume) one seed's ``part`` under its lock, recording its units' seconds; return the units run."""
     import torch
 
     from sb3_ua2c.pipeline import write_json

@@ -191,8 +191,7 @@ def val_path(path: str | os.PathLike) -> Path:
 def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
                           episode_steps: int = PLAY_EPISODE_STEPS, seed: int = 0, noise: float | None = None,
                           noise_smoothing: float = PLAY_NOISE_SMOOTHING) -> dict[str, Any]:
-    """Generate the dataset of ``task``'s domain into ``path`` (and one tenth more into :func:`val_path`); return the
-    generation's measurements."""
+    """Generate the dataset of ``task``'s domain into ``path`` and :func:`val_path`; return its measurements."""
     import gymnasium as gym
     import ogbench.locomaze  # noqa: F401  (registers the environments)
     import ogbench.manipspace  # noqa: F401

@@ -1,5 +1,4 @@
-"""``OGBenchSingleTask-v0``: an OGBench single-task environment as OGBench builds it, with float32 observations and
-``info["success"]`` on every step for Stable-Baselines3."""
+"""``OGBenchSingleTask-v0``: an OGBench single-task environment as OGBench builds it, shaped for SB3."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""The OGBench benchmark as executor units, the task's dataset first, then one per (arm, seed); ``<work>``::
-
-    data/<n>ep-<steps>-s<seed>/<dataset>.npz        the generated dataset (+ -val.npz)
-    data/<n>ep-<steps>-s<seed>/<dataset>.json       its generation's measurements (stage 1's result)
-    units/<task>/<arm>-s<seed>/record.json          a unit's record (stage 2's result), checkpoints
-"""
+"""The OGBench benchmark as executor units: the task's dataset (``<work>/data/``) first, then one unit per (arm,
+seed), its record in ``<work>/units/<task>/<arm>-s<seed>/record.json``."""
 
 from __future__ import annotations
 
@@ -64,8 +60,7 @@ def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
 
 def estimate(arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
              reports: Sequence[dict[str, Any]] | None = None) -> dict[str, float]:
-    """CPU and wall seconds of a run: each arm's unit seconds in the ``reports`` (default: the committed ones)
-    scaled by its steps."""
+    """CPU and wall seconds of a run from the unit seconds in the ``reports`` (default: the committed ones)."""
     from experiments.common.estimate import estimate as scaled
     from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
 

@@ -1,5 +1,4 @@
-"""Budget and arms of the head-to-head (``python -m experiments peers``): every arm of a seed runs on that
-seed's Figure-2 protocol (its dataset, the same online env-step budget, the same evaluation scenarios)."""
+"""Budget and arms of the head-to-head, every arm of a seed on that seed's Figure-2 protocol."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""What every peer unit shares: its inputs, zoo hyperparameters, offline transitions, the online learning curve,
-timing and the JSON record it returns (:func:`unit_record`)."""
+"""What every peer unit shares: inputs, zoo hyperparameters, transitions, learning curve, timing and record."""
 
 from __future__ import annotations
 

@@ -29,8 +29,7 @@ FIGURE2_CLAIMS = {
 
 
 def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
-    """``(bins,)``: the mean return of one seed's online episodes ending in each bin of env steps (an empty bin
-    repeats the previous one)."""
+    """``(bins,)``: one seed's mean online return per bin of env steps (an empty bin repeats the previous one)."""
     width = online_steps / bins
     out = np.full(bins, np.nan)
     ends = np.array([e["end_step"] for e in episodes], dtype=float)

@@ -1,5 +1,4 @@
-"""The three stages of a head-to-head run, each a list of units: the seeds' datasets, the checkpoints the UA2C
-arms start from, and one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``."""
+"""The three stages of a head-to-head run: datasets, the UA2C arms' checkpoints, and one unit per arm and seed."""
 
 from __future__ import annotations
 
@@ -11,13 +10,7 @@ from typing import Any
 from experiments.common import records
 from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
-from experiments.peers.budget import (
-    D3RLPY_ARMS,
-    ONLINE_SB3_ARMS,
-    UA2C_ARMS,
-    PeersBudget,
-    estimate_units,
-)
+from experiments.peers.budget import D3RLPY_ARMS, ONLINE_SB3_ARMS, UA2C_ARMS, PeersBudget, estimate_units
 
 
 class PeersPaths(records.RunPaths):

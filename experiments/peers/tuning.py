@@ -1,5 +1,4 @@
-"""The same small tuning budget for every method of the head-to-head (``python -m experiments peers-tuning``):
-the configurations of :data:`GRID` on validation scenarios, the choice in ``<out>/selected.json``."""
+"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``."""
 
 from __future__ import annotations
 

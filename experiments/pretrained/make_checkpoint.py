@@ -1,7 +1,6 @@
 """Build the pretrained Phase-1 UA2C checkpoint of ``MixedTraffic-v0`` in rl-zoo's trained-agents layout.
 
-``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root; ``docs/zoo.md``).
-"""
+``python -m experiments make-checkpoint --out rl-trained-agents``, from the repository root (``docs/zoo.md``)."""
 
 from __future__ import annotations
 
