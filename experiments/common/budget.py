@@ -9,6 +9,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.defaults import defaults
 
 #: ``check(label, value)`` raises ``ValueError`` naming ``label`` when ``value`` is bad
 Check = Callable[[str, Any], None]
@@ -126,7 +127,5 @@ class Budget:
 
 def library_default(name: str) -> Any:
     """UA2C's default of hyperparameter ``name`` (:func:`sb3_ua2c.defaults.defaults`)."""
-    from sb3_ua2c.defaults import defaults
-
     return defaults()[name]
 

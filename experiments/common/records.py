@@ -16,6 +16,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from sb3_ua2c.pipeline import write_json
+
 
 def strict_json(obj: Any) -> Any:
     """A copy of ``obj`` that strict JSON parsers accept: NaN -> ``None``, ±inf -> ``"inf"``/``"-inf"``."""
@@ -61,8 +63,6 @@ def command_line(prog: str, argv: Sequence[str]) -> str:
 def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str,
                  plots: Callable[[Path], Sequence[Path]] | None = None) -> list[Path]:
     """Write ``<name>.json`` (strict JSON), ``<name>.md`` and the figures ``plots(out)`` into ``out``."""
-    from sb3_ua2c.pipeline import write_json
-
     out.mkdir(parents=True, exist_ok=True)
     files = [write_json(out / f"{name}.json", strict_json(summary)), out / f"{name}.md"]
     files[1].write_text(markdown)
@@ -73,8 +73,6 @@ def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what
                         fields: Sequence[str] | None = None, read: Callable[[Any], Mapping[str, Any]] | None = None,
                         write: bool = True) -> None:
     """Refuse a run whose budget stored at ``path`` differs from ``budget`` on ``fields``; then record ``budget``."""
-    from sb3_ua2c.pipeline import write_json
-
     path, now = Path(path), strict_json(budget)
     if path.is_file():
         stored = json.loads(path.read_text())
@@ -154,6 +152,10 @@ class RunPaths:
         """Refuse to resume the run under another budget (:func:`check_budget_record`), then record ``budget``."""
         check_budget_record(self.manifest, budget.to_dict(), f"the run in {self.work}", fields=self.FIELDS,
                             read=lambda stored: self.BUDGET.from_dict(stored).to_dict())
+
+    def rebuilt_budget(self, report: Mapping[str, Any], default: Any) -> Any:
+        """The budget a ``--report-only`` rebuild reads: the run's manifest, else its ``report``'s, else ``default``."""
+        return self.recorded_budget() or (self.BUDGET.from_dict(report["budget"]) if "budget" in report else default)
 
     def recorded_budget(self) -> Any:
         """The budget of the last call on this run (``None`` if none); a ``ValueError`` names a bad record."""

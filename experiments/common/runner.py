@@ -5,17 +5,20 @@ from __future__ import annotations
 
 import heapq
 import json
+import multiprocessing as mp
 import os
 import sys
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.pipeline import write_json
 
 
 @dataclass(frozen=True)
@@ -96,9 +99,6 @@ class ProcessExecutor:
         self.workers = workers
 
     def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         # one process per unit (Python >= 3.11; before, a worker runs several units one after another)
         fresh = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"), **fresh) as pool:
@@ -184,8 +184,6 @@ def run_units(
     units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
 ) -> list[UnitResult]:
     """Run ``units`` (but the stored ones) on ``executor``; their results in order, or :class:`UnitsFailedError`."""
-    from sb3_ua2c.pipeline import write_json
-
     names = [unit.name for unit in units]
     if len(set(names)) != len(names):
         raise ValueError(f"unit names must be unique, got duplicates {sorted({n for n in names if names.count(n) > 1})}")

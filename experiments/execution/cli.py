@@ -11,6 +11,9 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
+from experiments.common.records import previous_report, run_header
+from experiments.common.runner import Unit, make_executor, run_units
+from experiments.execution import report, unit
 from experiments.execution.controls import RULES
 from sb3_ua2c.checks import check_int
 
@@ -81,8 +84,6 @@ def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, w
 
 def _setup(args: argparse.Namespace) -> dict[str, Any]:
     """What differs between the tasks: the run function, its budget, scenarios, score, report and work names."""
-    from experiments.execution import unit
-
     role = args.role
     if args.env == "traffic":
         if args.task is not None:
@@ -110,10 +111,6 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
 
 def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[str, Any], prog: str) -> int:
     """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
-    from experiments.common.records import previous_report, run_header
-    from experiments.common.runner import Unit, make_executor, run_units
-    from experiments.execution import report
-
     out = Path(args.out)
     work = (Path(args.work) if args.work else out / "execution_work") / setup["work"]
     units = [Unit(f"seed{s}", setup["run_seed"],

@@ -3,6 +3,7 @@ checkpoint evaluated under the screened rules and their controls (:func:`evaluat
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,9 @@ from envs.evaluation import evaluate
 from experiments.common.names import DATASET_SEED_BASE
 from experiments.common.records import episode_rows
 from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
+from experiments.ogbench.env import OGBenchSingleTask
+from experiments.ogbench.runner import default_budget
+from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset, run_episodes
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
 
@@ -118,18 +122,12 @@ OGBENCH_EVAL_EPISODES = 20
 
 def study_budget(task: str, quick: bool = False) -> Any:
     """The OGBench harness's budget of ``task``, with :data:`OGBENCH_EVAL_EPISODES` evaluation episodes unless ``quick``."""
-    import dataclasses
-
-    from experiments.ogbench.runner import default_budget
-
     budget = default_budget(task, quick)
     return budget if quick else dataclasses.replace(budget, eval_episodes=OGBENCH_EVAL_EPISODES)
 
 
 def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -> EpisodeRunner:
     """The task's evaluation on the run's reset seeds, as the study's :data:`EpisodeRunner`."""
-    from experiments.ogbench.unit import run_episodes
-
     def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
         return run_episodes(model, env, n_episodes, seed, deterministic=deterministic, seed_base=scenario_base)
 
@@ -139,9 +137,6 @@ def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -
 def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
                       screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run on an OGBench ``task`` (``budget``: an :class:`OGBenchBudget` as a dict)."""
-    from experiments.ogbench.env import OGBenchSingleTask
-    from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset
-
     th.set_num_threads(1)
     b = OGBenchBudget.from_dict(budget)
     root = Path(work) / f"seed{seed}"

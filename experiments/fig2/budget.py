@@ -19,6 +19,9 @@ from experiments.common.budget import (
     mapping,
     reserved_keys,
 )
+from experiments.common.estimate import estimate, recorded, seconds_per_size
+from experiments.common.names import MAIN_METHODS, SAMPLED_METHODS
+from experiments.common.runner import list_schedule_seconds
 
 
 def _deltas(label: str, values: Any) -> None:
@@ -150,8 +153,6 @@ STYLE_STAGES = ("style", "style_ablation")
 
 def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
     """The size of each stage of one seed, what its recorded seconds scale with."""
-    from experiments.common.names import MAIN_METHODS, SAMPLED_METHODS
-
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
         + 2 * len(budget.acting_variants()) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
@@ -170,8 +171,6 @@ def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping[str, Any]] | None = None,
                      ) -> dict[str, float]:
     """CPU seconds per stage of a run and ``"total"``, from the ``reports`` (default: the committed ones)."""
-    from experiments.common.estimate import estimate, recorded, seconds_per_size
-
     reports = recorded("**/fig2.json") if reports is None else reports
     rates = seconds_per_size(
         (stage, seconds, size * len(report["seeds"]))
@@ -185,8 +184,6 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping
 
 def estimate_wall_seconds(stages: Mapping[str, float], n_seeds: int, workers: int) -> float:
     """Wall time of a run of ``stages`` CPU seconds, its parts scheduled as :func:`~experiments.fig2.units.run_all` does."""
-    from experiments.common.runner import list_schedule_seconds
-
     style = sum(stages.get(name, 0.0) for name in STYLE_STAGES) / n_seeds
     main = stages["total"] / n_seeds - style
     return list_schedule_seconds([main] * n_seeds + [style] * n_seeds, workers)  # run_all's order

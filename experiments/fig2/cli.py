@@ -92,13 +92,11 @@ def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], comman
     est = None if args.report_only else _run_units(args, seeds, budget, paths)
     default_elite = None
     if args.report_only:
-        # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
-        # its checkpoints acted with where the budget left it to the library (whose default may have changed)
-        manifest = paths.recorded_budget()
-        if manifest is None and "budget" in recorded:
-            manifest = Fig2Budget.from_dict(recorded["budget"])
+        # without the run's manifest, fig2.json gives the n_elite its checkpoints acted with where the budget left it
+        # to the library (whose default may have changed)
+        if paths.recorded_budget() is None:
             default_elite = recorded.get("acting_default", {}).get("n_elite")
-        budget = manifest or budget
+        budget = paths.rebuilt_budget(recorded, budget)
     summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
     seconds = recorded.get("seconds", {})
     summary["seconds"] = {

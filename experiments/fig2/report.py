@@ -294,10 +294,7 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
 
 def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """The PNG panels of a report: (a)-(c) as bars, (d)'s confusion matrix, the online curves and the sweeps."""
-    files = []
-    for name, title, ylabel, arms, note in _claim_panels(summary):
-        bar_panel(out / name, title, ylabel, arms, note)
-        files.append(out / name)
+    files = [bar_panel(out / name, *panel) for name, *panel in _claim_panels(summary)]
     if "style" in summary:
         from envs.style import plot_confusion
 
@@ -306,15 +303,13 @@ def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
                        title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")
         files.append(out / "fig2_d_style_confusion.png")
     if summary.get("online_phase"):
-        curve_panel(out / "fig2_c_online_curves.png", summary)
-        files.append(out / "fig2_c_online_curves.png")
+        files.append(curve_panel(out / "fig2_c_online_curves.png", summary))
     if summary["delta_sweep"] or summary["k_sweep"]:
-        sweep_panel(out / "fig2_sweeps.png", summary)
-        files.append(out / "fig2_sweeps.png")
+        files.append(sweep_panel(out / "fig2_sweeps.png", summary))
     return files
 
 
-def bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str) -> None:
+def bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str) -> Path:
     with figure(path, (4.2, 3.6)) as fig:
         ax = fig.add_subplot()
         for i, (_label, stat) in enumerate(arms):
@@ -325,9 +320,10 @@ def bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Map
         ax.set_xticks(range(len(arms)), [a[0] for a in arms])
         ax.set_ylabel(ylabel)
         ax.set_title(f"{title}\n{note}", fontsize=9)
+    return path
 
 
-def sweep_panel(path: Path, summary: Mapping[str, Any]) -> None:
+def sweep_panel(path: Path, summary: Mapping[str, Any]) -> Path:
     with figure(path, (8.4, 3.6)) as fig:
         ax1, ax2 = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
         for row in summary["delta_sweep"]:
@@ -345,9 +341,10 @@ def sweep_panel(path: Path, summary: Mapping[str, Any]) -> None:
         ax2.set_xlabel("chunk length k")
         ax2.set_ylabel("offline episode reward")
         ax2.set_title("k sweep (same gradient budget)", fontsize=9)
+    return path
 
 
-def curve_panel(path: Path, summary: Mapping[str, Any]) -> None:
+def curve_panel(path: Path, summary: Mapping[str, Any]) -> Path:
     with figure(path, (5.2, 3.6)) as fig:
         ax = fig.add_subplot()
         for arm, st in summary["online_phase"].items():
@@ -357,3 +354,4 @@ def curve_panel(path: Path, summary: Mapping[str, Any]) -> None:
         ax.set_ylabel("training episode return")
         ax.set_title(f"(c) Phase 2 training episodes, mean over {len(summary['seeds'])} seed(s)", fontsize=9)
         ax.legend(fontsize=7)
+    return path

@@ -12,10 +12,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
+import torch
+
+from envs import style
+from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
+from envs.evaluation import evaluate, plan_length_shares, summarize
 from experiments.common import names
+from experiments.common.runner import Unit, make_executor, run_units
 from experiments.fig2.budget import Fig2Budget, RunPaths, finetune_overrides
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
+from sb3_ua2c.pipeline import env_settings, finetune, pretrain, read_monitor, write_json
 
 #: The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the dataset,
 #: Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"style"`` ((d)'s style classifier
@@ -26,8 +33,6 @@ _PART_FILES = {"main": (".lock", "unit_seconds.json"), "style": (".lock-style", 
 
 def complete_dataset(path: Path, n_episodes: int) -> Any:
     """The dataset at ``path`` when it holds ``n_episodes`` episodes, else ``None`` (missing, damaged: collect it)."""
-    from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
-
     if (path / METADATA_FILE).is_file():
         try:
             ds = load_dataset(path)
@@ -69,10 +74,6 @@ def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
 
 def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
     """Run (or resume) one seed's ``part`` under its lock, recording its units' seconds; return the units run."""
-    import torch
-
-    from sb3_ua2c.pipeline import write_json
-
     if part not in (*SEED_PARTS, "all"):
         raise ValueError(f"part must be one of {[*SEED_PARTS, 'all']}, got {part!r}")
     torch.set_num_threads(1)
@@ -113,8 +114,6 @@ class SeedUnits:
 
     def dataset(self, name: str, style_classifier: str | None = None) -> Any:
         """The seed's offline dataset ``<work>/<name>`` (the style ablation's: with the style context)."""
-        from envs.collection import collect_dataset
-
         path, n_episodes = self.work / name, self.budget.dataset_episodes
         ds = complete_dataset(path, n_episodes)
         if ds is None:
@@ -125,8 +124,6 @@ class SeedUnits:
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
         """Phase 1 of the arm with chunk length ``k`` into ``<work>/<name>.zip``."""
-        from sb3_ua2c.pipeline import pretrain
-
         path = self.work / f"{name}.zip"
         if not path.is_file():
             with self.timed(f"pretrain/{name}"):
@@ -136,8 +133,6 @@ class SeedUnits:
 
     def finetuned(self, start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
         """Phase 2 from ``start`` with ``delta`` into ``<work>/<name>.zip``, its episodes into ``<raw>/online/``."""
-        from sb3_ua2c.pipeline import finetune, read_monitor, write_json
-
         path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
         if not path.is_file():
             with self.timed(f"finetune/{name}"):
@@ -153,9 +148,6 @@ class SeedUnits:
     def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None,
                  n_elite: int | None = None, flow_steps: int | None = None, deterministic: bool = True) -> None:
         """Evaluate ``checkpoint`` on the seed's scenarios into ``<raw>/<method>.json``."""
-        from envs.evaluation import evaluate, plan_length_shares, summarize
-        from sb3_ua2c.pipeline import write_json
-
         path, budget = self.raw / f"{method}.json", self.budget
         if path.is_file():
             return
@@ -175,8 +167,6 @@ class SeedUnits:
 
     def main(self) -> None:
         """The units of part ``"main"``, in dependency order: (a)-(c) and the sweeps."""
-        from sb3_ua2c.pipeline import env_settings
-
         budget, k, delta = self.budget, self.budget.chunk_size, self.budget.entropy_threshold
         ds = self.dataset("dataset")
         settings = env_settings(ds)
@@ -226,9 +216,6 @@ class SeedUnits:
 
     def style(self) -> None:
         """The units of part ``"style"``: (d), then the arm with the style context c_t (Eq. 6)."""
-        from envs import style
-        from sb3_ua2c.pipeline import env_settings, write_json
-
         budget, seed = self.budget, self.seed
         data = self._stored(self.work / "style_data.npz", style.StyleDataset.load, "style/collect",
                             lambda: style.collect_style_dataset(budget.style_episodes, env_kwargs=dict(budget.env_kwargs),
@@ -285,8 +272,6 @@ def run_fig2_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part:
 def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print,
             ray_address: str | None = None) -> list[str]:
     """Run (or resume) every seed's parts as executor units, the ``"main"`` parts first; return the units run."""
-    from experiments.common.runner import Unit, make_executor, run_units
-
     check_int("Fig2Budget.workers", workers)
     paths.check_budget(budget)
     parts = [(s, part) for part in SEED_PARTS for s in seeds]

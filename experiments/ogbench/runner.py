@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from experiments.common.cli import select_seeds
+from experiments.common.estimate import estimate as scaled
+from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
 from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, run_units
 from experiments.ogbench.data import TaskName
@@ -61,9 +63,6 @@ def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
 def estimate(arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
              reports: Sequence[dict[str, Any]] | None = None) -> dict[str, float]:
     """CPU and wall seconds of a run from the unit seconds in the ``reports`` (default: the committed ones)."""
-    from experiments.common.estimate import estimate as scaled
-    from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
-
     reports = recorded("**/ogbench.json") if reports is None else reports
     rates = seconds_per_size((r["arm"], r["seconds"]["total_cpu"], rep["budget"]["pretrain_steps"]
                               + rep["budget"]["finetune_steps"]) for rep in reports for r in rep.get("records", []))

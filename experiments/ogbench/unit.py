@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from experiments.common.budget import Budget, Check, flag, integer, optional, reserved_keys
@@ -20,6 +21,7 @@ from experiments.ogbench.data import TaskName, generate_play_dataset, load_singl
 from experiments.ogbench.env import ENV_ID, OGBenchSingleTask
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import OfflineDataset
+from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
 
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
 #: ``adaptive`` is UA2C's default chunking (k and δ), ``fixed`` executes every chunk in full (δ = inf: how
@@ -161,10 +163,6 @@ class _OnlineCurve(BaseCallback):
 def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_dir: str | os.PathLike,
                      data_dir: str | os.PathLike | None = None) -> dict[str, Any]:
     """Run one unit into ``out_dir`` (the dataset in ``data_dir``, default ``<out_dir>/data``); return its record."""
-    import torch as th
-
-    from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
-
     if arm not in ARMS:
         raise ValueError(f"arm must be one of {sorted(ARMS)}, got {arm!r}")
     TaskName.parse(task)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from experiments.common.budget import Budget, Check, integer, mapping, one_of, optional
+from experiments.common.estimate import estimate, format_minutes, recorded, seconds_per_size, wall_seconds
 from experiments.common.names import SCENARIO_BASES
 from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finetune_overrides
 
@@ -209,8 +210,6 @@ def unit_steps(budget: PeersBudget, arm: str) -> float:
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, workers: int,
                    records: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
     """CPU seconds of one unit of each arm from the ``records`` (default: the committed ones), and the run's."""
-    from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
-
     records = recorded("**/peers_raw/seed*/*.json") if records is None else records
     rates = seconds_per_size((r["arm"], r["cpu_seconds"]["total"], max(r.get("offline_steps", 0) + r["online_steps"], 1))
                              for r in records if "cpu_seconds" in r)
@@ -221,7 +220,5 @@ def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, worke
 
 def format_estimate(estimate: Mapping[str, Any]) -> str:
     """The estimate as printed before a run: per arm (one unit) and in total."""
-    from experiments.common.estimate import format_minutes
-
     lines = [f"  {arm:22s} {s / 60:6.1f} CPU-min per unit" for arm, s in estimate["per_unit"].items()]
     return "\n".join([format_minutes("peers", estimate["cpu"], estimate["wall"], estimate["workers"]), *lines])

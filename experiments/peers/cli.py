@@ -149,8 +149,7 @@ def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str
     command, date = run_header(command, recorded)
     estimate = None
     if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
-        budget = paths.recorded_budget() or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
-                                          else budget)
+        budget = paths.rebuilt_budget(recorded, budget)
         estimate = recorded.get("estimate")
     else:
         _run(args, seeds, arms, budget, paths)

@@ -14,9 +14,12 @@ from typing import Any
 
 import numpy as np
 
+from envs.collection import BehaviourConfig
+from envs.evaluation import evaluate, evaluate_behaviour, summarize
 from experiments.common.records import episode_rows, recorded_path
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset
+from sb3_ua2c.pipeline import env_settings, read_monitor
 
 #: Keys of a zoo entry that configure rl-zoo3 itself, not the algorithm.
 ZOO_ONLY_KEYS = frozenset({
@@ -105,8 +108,6 @@ def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
 
 def learning_curve(monitor_file: str | os.PathLike) -> list[dict[str, Any]]:
     """The online training episodes of a ``Monitor`` log, each with the env step at which it ended."""
-    from sb3_ua2c.pipeline import read_monitor
-
     steps, out = 0, []
     for e in read_monitor(monitor_file):
         steps += int(e["l"])
@@ -135,25 +136,17 @@ class PhaseClock:
 
 def evaluation_record(policy: Any, settings: Mapping[str, Any], inputs: ArmInputs, **kwargs: Any) -> dict[str, Any]:
     """``policy`` (or a checkpoint acting with ``kwargs``) on the inputs' evaluation scenarios."""
-    from envs.evaluation import evaluate
-
     return episodes_record(evaluate(policy, n_episodes=inputs.eval_episodes, seeds=inputs.eval_seeds,
                                     env_settings_=dict(settings), **kwargs))
 
 
 def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
     """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as a record: per episode and their means."""
-    from envs.evaluation import summarize
-
     return {"summary": summarize(list(episodes)), "episodes": episode_rows(episodes)}
 
 
 def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
     """One unit, the reference row of the data: the dataset's behaviour policy on the evaluation scenarios."""
-    from envs.collection import BehaviourConfig
-    from envs.evaluation import evaluate_behaviour
-    from sb3_ua2c.pipeline import env_settings
-
     ds = inputs.load_dataset()
     config = ds.metadata.get("behaviour_config")
     if config is None:
@@ -172,8 +165,6 @@ def unit_record(arm: str, inputs: ArmInputs, dataset: OfflineDataset, online_ste
                 clock: PhaseClock, offline_steps: int = 0, offline_evaluation: Mapping[str, Any] | None = None,
                 notes: str = "") -> dict[str, Any]:
     """The JSON record every peer unit returns."""
-    from sb3_ua2c.pipeline import env_settings
-
     record = {
         "arm": arm,
         "seed": inputs.seed,

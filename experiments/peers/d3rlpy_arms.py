@@ -9,12 +9,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.monitor import Monitor
 
+from envs.collection import make_traffic_env
 from experiments.common.cli import D3RLPY_INSTALL
 from experiments.peers import common
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset
+from sb3_ua2c.pipeline import env_settings
 
 ALGOS = ("iql", "calql", "rebrac", "rlpd", "bc")
 #: algorithms fitted offline only (no ``fit_online``): their final evaluation is the offline one
@@ -157,10 +161,6 @@ def run_d3rlpy(
 ) -> dict[str, Any]:
     """One unit: d3rlpy ``algo`` fitted offline on the seed's dataset and evaluated, then (unless
     :data:`OFFLINE_ONLY`) fine-tuned online and evaluated again, also by :class:`BestOfNPolicy` with ``best_of_n``."""
-    import torch as th
-
-    from sb3_ua2c.pipeline import env_settings
-
     seed, online_steps = inputs.seed, inputs.online_steps
     for name, value in (("online_steps", online_steps), ("batch_size", batch_size),
                         ("updates_per_step", updates_per_step)):
@@ -219,10 +219,6 @@ def run_d3rlpy(
 def _fit_online(d3rlpy: Any, learner: Any, ds: OfflineDataset, settings: Mapping[str, Any], offline: Any, seed: int,
                 out: Path, logs: Any, online_steps: int, offline_ratio: float, updates_per_step: int) -> None:
     """``fit_online`` on the dataset's environment, ``offline_ratio`` of each batch from ``offline``."""
-    from stable_baselines3.common.monitor import Monitor
-
-    from envs.collection import make_traffic_env
-
     env = make_traffic_env(**settings)
     try:
         ds.check_compatible(env)

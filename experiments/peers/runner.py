@@ -10,7 +10,10 @@ from typing import Any
 from experiments.common import records
 from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
+from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
 from experiments.peers.budget import D3RLPY_ARMS, ONLINE_SB3_ARMS, UA2C_ARMS, PeersBudget, estimate_units
+from experiments.peers.common import ArmInputs, run_behaviour
+from experiments.peers.ua2c_arms import build_checkpoint, build_dataset, run_ua2c_arm
 
 
 class PeersPaths(records.RunPaths):
@@ -29,8 +32,6 @@ def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
 
 
 def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
-    from experiments.peers.ua2c_arms import build_dataset
-
     b = budget.ua2c
     return [Unit(f"seed{s}/dataset", build_dataset,
                  {"path": str(paths.seed_work(s) / "dataset"), "n_episodes": b.dataset_episodes,
@@ -39,8 +40,6 @@ def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) 
 
 
 def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
-    from experiments.peers.ua2c_arms import build_checkpoint
-
     ua2c_arms = {budget.pretrain_name(a): a for a in arms if a in UA2C_ARMS}  # one arm per checkpoint
     b = budget.ua2c
     return [Unit(f"seed{s}/{name}", build_checkpoint,
@@ -51,10 +50,6 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
-    from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
-    from experiments.peers.common import ArmInputs, run_behaviour
-    from experiments.peers.ua2c_arms import run_ua2c_arm
-
     inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
                        seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
     fn: Callable[..., Any]

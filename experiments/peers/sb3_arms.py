@@ -16,9 +16,11 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from envs.collection import make_traffic_env
 from experiments.peers import common
 from experiments.peers.budget import ONLINE_SB3_ARMS
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.pipeline import env_settings
 
 #: Differences of the offline-mix arm from RLPD (Ball et al. 2023), stated in its record.
 RLPD_DIFFERENCES = (
@@ -102,9 +104,6 @@ def _algorithm(algo: str) -> type:
 
 def _train_and_evaluate(arm: str, algo: str, inputs: common.ArmInputs, hyperparams: Mapping[str, Any] | None,
                         conf_file: str | os.PathLike | None, offline_ratio: float | None, notes: str) -> dict[str, Any]:
-    from envs.collection import make_traffic_env
-    from sb3_ua2c.pipeline import env_settings
-
     check_int("online_steps", inputs.online_steps)
     ds = inputs.load_dataset()
     params = {**common.zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file),

@@ -7,17 +7,18 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
+import torch as th
+
+from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
 from experiments.common.records import recorded_path
 from experiments.fig2.units import complete_dataset
 from experiments.peers import common
 from experiments.peers.budget import describe_ua2c_arm
+from sb3_ua2c.pipeline import env_settings, finetune, pretrain
 
 
 def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage 1 of a seed: its offline dataset at ``path``, collected unless a complete one is there."""
-    from envs.collection import collect_dataset
-
     path = Path(path)
     ds = complete_dataset(path, n_episodes) or collect_dataset(path, n_episodes, env_kwargs=dict(env_kwargs), seed=seed,
                                                                overwrite=True)
@@ -27,10 +28,6 @@ def build_dataset(path: str | os.PathLike, n_episodes: int, seed: int, env_kwarg
 def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrain_steps: int, seed: int,
                      algo_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage 2 of a seed: pre-train UA2C offline on the seed's dataset into ``out`` (Figure 2's Phase 1)."""
-    import torch as th
-
-    from sb3_ua2c.pipeline import pretrain
-
     th.set_num_threads(1)
     clock = common.PhaseClock()
     with clock.phase("offline"):
@@ -44,10 +41,6 @@ def run_ua2c_arm(inputs: common.ArmInputs, arm: str, checkpoint: str | os.PathLi
                  finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any]) -> dict[str, Any]:
     """One unit: a UA2C arm from the seed's ``checkpoint``, acting with ``delta``, evaluated, fine-tuned online and
     evaluated again."""
-    import torch as th
-
-    from sb3_ua2c.pipeline import env_settings, finetune
-
     th.set_num_threads(1)
     ds = inputs.load_dataset()
     settings = env_settings(ds)

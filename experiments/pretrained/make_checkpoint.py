@@ -18,9 +18,16 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import stable_baselines3
 import torch
 
 from envs.cli import MAIN_BUDGET
+from envs.collection import TRAFFIC_DEFAULTS
+from envs.evaluation import evaluate, summarize
+from sb3_ua2c import UA2C
+from sb3_ua2c.offline import load_dataset
+from sb3_ua2c.pipeline import env_settings, save_atomic
+from sb3_ua2c.version import __version__
 
 ALGO = "ua2c"
 ENV_ID = "MixedTraffic-v0"
@@ -87,7 +94,6 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
 def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments but those
     ``pretrain`` sets itself, which must agree."""
-    from envs.collection import TRAFFIC_DEFAULTS
     from sb3_ua2c.zoo import ZOO_KEYS
 
     kwargs = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
@@ -126,9 +132,6 @@ def style_classifier_of(env_wrapper: Any) -> str | None:
 
 def drop_optimizer_moments(src: Path, dst: Path) -> Path:
     """Save ``src`` again without the optimizers' per-parameter state (Adam moments): the weights only."""
-    from sb3_ua2c import UA2C
-    from sb3_ua2c.pipeline import save_atomic
-
     model = UA2C.load(src, device="cpu")
     for optimizer in (model.actor.optimizer, model.critic.optimizer):
         optimizer.state.clear()
@@ -267,12 +270,6 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
 def build(args: argparse.Namespace, out: Path, work: Path, hyperparams: dict[str, Any]) -> dict[str, Any]:
     """Collect, pre-train, save and evaluate the checkpoint (the dataset in ``work``); return what the README shows."""
     import rl_zoo3
-    import stable_baselines3
-
-    from envs.evaluation import evaluate, summarize
-    from sb3_ua2c.offline import load_dataset
-    from sb3_ua2c.pipeline import env_settings
-    from sb3_ua2c.version import __version__
 
     style = style_classifier_of(hyperparams.get("env_wrapper"))
     algo_kwargs = pretrain_arguments(hyperparams)
