@@ -15,6 +15,8 @@ from experiments.common.records import previous_report, run_header
 from experiments.common.runner import Unit, make_executor, run_units
 from experiments.execution import report, unit
 from experiments.execution.controls import RULES
+from experiments.ogbench.runner import DEFAULT_TASK
+from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
 from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments execution"
@@ -91,9 +93,6 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
         return {"run_seed": unit.run_traffic_study, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
                 "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
                 "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role, "secondary": None}
-    from experiments.ogbench.runner import DEFAULT_TASK
-    from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
-
     task = args.task or DEFAULT_TASK
     return {"run_seed": unit.run_ogbench_study, "budget": unit.study_budget(task, args.quick).to_dict(),
             "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from envs.style import plot_confusion
 from experiments.common import names, records
 from experiments.common.records import figure, section, table
 from experiments.common.stats import interval, t_summary
@@ -296,8 +297,6 @@ def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """The PNG panels of a report: (a)-(c) as bars, (d)'s confusion matrix, the online curves and the sweeps."""
     files = [bar_panel(out / name, *panel) for name, *panel in _claim_panels(summary)]
     if "style" in summary:
-        from envs.style import plot_confusion
-
         st = summary["style"]
         plot_confusion(np.asarray(st["confusion_matrix"]), out / "fig2_d_style_confusion.png", st["classes"],
                        title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")

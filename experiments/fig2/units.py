@@ -14,15 +14,14 @@ from typing import Any
 
 import torch
 
-from envs import style
-from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
-from envs.evaluation import evaluate, plan_length_shares, summarize
+from envs import collection, evaluation, style
+from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
 from experiments.common import names
 from experiments.common.runner import Unit, make_executor, run_units
 from experiments.fig2.budget import Fig2Budget, RunPaths, finetune_overrides
+from sb3_ua2c import pipeline
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
-from sb3_ua2c.pipeline import env_settings, finetune, pretrain, read_monitor, write_json
 
 #: The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the dataset,
 #: Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"style"`` ((d)'s style classifier
@@ -90,7 +89,8 @@ def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "a
             finally:  # also on an interruption: the finished units' times are kept
                 if units.seconds:
                     path = units.work / seconds_file
-                    write_json(path, {**(json.loads(path.read_text()) if path.is_file() else {}), **units.seconds})
+                    old = json.loads(path.read_text()) if path.is_file() else {}
+                    pipeline.write_json(path, {**old, **units.seconds})
         executed += list(units.seconds)
     return executed
 
@@ -118,8 +118,9 @@ class SeedUnits:
         ds = complete_dataset(path, n_episodes)
         if ds is None:
             with self.timed(name):
-                ds = collect_dataset(path, n_episodes, env_kwargs=dict(self.budget.env_kwargs), overwrite=True,
-                                     style_classifier=style_classifier, seed=names.DATASET_SEED_BASE + 10_000 * self.seed)
+                ds = collection.collect_dataset(path, n_episodes, env_kwargs=dict(self.budget.env_kwargs), overwrite=True,
+                                                style_classifier=style_classifier,
+                                                seed=names.DATASET_SEED_BASE + 10_000 * self.seed)
         return ds
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
@@ -127,8 +128,8 @@ class SeedUnits:
         path = self.work / f"{name}.zip"
         if not path.is_file():
             with self.timed(f"pretrain/{name}"):
-                pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_traffic_env,
-                         algo_kwargs={**TRAFFIC_DEFAULTS, **self.budget.arm_kwargs(k)})
+                pipeline.pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_traffic_env,
+                                  algo_kwargs={**TRAFFIC_DEFAULTS, **self.budget.arm_kwargs(k)})
         return path
 
     def finetuned(self, start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
@@ -136,13 +137,15 @@ class SeedUnits:
         path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
         if not path.is_file():
             with self.timed(f"finetune/{name}"):
-                finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                         seed=self.seed + names.MAX_SEED * (self.budget.online_seed_offset + replicate),
-                         algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env)
+                pipeline.finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
+                                  seed=self.seed + names.MAX_SEED * (self.budget.online_seed_offset + replicate),
+                                  algo_overrides=finetune_overrides(self.budget), monitor_file=monitor,
+                                  make_env=make_traffic_env)
         episodes = self.raw / "online" / f"{name}.json"  # not the wall times; none from a run of an earlier version
         if not episodes.is_file() and monitor.is_file():
-            write_json(episodes, {"episodes": [{"reward": e["r"], "length": int(e["l"]), "collision": bool(e["collision"])}
-                                               for e in read_monitor(monitor)]})
+            rows = [{"reward": e["r"], "length": int(e["l"]), "collision": bool(e["collision"])}
+                    for e in pipeline.read_monitor(monitor)]
+            pipeline.write_json(episodes, {"episodes": rows})
         return path
 
     def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None,
@@ -152,16 +155,18 @@ class SeedUnits:
         if path.is_file():
             return
         with self.timed(f"evaluate/{method}"):
-            episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(names.EVAL_SEED_BASE + self.seed,),
-                                env_settings_=settings, entropy_threshold=delta, n_elite=n_elite,
-                                flow_steps=flow_steps, deterministic=deterministic)
-            write_json(path, {
+            episodes = evaluation.evaluate(checkpoint, n_episodes=budget.eval_episodes,
+                                           seeds=(names.EVAL_SEED_BASE + self.seed,), env_settings_=settings,
+                                           entropy_threshold=delta, n_elite=n_elite, flow_steps=flow_steps,
+                                           deterministic=deterministic)
+            pipeline.write_json(path, {
                 "method": method, "seed": self.seed, "checkpoint": checkpoint.name,
                 "entropy_threshold": None if delta is None else names.delta_name(float(delta)),
                 "eval_seed": names.EVAL_SEED_BASE + self.seed, "n_elite": n_elite, "flow_steps": flow_steps,
                 "deterministic": deterministic,
-                "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
-                            "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
+                "summary": {**evaluation.summarize(episodes),  # the L_t histogram up to the longest chunk of the run
+                            "length_shares": evaluation.plan_length_shares(episodes,
+                                                                           max((budget.chunk_size, *budget.k_sweep)))},
                 "episodes": episodes,
             })
 
@@ -169,7 +174,7 @@ class SeedUnits:
         """The units of part ``"main"``, in dependency order: (a)-(c) and the sweeps."""
         budget, k, delta = self.budget, self.budget.chunk_size, self.budget.entropy_threshold
         ds = self.dataset("dataset")
-        settings = env_settings(ds)
+        settings = pipeline.env_settings(ds)
         ckpt = self.offline(ds, settings)
         adaptive, fixed = self.online(ds, settings, ckpt[k])
         if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
@@ -227,12 +232,12 @@ class SeedUnits:
                                  "max_epochs": budget.style_max_epochs, "seed": seed})[0])
         if not (self.raw / "style.json").is_file():
             with self.timed("style/evaluate"):
-                write_json(self.raw / "style.json", {"seed": seed, **style.evaluate_style_classifier(model, data)})
+                pipeline.write_json(self.raw / "style.json", {"seed": seed, **style.evaluate_style_classifier(model, data)})
         if budget.style_ablation:
             ds_style = self.dataset("dataset_style", str(classifier.resolve()))
             pre_style = self.pretrained(budget.chunk_size, ds_style, "pretrain_style")
             fine_style = self.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
-            self.evaluate("adaptive_style", fine_style, env_settings(ds_style), budget.entropy_threshold)
+            self.evaluate("adaptive_style", fine_style, pipeline.env_settings(ds_style), budget.entropy_threshold)
 
     def _stored(self, path: Path, load: Callable[[Path], Any], unit: str, make: Callable[[], Any]) -> Any:
         """The object saved at ``path``, or ``make()``'s (unit ``unit``), saved there atomically."""

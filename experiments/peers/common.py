@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from envs.collection import BehaviourConfig
 from envs.evaluation import evaluate, evaluate_behaviour, summarize
@@ -62,8 +63,6 @@ def repo_zoo_config(algo: str) -> Path:
 
 def zoo_hyperparams(algo: str, env_id: str = "MixedTraffic-v0", conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
     """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default ``zoo_configs/``)."""
-    import yaml
-
     path = Path(conf_file) if conf_file is not None else repo_zoo_config(algo)
     if not path.is_file():
         raise FileNotFoundError(f"no zoo config {path}: pass conf_file= (e.g. zoo_configs/{algo}.yml of a source checkout)")

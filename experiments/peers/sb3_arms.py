@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from sb3_contrib import TQC, CrossQ
+from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
@@ -86,20 +88,8 @@ class OfflineMixReplayBuffer(ReplayBuffer):
             None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)))
 
 
-def _algorithm(algo: str) -> type:
-    if algo == "sac":
-        from stable_baselines3 import SAC
-
-        return SAC
-    if algo == "tqc":
-        from sb3_contrib import TQC
-
-        return TQC
-    if algo == "crossq":
-        from sb3_contrib import CrossQ
-
-        return CrossQ
-    raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
+#: The algorithm of each online SB3 arm
+ALGORITHMS = {"sac": SAC, "tqc": TQC, "crossq": CrossQ}
 
 
 def _train_and_evaluate(arm: str, algo: str, inputs: common.ArmInputs, hyperparams: Mapping[str, Any] | None,
@@ -119,7 +109,9 @@ def _train_and_evaluate(arm: str, algo: str, inputs: common.ArmInputs, hyperpara
         kwargs = copy.deepcopy(params)  # SB3 adds keys to policy_kwargs: keep the record as given
         if offline_ratio is not None:
             kwargs.update(replay_buffer_class=OfflineMixReplayBuffer, replay_buffer_kwargs={"offline_ratio": offline_ratio})
-        model = _algorithm(algo)("MlpPolicy", env, seed=inputs.seed, device="cpu", verbose=0, **kwargs)
+        if algo not in ALGORITHMS:
+            raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
+        model = ALGORITHMS[algo]("MlpPolicy", env, seed=inputs.seed, device="cpu", verbose=0, **kwargs)
         if offline_ratio is not None:
             model.replay_buffer.add_offline(common.episode_transitions(ds.episodes))
         with clock.phase("online"):

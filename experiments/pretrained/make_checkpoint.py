@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import inspect
 import json
 import os
 import shutil
@@ -18,16 +19,20 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import rl_zoo3
+import rl_zoo3.train as zoo_train
 import stable_baselines3
 import torch
 
 from envs.cli import MAIN_BUDGET
 from envs.collection import TRAFFIC_DEFAULTS
 from envs.evaluation import evaluate, summarize
+from envs.wrappers import DrivingStyleContext
 from sb3_ua2c import UA2C
 from sb3_ua2c.offline import load_dataset
 from sb3_ua2c.pipeline import env_settings, save_atomic
 from sb3_ua2c.version import __version__
+from sb3_ua2c.zoo import ZOO_KEYS, register
 
 ALGO = "ua2c"
 ENV_ID = "MixedTraffic-v0"
@@ -66,10 +71,6 @@ def _argv(argv: Sequence[str]) -> Iterator[None]:
 
 def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, dict[str, Any]]:
     """Run rl-zoo3's ``train`` up to where it saves ``config.yml`` and ``args.yml``; return where, and what."""
-    import rl_zoo3.train as zoo_train
-
-    from sb3_ua2c.zoo import register
-
     register()
     captured: dict[str, Any] = {}
     base = zoo_train.ExperimentManager
@@ -94,8 +95,6 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
 def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments but those
     ``pretrain`` sets itself, which must agree."""
-    from sb3_ua2c.zoo import ZOO_KEYS
-
     kwargs = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
     if isinstance(kwargs.get("policy_kwargs"), str):
         kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"nn": torch.nn})  # as rl-zoo3 does
@@ -111,10 +110,6 @@ def style_classifier_of(env_wrapper: Any) -> str | None:
     """The ``--style-classifier`` that gives the observation of the zoo config's ``env_wrapper``."""
     if env_wrapper is None:
         return None
-    import inspect
-
-    from envs.wrappers import DrivingStyleContext
-
     entries = env_wrapper if isinstance(env_wrapper, list) else [env_wrapper]
     if len(entries) != 1:
         raise ValueError(f"expected one env_wrapper (DrivingStyleContext) in the zoo config, got {env_wrapper!r}")
@@ -269,8 +264,6 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
 
 def build(args: argparse.Namespace, out: Path, work: Path, hyperparams: dict[str, Any]) -> dict[str, Any]:
     """Collect, pre-train, save and evaluate the checkpoint (the dataset in ``work``); return what the README shows."""
-    import rl_zoo3
-
     style = style_classifier_of(hyperparams.get("env_wrapper"))
     algo_kwargs = pretrain_arguments(hyperparams)
     dataset_dir, full_ckpt = work / "dataset", work / "pretrained.zip"
