@@ -1,8 +1,4 @@
-"""``python -m experiments <command> [options]``: the one entry point of the research harnesses.
-
-Each command is a module whose ``main(argv, prog)`` parses its own options (``python -m experiments <command>
---help``); :data:`COMMANDS` names them.
-"""
+"""``python -m experiments <command> [options]``: the one entry point of the research harnesses (:data:`COMMANDS`)."""
 
 from __future__ import annotations
 

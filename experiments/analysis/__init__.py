@@ -1,2 +1,1 @@
-"""Analyses across runs: ``python -m experiments paired`` (the paired per-seed difference of any two arms,
-within one run or across runs)."""
+"""Analyses across runs: ``python -m experiments paired``."""

@@ -1,13 +1,6 @@
-"""The paired per-seed difference of any two arms, within one run or across two runs:
-``python -m experiments paired X Y [--metric reward] [--offline] [--lower-is-better]``.
-
-``X`` and ``Y`` each name one score per seed: ``RAW_DIR:ARM``, the unit records of a head-to-head run (a
-run's score is the mean of ``--metric`` over its evaluation episodes; ``ARM_best_of_n`` reads a peer's
-best-of-N row; both arms must have used the same dataset and scenarios on every shared seed), or
-``FILE.json:KEY.KEY...``, a list of per-seed scores inside a report whose seeds are the nearest ``seeds``
-list on the key path (nothing checks that such lists pair). A positive difference always means X does
-better (with ``--lower-is-better`` it is Y − X). The cross-run differences quoted in ``docs/`` are
-reproduced this way from the committed records."""
+"""The paired per-seed difference of any two arms, within one run or across two runs (``docs/peers.md``):
+``python -m experiments paired X Y``, each side ``RAW_DIR:ARM`` (a head-to-head's records) or
+``FILE.json:KEY.KEY...`` (a per-seed list in a report, paired with the nearest ``seeds`` list)."""
 
 from __future__ import annotations
 
@@ -34,8 +27,7 @@ class SeedScores:
 
 
 def raw_scores(raw: Path, arm: str, metric: str, evaluation: str) -> SeedScores:
-    """The runs of ``arm`` stored under ``raw`` (``seed<s>/<arm>.json``, or the ``<peer>_best_of_n`` row
-    that :func:`~experiments.peers.runner.load_records` derives from a peer's records), one score per run."""
+    """One score per run of ``arm`` (or of a peer's ``<peer>_best_of_n`` row) among the records under ``raw``."""
     records = load_records(PeersPaths(raw.parent, raw, raw.parent))
     base = arm.removesuffix("_best_of_n")
     if arm not in records and base in records:  # the peer ran, but was not evaluated by best of N
@@ -103,8 +95,7 @@ def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[st
 
 def format_pair(x: SeedScores, y: SeedScores, result: Mapping[str, Any], metric: str,
                 higher_is_better: bool = True) -> str:
-    """Three lines: X's and Y's means over the shared seeds, then the paired difference with its interval
-    (X − Y, or Y − X for a cost), saying which way is better."""
+    """X's and Y's means over the shared seeds, then their paired difference, saying which way is better."""
     if not (x.conditions and y.conditions):  # a report's list: its metric is whatever the list holds
         metric = "score"
     if not higher_is_better:

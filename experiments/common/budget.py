@@ -1,10 +1,4 @@
-"""The base of every harness budget (:class:`Budget`): a frozen dataclass whose fields are checked by one
-table (:attr:`Budget.CHECKS`) and converted to and from plain JSON by :func:`dataclasses.fields`.
-
-A budget subclass declares its fields, a ``CHECKS`` table ``{field: check}`` built from the checks below,
-and, for rules that tie several fields together, a :meth:`Budget.validate` method. A bad value raises
-``ValueError`` naming ``<Class>.<field>``; an unknown key of :meth:`Budget.from_dict` names itself.
-"""
+"""The base of every harness budget, whose fields one table checks (:attr:`Budget.CHECKS`), and the checks."""
 
 from __future__ import annotations
 
@@ -15,6 +9,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.defaults import defaults
 
 #: ``check(label, value)`` raises ``ValueError`` naming ``label`` when ``value`` is bad
 Check = Callable[[str, Any], None]
@@ -79,7 +74,6 @@ def reserved_keys(*keys: str, why: str) -> Check:
 class Budget:
     """Base of the harness budgets (see the module docstring)."""
 
-    #: field -> check; each runs on the field's value as given
     CHECKS: ClassVar[Mapping[str, Check]] = {}
 
     def __post_init__(self) -> None:
@@ -99,8 +93,7 @@ class Budget:
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> Budget:
-        """Build from a mapping (e.g. JSON): a nested budget from its dict, ``"inf"`` as infinity; an unknown
-        key raises ``ValueError`` naming it."""
+        """Build from JSON: a nested budget from its dict, ``"inf"`` as infinity; an unknown key raises."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(values) - names
         if unknown:
@@ -116,7 +109,7 @@ class Budget:
         return cls(**out)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict of the fields (lists for tuples, dicts for nested budgets): the inverse of :meth:`from_dict`."""
+        """Plain dict of the fields: the inverse of :meth:`from_dict`."""
         def plain(value: Any) -> Any:
             if isinstance(value, Budget):
                 return value.to_dict()
@@ -133,12 +126,6 @@ class Budget:
 
 
 def library_default(name: str) -> Any:
-    """UA2C's default of hyperparameter ``name`` (``"policy_kwargs"``: the policy's defaults as a dict), from
-    :func:`sb3_ua2c.defaults.defaults`: the harnesses never write a library default again."""
-    from sb3_ua2c.defaults import defaults
-
+    """UA2C's default of hyperparameter ``name`` (:func:`sb3_ua2c.defaults.defaults`)."""
     return defaults()[name]
 
-
-__all__ = ["Budget", "Check", "each", "finite", "flag", "integer", "library_default", "mapping", "one_of", "optional",
-           "reserved_keys"]

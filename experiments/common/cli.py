@@ -1,6 +1,4 @@
-"""What every harness command line shares: its options (:func:`harness_parent`), the seeds they select
-(:func:`select_seeds`), the optional packages a run needs, checked before any unit runs (:func:`check_extras`),
-and the skeleton parse → check → run → exit code (:func:`harness_main`)."""
+"""What every harness command line shares: options, seeds, optional packages and :func:`harness_main`."""
 
 from __future__ import annotations
 
@@ -30,16 +28,7 @@ def harness_parent(*, seeds: str, work: str, workers: int | None = 2,
                    workers_help: str = "local processes at once, each unit in a fresh process (default: 2)",
                    quick: str = "a tiny budget: a smoke test", budget: str | None = None, raw: str | None = None,
                    scenarios: bool = False, rerun: bool = False) -> argparse.ArgumentParser:
-    """The parent parser of the options every harness has (``--seeds --out --work --workers --ray-address
-    --quick --report-only``) and of those some have (``--budget --raw --scenarios --rerun``).
-
-    :param seeds: the default seeds, as the help text says them (``--seeds`` defaults to ``None``)
-    :param work: the default work directory, as the help text says it (``--work`` defaults to ``None``)
-    :param workers: the default of ``--workers`` (``None``: the experiment chooses after parsing)
-    :param budget: help text of ``--budget`` (a JSON object or ``@FILE``; ``None``: no such option)
-    :param raw: the default record directory, as the help text says it (``None``: no ``--raw``)
-    :param scenarios: add ``--scenarios``; ``rerun``: add ``--rerun``
-    """
+    """The parent parser of the options every harness has and of those some have (given their help texts)."""
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--seeds", type=int, nargs="+", default=None, metavar="SEED",
                         help=f"run seeds (default: {seeds})")
@@ -78,13 +67,7 @@ def budget_arg(text: str) -> dict[str, Any]:
 
 
 def select_seeds(seeds: Sequence[int] | None, default: Sequence[int], high: int = MAX_SEED) -> list[int]:
-    """The seeds of ``--seeds`` without repeats, in the order given (``default`` when not given).
-
-    :param seeds: the parsed ``--seeds`` (``None``: not given)
-    :param default: the seeds of a run without ``--seeds``
-    :param high: seeds must lie in ``[0, high)`` (seed ranges of the datasets and scenarios)
-    :raises ValueError: naming ``--seeds``
-    """
+    """The seeds of ``--seeds`` (``default`` when ``None``) without repeats, each in ``[0, high)``."""
     chosen = list(default if seeds is None else seeds)
     if not chosen or any(isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < high for s in chosen):
         raise ValueError(f"--seeds must be integers in [0, {high}), got {chosen!r}")
@@ -92,12 +75,7 @@ def select_seeds(seeds: Sequence[int] | None, default: Sequence[int], high: int 
 
 
 def check_extras(modules: Iterable[str]) -> None:
-    """Refuse a run whose optional modules are missing, before any unit runs (a missing report
-    dependency would otherwise fail only after hours of units).
-
-    :param modules: top-level module names, keys of :data:`EXTRAS`
-    :raises MissingExtraError: naming the missing modules and the ``pip install "sb3-ua2c[<extra>]"`` that adds them
-    """
+    """Refuse a run whose optional ``modules`` are missing, naming the ``pip install`` that adds them."""
     missing = [m for m in dict.fromkeys(modules) if find_spec(m) is None]
     if not missing:
         return
@@ -108,8 +86,7 @@ def check_extras(modules: Iterable[str]) -> None:
 
 
 def run_command(run: Callable[[], int]) -> int:
-    """``run()``'s exit code, or the exit code of its error printed to stderr: 2 for a usage error (a bad
-    argument, a missing file or record, a seed another process is running), 1 when units failed."""
+    """``run()``'s exit code, or its error's printed to stderr: 2 for a usage error, 1 when units failed."""
     try:
         return run()
     except UnitsFailedError as exc:
@@ -122,17 +99,15 @@ def run_command(run: Callable[[], int]) -> int:
 
 def harness_main(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: str,
                  check: Callable[[argparse.Namespace], Any], run: Callable[[argparse.Namespace, Any, str], int]) -> int:
-    """The skeleton of every harness command: parse ``argv`` (default ``sys.argv[1:]``); ``check(args)``, whose
-    ``ValueError`` is a usage error; then ``run(args, checked, command)``, ``command`` being the shell line a
-    report records, through :func:`run_command`."""
+    """The skeleton of every harness command: parse ``argv``, check the Ray extra and ``check(args)`` (a ``ValueError``
+    is a usage error), then ``run(args, checked, command)`` with the shell line a report records."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     try:
+        if args.ray_address is not None and not args.report_only:
+            check_extras(["ray"])
         checked = check(args)
     except ValueError as exc:
         parser.error(str(exc))
     return run_command(lambda: run(args, checked, command_line(prog, argv)))
 
-
-__all__ = ["D3RLPY_INSTALL", "EXTRAS", "MissingExtraError", "budget_arg", "check_extras", "harness_main",
-           "harness_parent", "run_command", "select_seeds"]

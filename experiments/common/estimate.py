@@ -1,12 +1,4 @@
-"""Run-time estimates from the timings the committed records already hold, printed before a run.
-
-Every harness stores the CPU seconds of its units in its records (``results/**/peers_raw/seed<s>/<arm>.json``,
-the ``seconds`` of ``fig2.json`` and of ``ogbench.json``'s run records). A harness names the *kind* of each
-unit it is about to run (an arm, a stage) and its *size* (its steps); :func:`seconds_per_size` pools the
-recorded seconds per unit of size of each kind, and :func:`estimate` scales them by the new sizes. A kind
-that no record holds takes the median rate of the kinds that do. Units are priced on one core each; the wall
-time is their longest-first schedule on the workers (:func:`~experiments.common.runner.list_schedule_seconds`).
-"""
+"""Run-time estimates printed before a run: the committed records' CPU seconds per step of each kind of unit."""
 
 from __future__ import annotations
 
@@ -19,7 +11,6 @@ import numpy as np
 
 from experiments.common.runner import list_schedule_seconds
 
-#: The committed reports and their records
 RESULTS = Path(__file__).resolve().parents[2] / "results"
 
 
@@ -29,10 +20,7 @@ def recorded(pattern: str, results: Path = RESULTS) -> list[dict[str, Any]]:
 
 
 def seconds_per_size(samples: Iterable[tuple[str, float, float]]) -> dict[str, float]:
-    """Seconds per unit of size of each kind: the sum of its samples' seconds over the sum of their sizes.
-
-    :param samples: ``(kind, seconds, size)`` of each recorded unit (a size <= 0 is skipped)
-    """
+    """Seconds per unit of size of each kind, from ``(kind, seconds, size)`` samples (a size <= 0 is skipped)."""
     seconds: dict[str, float] = {}
     sizes: dict[str, float] = {}
     for kind, s, size in samples:
@@ -58,5 +46,3 @@ def format_minutes(what: str, cpu: float, wall: float, workers: int) -> str:
     return (f"{what}: estimated {cpu / 60:.0f} CPU-min, ~{wall / 60:.0f} min wall on {workers} worker(s) "
             "(from the unit times of the committed records; before resuming)")
 
-
-__all__ = ["RESULTS", "estimate", "format_minutes", "recorded", "seconds_per_size", "wall_seconds"]

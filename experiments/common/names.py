@@ -57,8 +57,7 @@ def delta_name(delta: float) -> str:
 
 
 def replicate_name(arm: str, replicate: int) -> str:
-    """Unit name of a fine-tuned arm in online phase ``replicate``: ``("fixed", 0) -> "fixed"``,
-    ``("fixed", 2) -> "fixed_r2"`` (see ``Fig2Budget.online_replicates``)."""
+    """Unit name of a fine-tuned arm in online phase ``replicate``: ``"fixed"``, ``"fixed_r2"``."""
     return arm if replicate == 0 else f"{arm}_r{replicate}"
 
 
@@ -68,8 +67,7 @@ def sampled_name(method: str) -> str:
 
 
 def acting_name(arm: str, flow_steps: int | None, n_elite: int, default_elite: int) -> str:
-    """Method name of an arm evaluated with another acting rule: ``("chunk", 2, 8, 1) -> "chunk_flow2_elite8"``,
-    ``("onestep", None, 8, 1) -> "onestep_elite8"`` (``None`` = the checkpoint's Euler steps; ``n_elite``
-    is named unless it is the checkpoints' ``default_elite``: ``("chunk", None, 1, 8) -> "chunk_elite1"``)."""
+    """Method name of an arm acting with ``flow_steps`` (``None``: the checkpoint's) and ``n_elite`` (unnamed when
+    the ``default_elite``): ``("chunk", 2, 8, 1) -> "chunk_flow2_elite8"``."""
     elite = "" if n_elite == default_elite else f"_elite{n_elite}"
     return arm + ("" if flow_steps is None else f"_flow{flow_steps}") + elite

@@ -1,19 +1,22 @@
-"""What every experiment report records: its command and date, paths relative to the working
-directory, JSON that strict parsers accept, and the budget a run directory was made with
-(:func:`check_budget_record`)."""
+"""What every experiment report shares: its header, files, tables and figures, and a run's directories and budget."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import shlex
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
+
+from sb3_ua2c.pipeline import write_json
 
 
 def strict_json(obj: Any) -> Any:
@@ -31,24 +34,26 @@ def strict_json(obj: Any) -> Any:
         return int(obj)
     return obj
 
+
 def recorded_path(path: str | os.PathLike) -> str:
-    """``path`` as a record stores it: relative to the working directory when it lies inside it
-    (``results/peers_work/...``), so that committed records name no directory of the machine."""
+    """``path`` relative to the working directory when inside it: committed records name no machine's directory."""
     path = Path(path).absolute()
     try:
         return str(path.relative_to(Path.cwd()))
     except ValueError:
         return str(path)
 
-def run_header(command: str, previous: Path | None = None) -> tuple[str, str]:
-    """The command and date (UTC, to the minute) a report records: now, or, when ``previous`` (the report's
-    JSON from the run) exists, the ones it recorded, so that a report rebuilt with ``--report-only``
-    keeps the run's."""
+
+def previous_report(path: Path, report_only: bool) -> dict[str, Any]:
+    """The report a ``--report-only`` rebuild replaces (its parsed JSON at ``path``), else ``{}``."""
+    return json.loads(path.read_text()) if report_only and path.is_file() else {}
+
+
+def run_header(command: str, previous: Mapping[str, Any]) -> tuple[str, str]:
+    """The command and date a report records: now, or those of the ``previous`` report it rebuilds."""
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    if previous is not None and Path(previous).is_file():
-        recorded = json.loads(Path(previous).read_text())
-        command, date = recorded.get("command") or command, recorded.get("date") or date
-    return command, date
+    return previous.get("command") or command, previous.get("date") or date
+
 
 def command_line(prog: str, argv: Sequence[str]) -> str:
     """The invoking command as a shell line: ``prog`` then the arguments, quoted where needed."""
@@ -57,10 +62,7 @@ def command_line(prog: str, argv: Sequence[str]) -> str:
 
 def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str,
                  plots: Callable[[Path], Sequence[Path]] | None = None) -> list[Path]:
-    """The files of a harness's report: ``<name>.json`` (``summary`` as strict JSON), ``<name>.md`` (``markdown``)
-    and the figures ``plots(out)`` draws, in ``out``; returns their paths."""
-    from sb3_ua2c.pipeline import write_json
-
+    """Write ``<name>.json`` (strict JSON), ``<name>.md`` and the figures ``plots(out)`` into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     files = [write_json(out / f"{name}.json", strict_json(summary)), out / f"{name}.md"]
     files[1].write_text(markdown)
@@ -70,23 +72,7 @@ def write_report(out: Path, name: str, summary: Mapping[str, Any], markdown: str
 def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what: str,
                         fields: Sequence[str] | None = None, read: Callable[[Any], Mapping[str, Any]] | None = None,
                         write: bool = True) -> None:
-    """Refuse to resume a run under another budget: its stored units would be silently reused.
-
-    ``path`` holds the budget a run was made with (JSON). When it exists, the stored budget must agree with
-    ``budget`` on ``fields``; then, with ``write``, ``budget`` is recorded there (the first call of a run
-    writes the record).
-
-    :param path: the budget record (a manifest, or a stored unit's record with ``read``)
-    :param budget: the budget of this call, as a plain dict (``Budget.to_dict()``)
-    :param what: what the error names, e.g. ``"the run in results/peers_work"``
-    :param fields: the keys that must agree (``None``: every key); others may change between calls
-    :param read: the stored JSON -> the budget dict (e.g. through the budget class, so that a key added
-        since the record holds its default)
-    :param write: record ``budget`` at ``path`` once it agrees
-    :raises ValueError: naming the keys that differ, with both values
-    """
-    from sb3_ua2c.pipeline import write_json
-
+    """Refuse a run whose budget stored at ``path`` differs from ``budget`` on ``fields``; then record ``budget``."""
     path, now = Path(path), strict_json(budget)
     if path.is_file():
         stored = json.loads(path.read_text())
@@ -101,4 +87,81 @@ def check_budget_record(path: str | os.PathLike, budget: Mapping[str, Any], what
         write_json(path, now)
 
 
-__all__ = ["check_budget_record", "command_line", "recorded_path", "run_header", "strict_json", "write_report"]
+def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    """A Markdown table: the ``header`` cells, then one line per row of cells."""
+    return [_table_row(header), "|" + "---|" * len(header), *map(_table_row, rows)]
+
+
+def _table_row(cells: Sequence[Any]) -> str:
+    return "| " + " | ".join(map(str, cells)) + " |"
+
+
+def section(title: str, *lines: str) -> list[str]:
+    """A Markdown section: a blank line, the ``## title`` heading, a blank line and ``lines``."""
+    return ["", f"## {title}", "", *lines]
+
+
+@contextmanager
+def figure(path: Path, size: tuple[float, float]) -> Iterator[Any]:
+    """A matplotlib figure (no pyplot: the caller's backend stays untouched), saved to ``path`` on leaving."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, dpi=120)
+    FigureCanvasAgg(fig)
+    yield fig
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def episode_rows(episodes: Sequence[Any]) -> list[dict[str, Any]]:
+    """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as JSON rows, with their jerk per step."""
+    return [{**dataclasses.asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a run keeps its report (``out``), records (``raw``), datasets and checkpoints (``work``) and budget."""
+
+    NAME: ClassVar[str] = "run"
+    BUDGET: ClassVar[type] = dict
+    FIELDS: ClassVar[Sequence[str] | None] = None
+    out: Path
+    raw: Path
+    work: Path
+
+    @classmethod
+    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
+              work: str | os.PathLike | None = None) -> RunPaths:
+        """``<out>/<NAME>_raw`` and ``<out>/<NAME>_work`` unless given; absolute, as units on a Ray cluster use them."""
+        out = Path(out).resolve()
+        return cls(out, Path(raw).resolve() if raw else out / f"{cls.NAME}_raw",
+                   Path(work).resolve() if work else out / f"{cls.NAME}_work")
+
+    def seed_work(self, seed: int) -> Path:
+        return self.work / f"seed{seed}"
+
+    def seed_raw(self, seed: int) -> Path:
+        return self.raw / f"seed{seed}"
+
+    @property
+    def manifest(self) -> Path:
+        return self.work / f"{self.NAME}_budget.json"
+
+    def check_budget(self, budget: Any) -> None:
+        """Refuse to resume the run under another budget (:func:`check_budget_record`), then record ``budget``."""
+        check_budget_record(self.manifest, budget.to_dict(), f"the run in {self.work}", fields=self.FIELDS,
+                            read=lambda stored: self.BUDGET.from_dict(stored).to_dict())
+
+    def rebuilt_budget(self, report: Mapping[str, Any], default: Any) -> Any:
+        """The budget a ``--report-only`` rebuild reads: the run's manifest, else its ``report``'s, else ``default``."""
+        return self.recorded_budget() or (self.BUDGET.from_dict(report["budget"]) if "budget" in report else default)
+
+    def recorded_budget(self) -> Any:
+        """The budget of the last call on this run (``None`` if none); a ``ValueError`` names a bad record."""
+        if not self.manifest.is_file():
+            return None
+        try:
+            return self.BUDGET.from_dict(json.loads(self.manifest.read_text()))
+        except (json.JSONDecodeError, TypeError, ValueError) as exc:
+            raise ValueError(f"{self.manifest} is not a {self.BUDGET.__name__} record: {exc}") from exc

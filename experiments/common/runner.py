@@ -1,57 +1,29 @@
-"""Run independent units of work in fresh processes: locally (a process pool) or on a Ray cluster.
-
-A :class:`Unit` is a picklable top-level function, its keyword arguments and, optionally, the
-JSON file its result is stored in. :func:`run_units` runs a list of units with one of three
-executors and returns one :class:`UnitResult` per unit, in the order given:
-
-* :class:`SerialExecutor`: one after the other in this process (debugging, tests);
-* :class:`ProcessExecutor`: ``workers`` processes, each unit in a fresh ``spawn``-ed process
-  (libsumo holds one simulation per process, and nothing leaks from one unit into the next);
-  a unit owns one CPU: torch runs one intra-op thread in it;
-* :class:`RayExecutor`: each unit a Ray task with one CPU and its own worker process
-  (``num_cpus=1, max_calls=1``) on the cluster at ``address`` (``pip install "sb3-ua2c[peers]"``).
-
-Resuming. A unit with a ``result_file`` that exists is not run: its stored result is returned
-(``skipped=True``). Otherwise the unit's return value is written there (JSON, atomically) by this
-process once the unit finishes, so an interrupted run resumes with the units not yet stored. Units
-without a ``result_file`` always run (they may resume internally, as the Figure-2 seeds do).
-
-Failures. A unit that raises does not stop the others: every unit runs, then
-:class:`UnitsFailedError` names the failed units with their tracebacks (the stored results of the
-units that succeeded are kept).
-
-On a Ray cluster the units run on other machines: the code (``sb3_ua2c`` and ``envs``) must be
-installed on every node, and the paths a unit reads or writes (datasets, output directories) must
-name a filesystem every node shares. Result files are written by the calling process.
-"""
+"""Run independent units of work in this process, in fresh local processes or as Ray tasks (``docs/peers.md``):
+a unit whose ``result_file`` exists is skipped, and one that raises does not stop the others."""
 
 from __future__ import annotations
 
 import heapq
 import json
+import multiprocessing as mp
 import os
 import sys
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.pipeline import write_json
 
 
 @dataclass(frozen=True)
 class Unit:
-    """One independent unit of work.
-
-    :param name: unique name of the unit (e.g. ``"seed0/sac"``), used in progress lines and errors
-    :param fn: a top-level (importable, picklable) function; called as ``fn(**kwargs)``
-    :param kwargs: its keyword arguments (picklable)
-    :param result_file: JSON file of the unit's result; when it exists the unit is skipped, and
-        ``fn``'s return value (JSON-serialisable) is written there when it finishes
-    """
+    """``fn(**kwargs)`` under a unique ``name``, its JSON result stored in ``result_file`` (if it exists: skipped)."""
 
     name: str
     fn: Callable[..., Any]
@@ -71,14 +43,7 @@ class Unit:
 
 @dataclass(frozen=True)
 class UnitResult:
-    """What running (or skipping) a unit gave.
-
-    :param name: the unit's name
-    :param value: ``fn``'s return value, or the stored result of a skipped unit
-    :param skipped: the unit's result file existed: nothing ran
-    :param wall_seconds: wall-clock seconds of ``fn`` in its worker (0 when skipped)
-    :param cpu_seconds: CPU seconds of the worker process during ``fn`` (all its threads; 0 when skipped)
-    """
+    """A unit's value (or stored result, ``skipped``) and the wall and CPU seconds of its run (0 when skipped)."""
 
     name: str
     value: Any
@@ -88,8 +53,7 @@ class UnitResult:
 
 
 class UnitsFailedError(RuntimeError):
-    """Some units raised; ``failures`` maps their names to the formatted tracebacks and ``results``
-    holds the :class:`UnitResult` of every unit in order (``None`` for the failed ones)."""
+    """Some units raised: ``failures`` maps their names to their tracebacks, ``results`` holds every unit's."""
 
     def __init__(self, failures: Mapping[str, str], results: Sequence[UnitResult | None] = ()) -> None:
         self.failures = dict(failures)
@@ -98,25 +62,18 @@ class UnitsFailedError(RuntimeError):
         super().__init__(f"{len(self.failures)} unit(s) failed: {sorted(self.failures)}\n{details}")
 
 
-def call_unit(unit: Unit) -> tuple[Any, float, float]:
-    """Run ``unit.fn(**unit.kwargs)``; return its value, wall and CPU seconds (what a worker runs)."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    value = unit.fn(**unit.kwargs)
-    return value, time.perf_counter() - wall, time.process_time() - cpu
-
-
 def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
-    """:func:`call_unit` that returns a failure as ``(False, traceback, 0, 0)`` instead of raising."""
+    """Run ``unit``: ``(True, value, wall seconds, CPU seconds)``, or ``(False, traceback, 0, 0)`` if it raised."""
+    wall, cpu = time.perf_counter(), time.process_time()
     try:
-        return (True, *call_unit(unit))
+        value = unit.fn(**unit.kwargs)
     except Exception:  # reported by name once every unit has run
         return False, traceback.format_exc(), 0.0, 0.0
+    return True, value, time.perf_counter() - wall, time.process_time() - cpu
 
 
 def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
-    """:func:`_call_unit_safely` in a worker process that owns one CPU: torch's intra-op pool is cut
-    to one thread first (two units of two threads each on two cores oversubscribe them, and torch's
-    threads then spin waiting for each other: the same work took several times the CPU seconds)."""
+    """:func:`_call_unit_safely` with torch on one thread: a unit owns one CPU (oversubscribed, torch's threads spin)."""
     try:
         import torch
     except ImportError:  # a unit that does not use torch
@@ -135,19 +92,13 @@ class SerialExecutor:
 
 
 class ProcessExecutor:
-    """Run units in ``workers`` processes at a time, each unit in a fresh ``spawn``-ed process.
-
-    :param workers: processes at once (>= 1)
-    """
+    """Run units in ``workers`` processes at a time, each unit in a fresh ``spawn``-ed process."""
 
     def __init__(self, workers: int = 1) -> None:
         check_int("workers", workers)
         self.workers = workers
 
     def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         # one process per unit (Python >= 3.11; before, a worker runs several units one after another)
         fresh = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"), **fresh) as pool:
@@ -161,30 +112,16 @@ class ProcessExecutor:
 
 
 class RayExecutor:
-    """Run each unit as a Ray task with one CPU in its own worker process (``max_calls=1``).
+    """Run each unit as a Ray task with one CPU in its own process on the cluster at ``address``."""
 
-    :param address: the cluster's address (``"auto"``, ``"HOST:PORT"`` of ``ray start --head``, or
-        ``"ray://HOST:10001"``); ``None`` starts a local single-machine Ray instance
-    :param runtime_env: Ray runtime environment of the tasks (e.g. ``{"env_vars": {...}}``)
-    """
-
-    def __init__(self, address: str | None = "auto", runtime_env: Mapping[str, Any] | None = None) -> None:
-        if address is not None and (not isinstance(address, str) or not address):
+    def __init__(self, address: str = "auto") -> None:
+        if not isinstance(address, str) or not address:
             raise ValueError(f"ray_address must be a non-empty string, got {address!r}")
         self.address = address
-        self.runtime_env = dict(runtime_env) if runtime_env else None
 
     def map(self, units: Sequence[Unit], on_done: Callable[[int, tuple], None]) -> None:
-        try:
-            import ray
-        except ImportError as exc:
-            raise ImportError('the Ray executor needs ray: pip install "sb3-ua2c[peers]"') from exc
-
-        started = not ray.is_initialized()
-        if started:
-            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-            ray.init(address=self.address, runtime_env=self.runtime_env, log_to_driver=False)
-        try:
+        ray = _import_ray()
+        with ray_session(None if ray.is_initialized() else self.address):  # within a session: its connection
             task = ray.remote(num_cpus=1, max_calls=1)(_call_unit_on_one_cpu)
             refs = {task.remote(unit): i for i, unit in enumerate(units)}
             pending = list(refs)
@@ -196,28 +133,26 @@ class RayExecutor:
                     except Exception:  # the worker died or the task could not be scheduled
                         outcome = (False, traceback.format_exc(), 0.0, 0.0)
                     on_done(refs[ref], outcome)
-        finally:
-            if started:
-                ray.shutdown()
 
 
 Executor = SerialExecutor | ProcessExecutor | RayExecutor
 
 
-@contextmanager
-def ray_session(address: str | None) -> Iterator[None]:
-    """One connection to the Ray cluster at ``address`` for several :func:`run_units` calls (a
-    :class:`RayExecutor` connects once per call otherwise); nothing when ``address`` is ``None``.
-
-    :raises ValueError: when ray is not installed (``pip install "sb3-ua2c[peers]"``)
-    """
-    if address is None:
-        yield
-        return
+def _import_ray() -> Any:
     try:
         import ray
     except ImportError as exc:
         raise ValueError('--ray-address needs ray: pip install "sb3-ua2c[peers]"') from exc
+    return ray
+
+
+@contextmanager
+def ray_session(address: str | None) -> Iterator[None]:
+    """One connection to the Ray cluster at ``address`` for several :func:`run_units` calls (nothing for ``None``)."""
+    if address is None:
+        yield
+        return
+    ray = _import_ray()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     ray.init(address=address, log_to_driver=False)
     try:
@@ -227,12 +162,7 @@ def ray_session(address: str | None) -> Iterator[None]:
 
 
 def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool = False) -> Executor:
-    """The executor a command line asks for: Ray when ``ray_address`` is given, else local processes.
-
-    :param workers: local processes at once (ignored on Ray, where the cluster's CPUs decide)
-    :param ray_address: address of a Ray cluster (see :class:`RayExecutor`)
-    :param serial: run in this process instead of fresh processes (only without ``ray_address``)
-    """
+    """Ray when ``ray_address`` is given, else ``workers`` local processes, or this process with ``serial``."""
     check_int("workers", workers)
     if ray_address is not None:
         if serial:
@@ -242,14 +172,7 @@ def make_executor(workers: int = 1, ray_address: str | None = None, serial: bool
 
 
 def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
-    """Wall time of units run in the given order on ``workers`` workers, each unit starting on the first
-    worker that is free (how :class:`ProcessExecutor`, or Ray on ``workers`` CPUs, takes them; submit the
-    longest first, ``sorted(durations, reverse=True)``, and the workers stay busy to the end).
-
-    :param durations: the units' seconds, in submission order
-    :param workers: workers at once (>= 1)
-    :return: the time at which the last unit ends (0 without units)
-    """
+    """When the last of ``durations`` ends, each unit starting on the first of ``workers`` workers that is free."""
     check_int("workers", workers)
     free = [0.0] * min(workers, max(len(durations), 1))
     for seconds in durations:
@@ -260,15 +183,7 @@ def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
 def run_units(
     units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
 ) -> list[UnitResult]:
-    """Run ``units`` (skipping those whose result file exists) and return their results in order.
-
-    :param units: the units; their names must be unique
-    :param executor: where they run (default: :class:`SerialExecutor`)
-    :param printer: receives one progress line per finished unit (``None``: silent)
-    :raises UnitsFailedError: after every unit ran, if some raised
-    """
-    from sb3_ua2c.pipeline import write_json
-
+    """Run ``units`` (but the stored ones) on ``executor``; their results in order, or :class:`UnitsFailedError`."""
     names = [unit.name for unit in units]
     if len(set(names)) != len(names):
         raise ValueError(f"unit names must be unique, got duplicates {sorted({n for n in names if names.count(n) > 1})}")
@@ -307,6 +222,3 @@ def run_units(
         raise UnitsFailedError(failures, results)
     return [r for r in results if r is not None]
 
-
-__all__ = ["Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor", "Unit", "UnitResult", "UnitsFailedError",
-           "call_unit", "list_schedule_seconds", "make_executor", "ray_session", "run_units"]

@@ -1,33 +1,4 @@
-"""Run-level statistics of the experiment reports, after rliable (Agarwal et al., "Deep
-Reinforcement Learning at the Edge of the Statistical Precipice", NeurIPS 2021).
-
-The unit of replication is a run: one seed's data, training and evaluation. Every run is first
-reduced to one score per metric, the mean over its evaluation episodes (:func:`run_scores`); an
-arm's scores form rliable's ``(n_runs, n_tasks)`` matrix with one task per environment
-(:func:`score_matrix`). The evaluation episodes of different seeds are different scenarios, so
-they are never a task axis: resampling seeds within episode columns would hide the spread between
-runs, and an IQM over episodes would trim rare crashes away.
-
-* aggregates: rliable's IQM and mean over runs with stratified bootstrap intervals (runs resampled
-  within each task; :func:`iqm_with_ci`, :func:`mean_with_ci`);
-* ``P(X > Y)``: rliable's probability of improvement, the Mann-Whitney statistic over the runs of
-  each task averaged over tasks, with a bootstrap interval (:func:`probability_of_improvement`);
-* arms that share seeds (the same data and evaluation scenarios): the mean paired per-seed
-  difference with its Student-t interval (:func:`paired_difference`, ``scipy.stats.ttest_rel``),
-  and a verdict that names the interval (:func:`verdict`);
-* learning: the area under a run's online learning curve (:func:`learning_curve_area`).
-
-Metrics where lower is better (collision, jerk) are negated first (``higher_is_better=False``), so a
-probability above 0.5 and a positive difference always mean that X does better.
-
-Point estimates and intervals are rliable's own (``rliable.metrics``, and
-``rliable.library.get_interval_estimates`` with the percentile method). ``rliable.library`` 1.2.0
-imports ``arch < 8``, whose 7.x releases need pandas < 3 (the ``peers`` extra pins it). Its
-resampling draws from NumPy's global generator, so every interval here is computed with that
-generator seeded (and restored afterwards): the same call gives the same interval.
-
-Student-t intervals and relative changes of Figure 2's claims are at the end of this module.
-"""
+"""Run-level statistics of the reports after rliable (Agarwal et al., 2021; ``docs/peers.md``), seeded bootstraps."""
 
 from __future__ import annotations
 
@@ -53,11 +24,15 @@ def _rliable() -> tuple[Any, Any]:
     return library, metrics
 
 
+def _check_confidence(confidence: float) -> None:
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+
+
 def _interval_estimates(scores: Mapping[str, Any], func: Any, confidence: float, reps: int, seed: int) -> tuple:
     """rliable's ``get_interval_estimates`` (percentile method) with NumPy's global generator seeded."""
     check_int("reps", reps)
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    _check_confidence(confidence)
     library, _ = _rliable()
     state = np.random.get_state()  # noqa: NPY002  (rliable draws from the legacy global generator)
     np.random.seed(seed)  # noqa: NPY002
@@ -71,14 +46,7 @@ def _interval_estimates(scores: Mapping[str, Any], func: Any, confidence: float,
 
 
 def run_scores(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
-    """One score per run: the mean of ``metric`` over the run's evaluation episodes.
-
-    :param records: the records of one arm, one per seed, any order; ``record[evaluation]["episodes"]``
-        holds the evaluation episodes (:func:`experiments.peers.common.unit_record`)
-    :param metric: a key of the evaluation episodes (``reward``, ``collision``, ``jerk_per_step``, ...)
-    :param evaluation: the record key of the evaluation (``"offline_evaluation"`` for the offline score)
-    :return: ``(n_runs,)`` in increasing seed order (booleans as 0.0 / 1.0, so a rate for a 0/1 metric)
-    """
+    """``(n_runs,)`` in seed order: the mean of ``metric`` over each record's evaluation episodes."""
     if not records:
         raise ValueError("records must not be empty")
     scores = []
@@ -93,10 +61,7 @@ def run_scores(records: Sequence[Mapping[str, Any]], metric: str, evaluation: st
 
 
 def score_matrix(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
-    """rliable's score matrix of one arm on one task: :func:`run_scores` as a column.
-
-    :return: ``(n_runs, 1)``, rows in increasing seed order
-    """
+    """rliable's ``(n_runs, 1)`` score matrix of one arm on one task: :func:`run_scores` as a column."""
     return run_scores(records, metric, evaluation)[:, None]  # (n_runs,) -> (n_runs, 1)
 
 
@@ -110,7 +75,7 @@ def _check_matrix(name: str, scores: Any) -> np.ndarray:
 
 
 def iqm(scores: np.ndarray) -> float:
-    """Interquartile mean over runs × tasks: the mean of the middle 50 % (25 % trimmed from each end)."""
+    """Interquartile mean over runs × tasks (25 % trimmed from each end)."""
     return float(_rliable()[1].aggregate_iqm(_check_matrix("scores", scores)))
 
 
@@ -122,42 +87,21 @@ def _aggregate_with_ci(scores: Mapping[str, np.ndarray], key: str, aggregate: An
                    "ci_high": float(intervals[name][1, 0])} for name in checked}
 
 
-def iqm_with_ci(
-    scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
-) -> dict[str, dict[str, float]]:
-    """IQM of each arm over its runs with rliable's stratified bootstrap interval over runs.
-
-    :param scores: arm name -> ``(n_runs, n_tasks)`` matrix (:func:`score_matrix`)
-    :param confidence: interval size
-    :param reps: bootstrap replications
-    :param seed: seed of the bootstrap (the same call gives the same interval)
-    :return: arm -> ``{"iqm", "ci_low", "ci_high"}``
-    """
+def iqm_with_ci(scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000,
+                seed: int = 0) -> dict[str, dict[str, float]]:
+    """Per arm, the IQM of its ``(n_runs, n_tasks)`` scores with rliable's stratified bootstrap interval."""
     return _aggregate_with_ci(scores, "iqm", _rliable()[1].aggregate_iqm, confidence, reps, seed)
 
 
-def mean_with_ci(
-    scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
-) -> dict[str, dict[str, float]]:
-    """Mean of each arm over its runs (rliable's ``aggregate_mean``; for a 0/1 metric, the mean rate)
-    with rliable's stratified bootstrap interval over runs.
-
-    :return: arm -> ``{"mean", "ci_low", "ci_high"}`` (arguments as :func:`iqm_with_ci`)
-    """
+def mean_with_ci(scores: Mapping[str, np.ndarray], confidence: float = 0.95, reps: int = 2000,
+                 seed: int = 0) -> dict[str, dict[str, float]]:
+    """:func:`iqm_with_ci` of the mean over runs: ``{"mean", "ci_low", "ci_high"}`` per arm."""
     return _aggregate_with_ci(scores, "mean", _rliable()[1].aggregate_mean, confidence, reps, seed)
 
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: bool = True, confidence: float = 0.95,
                                reps: int = 2000, seed: int = 0) -> dict[str, float]:
-    """``P(X > Y)``: how likely a run of X scores higher than a run of Y on a task (ties count one
-    half), averaged over the tasks, with rliable's bootstrap interval (X and Y resampled
-    independently, rliable's ``StratifiedIndependentBootstrap``).
-
-    :param x: ``(n_runs_x, n_tasks)`` scores of X
-    :param y: ``(n_runs_y, n_tasks)`` scores of Y (the same tasks)
-    :param higher_is_better: ``False`` for costs (collision, jerk): X is better when lower
-    :return: ``{"probability", "ci_low", "ci_high"}``
-    """
+    """rliable's ``P(X > Y)`` over the runs of ``x`` and ``y`` with its bootstrap interval (costs negated)."""
     x, y = _check_matrix("x", x), _check_matrix("y", y)
     if x.shape[1] != y.shape[1]:
         raise ValueError(f"x and y need the same tasks, got {x.shape[1]} and {y.shape[1]}")
@@ -170,19 +114,9 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, higher_is_better: b
             "ci_high": float(intervals["pair"][1, 0])}
 
 
-def paired_difference(
-    x: Sequence[float], y: Sequence[float], higher_is_better: bool = True, confidence: float = 0.95
-) -> dict[str, float]:
-    """Mean of the per-seed differences ``x_s − y_s`` of two arms that share their seeds (the same
-    data and evaluation scenarios), with its Student-t interval (``scipy.stats.ttest_rel``).
-
-    :param x: one score per run of X (:func:`run_scores`), in seed order
-    :param y: the same seeds' scores of Y
-    :param higher_is_better: ``False`` for costs: the differences are ``y_s − x_s``, so that a
-        positive difference always means that X does better
-    :param confidence: interval size
-    :return: ``{"difference", "ci_low", "ci_high", "runs", "x_better_runs"}``
-    """
+def paired_difference(x: Sequence[float], y: Sequence[float], higher_is_better: bool = True,
+                      confidence: float = 0.95) -> dict[str, float]:
+    """Mean per-seed difference ``x_s − y_s`` (``y_s − x_s`` for a cost) with its Student-t interval."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     if x.ndim != 1 or x.shape != y.shape:
         raise ValueError(f"x and y must be paired 1-D score vectors, got shapes {x.shape} and {y.shape}")
@@ -190,8 +124,7 @@ def paired_difference(
         raise ValueError(f"a paired interval needs at least 2 runs, got {len(x)}")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         raise ValueError("x and y must be finite")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    _check_confidence(confidence)
     better, worse = (x, y) if higher_is_better else (y, x)
     diff = better - worse  # (n_runs,)
     if np.all(diff == diff[0]):  # no spread: the interval is the point (ttest_rel would give NaN)
@@ -203,11 +136,7 @@ def paired_difference(
 
 
 def verdict(x: str, y: str, paired: Mapping[str, float], unit: str = "") -> str:
-    """A sentence that names the interval of a :func:`paired_difference`, not only its sign.
-
-    ``"X vs Y: +3.10 [0.70, 5.50] over 5 paired runs (X ahead in 4): X better"``; the last words are
-    ``X better`` / ``Y better`` when the interval excludes 0, ``no difference shown`` otherwise.
-    """
+    """A sentence naming a :func:`paired_difference` with its interval and what it shows."""
     low, high = paired["ci_low"], paired["ci_high"]
     word = f"{x} better" if low > 0 else f"{y} better" if high < 0 else "no difference shown"
     return (f"{x} vs {y}: {paired['difference']:+.2f}{unit} [{low:+.2f}, {high:+.2f}] over {paired['runs']} paired "
@@ -221,14 +150,7 @@ def interval(stat: Mapping[str, float], key: str = "difference", digits: int = 2
 
 
 def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) -> float:
-    """Area under one run's online learning curve per env step: the return of the episode running at
-    each step, averaged over the steps up to the last episode's end, i.e. ``Σ_i R_i ℓ_i / Σ_i ℓ_i``
-    with ``ℓ_i`` the length of episode ``i`` in env steps (a run that learns early scores higher than
-    one with the same final return that learns late).
-
-    :param end_steps: the env step at which each online episode ended, increasing
-    :param returns: the episodes' returns
-    """
+    """Area under one run's online learning curve per env step, ``Σ_i R_i ℓ_i / Σ_i ℓ_i``."""
     ends, rets = np.asarray(end_steps, dtype=np.float64), np.asarray(returns, dtype=np.float64)
     if ends.ndim != 1 or ends.shape != rets.shape or len(ends) == 0:
         raise ValueError(f"end_steps and returns must be non-empty and of one length, got {ends.shape}, {rets.shape}")
@@ -239,29 +161,15 @@ def learning_curve_area(end_steps: Sequence[float], returns: Sequence[float]) ->
 
 
 def student_t_quantile(confidence: float, df: int) -> float:
-    """Two-sided critical value ``t`` with ``P(|T| <= t) = confidence``: the ``(1 + confidence) / 2``
-    quantile of Student's t (:data:`scipy.stats.t`).
-
-    :param confidence: in (0, 1), e.g. 0.95 (``t = 2.776`` for ``df = 4``)
-    :param df: degrees of freedom, >= 1
-    """
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    """Two-sided critical value of Student's t with ``df`` degrees of freedom (2.776 for 0.95 and ``df = 4``)."""
+    _check_confidence(confidence)
     if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
         raise ValueError(f"df must be an integer >= 1, got {df!r}")
     return float(scipy.stats.t.ppf((1.0 + confidence) / 2.0, df))
 
 
 def t_confidence_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float]:
-    """Mean and half-width of the Student-t confidence interval over seeds.
-
-    ``half = t_{(1+c)/2, n-1} · s / √n`` with the sample standard deviation ``s`` (ddof = 1);
-    with one value the half-width is NaN (no spread can be estimated).
-
-    :param values: (n,) one number per seed, finite
-    :param confidence: coverage, e.g. 0.95
-    :return: ``(mean, half_width)``
-    """
+    """Mean and half-width ``t · s / √n`` of the Student-t interval over seeds (NaN half-width for one value)."""
     x = np.asarray(values, dtype=np.float64)
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"values must be a non-empty 1-D sequence, got shape {x.shape}")
@@ -274,27 +182,14 @@ def t_confidence_interval(values: Sequence[float], confidence: float = 0.95) -> 
 
 
 def relative_change_pct(new: float, base: float) -> float:
-    """``100 · (new − base) / |base|``: positive when ``new`` is larger, whatever the sign of
-    ``base`` (rewards may be negative). NaN when ``base`` is 0.
-
-    :param new: the method's value
-    :param base: the baseline's value
-    """
+    """``100 · (new − base) / |base|`` (rewards may be negative); NaN when ``base`` is 0 or a value is not finite."""
     if base == 0 or not (math.isfinite(new) and math.isfinite(base)):
         return math.nan
     return 100.0 * (new - base) / abs(base)
 
 
 def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
-    """Relative change of paired per-seed values.
-
-    :param new: (n,) the method's per-seed means
-    :param base: (n,) the baseline's per-seed means, same seed order
-    :return: ``change_pct`` (of the means over seeds, the headline figure), ``per_seed_pct``,
-        the t interval of the per-seed changes (``per_seed_mean_pct``, ``per_seed_ci95_pct``) and, with
-        2 or more seeds, ``paired``: the mean per-seed difference ``new − base`` in the metric's units
-        with its t interval (:func:`paired_difference`), which a base near or below 0 cannot distort
-    """
+    """Relative change of paired per-seed values (of the means, and per seed) and their paired difference."""
     new_a, base_a = np.asarray(new, dtype=np.float64), np.asarray(base, dtype=np.float64)
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
         raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
@@ -312,7 +207,8 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     return out
 
 
-__all__ = [
-    "LOWER_IS_BETTER", "interval", "iqm", "iqm_with_ci", "learning_curve_area", "mean_with_ci", "paired_difference",
-    "probability_of_improvement", "run_scores", "score_matrix", "verdict",
-    "compare", "relative_change_pct", "student_t_quantile", "t_confidence_interval"]
+def t_summary(values: Sequence[float]) -> dict[str, Any]:
+    """``{"mean", "ci95", "per_seed"}``: :func:`t_confidence_interval` of the finite ``values`` (NaN without any)."""
+    finite = [v for v in values if math.isfinite(v)]
+    mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
+    return {"mean": mean, "ci95": half, "per_seed": list(values)}

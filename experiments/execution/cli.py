@@ -1,8 +1,5 @@
-"""Command line of the execution-rule study: ``python -m experiments execution``.
-
-A development run evaluates on validation scenarios and is where rules are chosen; a confirmation run
-evaluates on test scenarios with seeds never used for a choice (OGBench: reset seeds 20,000,000 and
-10,000,000 + 1000 s + i)."""
+"""Command line of the execution-rule study: ``python -m experiments execution``; a development run chooses on
+validation scenarios, a confirmation run evaluates on test scenarios with seeds never used for a choice."""
 
 from __future__ import annotations
 
@@ -14,7 +11,12 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
+from experiments.common.records import previous_report, run_header
+from experiments.common.runner import Unit, make_executor, run_units
+from experiments.execution import report, unit
 from experiments.execution.controls import RULES
+from experiments.ogbench.runner import DEFAULT_TASK
+from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
 from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments execution"
@@ -62,8 +64,8 @@ def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
     if "fixed" not in args.rules:
         raise ValueError("--rules must include 'fixed' (the reference every rule is paired with)")
     check_int("--workers", args.workers)
-    if not args.report_only:
-        check_extras([*(["ogbench"] if args.env == "ogbench" else []), *(["ray"] if args.ray_address else [])])
+    if not args.report_only and args.env == "ogbench":
+        check_extras(["ogbench"])
     seeds = select_seeds(args.seeds, [0, 1] if args.quick else [0, 1, 2])
     setup = _setup(args)
     if args.episodes is not None:
@@ -74,9 +76,7 @@ def _check(args: argparse.Namespace) -> tuple[list[int], dict[str, Any]]:
 
 def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, workers: int,
                      own_rule_only: bool = False, env: str = "traffic") -> float:
-    """Wall minutes on ``workers`` cores: training plus the evaluations (a rule other than ``fixed`` comes with
-    its two controls) of ``(1 + n_online)`` checkpoints × rules × 2 modes × episodes (with ``own_rule_only``,
-    a fine-tuned checkpoint has at most 4 arms: fixed, its rule and the rule's controls)."""
+    """Wall minutes on ``workers`` cores: training, and evaluations of every checkpoint, rule, control and mode."""
     training = TRAINING_SECONDS[env]
     per_seed = training["data_and_phase1"] + n_online * training["phase2"]
     arms = (3 * n_rules - 2) + n_online * (4 if own_rule_only else 3 * n_rules - 2)
@@ -86,8 +86,6 @@ def estimate_minutes(n_seeds: int, n_online: int, n_rules: int, episodes: int, w
 
 def _setup(args: argparse.Namespace) -> dict[str, Any]:
     """What differs between the tasks: the run function, its budget, scenarios, score, report and work names."""
-    from experiments.execution import unit
-
     role = args.role
     if args.env == "traffic":
         if args.task is not None:
@@ -95,9 +93,6 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
         return {"run_seed": unit.run_traffic_study, "budget": dict(unit.BUDGETS["quick" if args.quick else "full"]),
                 "scenario_base": SCENARIO_BASES[ROLES[role]], "extra": {}, "task": "MixedTraffic-v0",
                 "metric": "reward", "digits": 1, "name": f"execution_{role}", "work": role, "secondary": None}
-    from experiments.ogbench.runner import DEFAULT_TASK
-    from experiments.ogbench.unit import EVAL_SEED_BASE, VALIDATION_SEED_BASE
-
     task = args.task or DEFAULT_TASK
     return {"run_seed": unit.run_ogbench_study, "budget": unit.study_budget(task, args.quick).to_dict(),
             "scenario_base": VALIDATION_SEED_BASE if role == "development" else EVAL_SEED_BASE,
@@ -108,18 +103,13 @@ def _setup(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
-    """Entry point; returns the exit code (2 on a bad argument, a missing extra or missing runs, 1 when runs
-    failed)."""
+    """Entry point; returns the exit code (2 on a bad argument, a missing extra or runs, 1 when runs failed)."""
     return harness_main(build_parser(prog), argv, prog, _check,
                         lambda args, checked, command: _run(args, command, *checked, prog))
 
 
 def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[str, Any], prog: str) -> int:
     """Run (or, with ``--report-only``, load) one unit per seed, then write ``<name>.md`` and ``<name>.json``."""
-    from experiments.common.records import run_header
-    from experiments.common.runner import Unit, make_executor, run_units
-    from experiments.execution import report
-
     out = Path(args.out)
     work = (Path(args.work) if args.work else out / "execution_work") / setup["work"]
     units = [Unit(f"seed{s}", setup["run_seed"],
@@ -140,7 +130,7 @@ def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[s
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
     name, metric = setup["name"], setup["metric"]
-    command, date = run_header(command, out / f"{name}.json" if args.report_only else None)
+    command, date = run_header(command, previous_report(out / f"{name}.json", args.report_only))
     summary = report.summarize(records, metric)
     online = report.online_protocol(records, metric)
     header = [f"Command: `{command}`", f"Date: {date}",

@@ -1,6 +1,5 @@
-"""What an execution rule is compared against: the same checkpoint acting under another rule (:func:`apply_rule`),
-and two controls that keep the executed lengths but drop the uncertainty: a random cut drawn from a given
-``L_t`` histogram (:class:`RandomCut`) and one fixed length ``k'`` (:class:`FixedCut`)."""
+"""What an execution rule is compared against: the checkpoint under another rule (:func:`apply_rule`), and controls
+that keep the executed lengths but drop the uncertainty (:class:`RandomCut`, :class:`FixedCut`)."""
 
 from __future__ import annotations
 
@@ -28,12 +27,7 @@ RULES: dict[str, dict[str, Any]] = {
 
 
 class RandomCut:
-    """``L_t`` drawn at random from a histogram, whatever the entropies: the control that keeps an adaptive
-    arm's length distribution and removes its information (``policy.plan_lengths`` replaced).
-
-    :param shares: ``(k,)`` probabilities of ``L_t = 1 .. k``
-    :param seed: seed of the draws (one generator for the whole evaluation)
-    """
+    """``L_t`` drawn from the ``(k,)`` probabilities ``shares``, whatever the entropies (one generator of ``seed``)."""
 
     def __init__(self, shares: Sequence[float], seed: int) -> None:
         p = np.asarray(shares, dtype=np.float64)
@@ -62,8 +56,7 @@ class FixedCut:
 
 def apply_rule(model: UA2C, rule: Mapping[str, Any], calibration_episodes: Sequence[Any] | None = None,
                n_histories: int = 1024) -> None:
-    """Act under ``rule`` (UA2C's execution-rule arguments, as in :data:`RULES`); ``"quantile"`` is calibrated on
-    ``calibration_episodes`` (offline episodes put in the model's replay buffer, which is emptied first)."""
+    """Act under ``rule`` (as in :data:`RULES`), a quantile rule calibrated on ``calibration_episodes``."""
     model.policy.__dict__.pop("plan_lengths", None)  # drop a control
     fields = dict(rule)
     model.set_execution_rule(ExecutionRule(fields.pop("execution_rule", "threshold"), **fields))

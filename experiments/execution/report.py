@@ -1,6 +1,4 @@
-"""The report of the execution-rule study: one score per run and arm (the mean over the run's evaluation
-episodes), paired per-seed differences of each rule against fixed chunks and against its own random-cut
-and fixed-``k'`` controls (:func:`experiments.common.stats.paired_difference`), and the ``L_t`` histograms."""
+"""The report of the execution-rule study: each rule against fixed chunks and its controls, paired per seed."""
 
 from __future__ import annotations
 
@@ -9,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common.records import section, table
 from experiments.common.stats import interval, paired_difference
 from sb3_ua2c.execution import format_length_shares
 
@@ -25,8 +24,7 @@ def _controls(arms: Sequence[str], rule: str) -> list[str]:
 
 
 def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> dict[str, Any]:
-    """``{checkpoint: {mode: {arm: {...}}}}``: per-seed scores, their mean, mean ``L_t`` shares, and for each rule
-    the paired differences against ``fixed`` and against its controls (``None`` with fewer than 2 runs)."""
+    """``{checkpoint: {mode: {arm: {...}}}}``: scores, ``L_t`` shares, and each rule paired with fixed and its controls."""
     records = sorted(records, key=lambda r: r["seed"])
     out: dict[str, Any] = {}
     for checkpoint in records[0]["checkpoints"]:
@@ -34,12 +32,12 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
             arms = list(records[0]["checkpoints"][checkpoint])
             if not all(list(r["checkpoints"][checkpoint]) == arms for r in records):
                 raise ValueError(f"the runs evaluated {checkpoint} under different arms; rerun them alike")
-            table: dict[str, Any] = {}
+            rows: dict[str, Any] = {}
             for arm in arms:
                 entries = [r["checkpoints"][checkpoint][arm][mode] for r in records]
                 scores = [run_score(e, metric) for e in entries]
                 collision = "collision" in entries[0]["episodes"][0]  # MixedTraffic-v0's; OGBench has none
-                table[arm] = {"per_seed": scores, "mean": float(np.mean(scores)),
+                rows[arm] = {"per_seed": scores, "mean": float(np.mean(scores)),
                               "collision": float(np.mean([run_score(e, "collision") for e in entries])) if collision
                               else None,
                               "length_shares": np.mean([e["length_shares"] for e in entries], axis=0).tolist()}
@@ -47,18 +45,17 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
                 if ":" in arm or arm == "fixed":
                     continue
                 against = ["fixed", *_controls(arms, arm)]
-                table[arm]["paired"] = {
-                    other: (paired_difference(table[arm]["per_seed"], table[other]["per_seed"])
+                rows[arm]["paired"] = {
+                    other: (paired_difference(rows[arm]["per_seed"], rows[other]["per_seed"])
                             if len(records) > 1 else None)
                     for other in against
                 }
-            out.setdefault(checkpoint, {})[mode] = table
+            out.setdefault(checkpoint, {})[mode] = rows
     return out
 
 
 def online_protocol(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> dict[str, dict[str, Any]]:
-    """Figure 2 (c)'s comparison: each checkpoint fine-tuned with a rule, acting with that rule, against the
-    one fine-tuned with fixed chunks, acting with fixed chunks; paired per seed (``{rule: {mode: {...}}}``)."""
+    """Figure 2 (c)'s comparison: fine-tuned and acting with each rule, against fixed chunks, paired per seed."""
     records = sorted(records, key=lambda r: r["seed"])
     checkpoints = records[0]["checkpoints"]
     if "online_fixed" not in checkpoints:
@@ -85,18 +82,17 @@ def _interval(p: Mapping[str, float] | None, digits: int = 1) -> str:
 
 
 def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
-    """Per rule, the means over every checkpoint and mode of: the rule's score minus fixed chunks', minus
-    its random cut's, minus its fixed-``k'``'s, and its mean ``L_t`` (a descriptive summary of the tables)."""
+    """Per rule, the means over every checkpoint and mode of its score minus fixed chunks' and its controls'."""
     cells: dict[str, dict[str, list[float]]] = {}
     for modes in summary.values():
-        for table in modes.values():
-            for arm, row in table.items():
+        for arms in modes.values():
+            for arm, row in arms.items():
                 if ":" in arm or arm == "fixed":
                     continue
                 cell = cells.setdefault(arm, {"fixed": [], "random": [], "fixed_k": [], "mean_length": []})
-                cell["fixed"].append(row["mean"] - table["fixed"]["mean"])
-                cell["random"].append(row["mean"] - table[f"{arm}:random"]["mean"])
-                cell["fixed_k"].append(row["mean"] - table[f"{arm}:fixed_k"]["mean"])
+                cell["fixed"].append(row["mean"] - arms["fixed"]["mean"])
+                cell["random"].append(row["mean"] - arms[f"{arm}:random"]["mean"])
+                cell["fixed_k"].append(row["mean"] - arms[f"{arm}:fixed_k"]["mean"])
                 cell["mean_length"].append(float(np.dot(np.arange(1, len(row["length_shares"]) + 1),
                                                         row["length_shares"])))
     return {arm: {key: float(np.mean(values)) for key, values in cell.items()} | {"cells": len(cell["fixed"])}
@@ -104,8 +100,7 @@ def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
 
 
 def threshold_quantiles(records: Sequence[Mapping[str, Any]]) -> dict[str, list[float]]:
-    """The calibrated ``delta_u`` of each quantile rule on the pre-trained checkpoints, averaged over runs:
-    the quantiles of ``H_u`` over dataset histories, per position (``(k,)`` nats)."""
+    """The calibrated ``delta_u`` (``(k,)`` nats) of each quantile rule on the pre-trained checkpoints, over runs."""
     out = {}
     for arm, modes in records[0]["checkpoints"]["offline"].items():
         if modes["deterministic"].get("thresholds") is not None:
@@ -115,24 +110,20 @@ def threshold_quantiles(records: Sequence[Mapping[str, Any]]) -> dict[str, list[
 
 
 def _overview_lines(summary: Mapping[str, Any], digits: int) -> list[str]:
-    lines = ["| rule | − fixed | − random cut | − fixed k' | mean L_t | cells |", "|---|---|---|---|---|---|"]
-    for arm, row in overview(summary).items():
-        lines.append(f"| {arm} | {row['fixed']:+.{digits}f} | {row['random']:+.{digits}f} | {row['fixed_k']:+.{digits}f} "
-                     f"| {row['mean_length']:.2f} | {row['cells']} |")
-    return lines
+    return table(["rule", "− fixed", "− random cut", "− fixed k'", "mean L_t", "cells"],
+                 ([arm, *(f"{row[k]:+.{digits}f}" for k in ("fixed", "random", "fixed_k")), f"{row['mean_length']:.2f}",
+                   row["cells"]] for arm, row in overview(summary).items()))
 
 
 def _online_lines(online: Mapping[str, Any], metric: str, digits: int) -> list[str]:
-    lines = [f"| rule | mode | {metric} | fixed chunks | paired per seed |", "|---|---|---|---|---|"]
-    return lines + [f"| {rule} | {mode} | {row['mean']:.{digits}f} | {row['fixed_mean']:.{digits}f} "
-                    f"| {_interval(row['paired'], digits)} |" for rule, modes in online.items()
-                    for mode, row in modes.items()]
+    return table(["rule", "mode", metric, "fixed chunks", "paired per seed"],
+                 ([rule, mode, f"{row['mean']:.{digits}f}", f"{row['fixed_mean']:.{digits}f}",
+                   _interval(row["paired"], digits)] for rule, modes in online.items() for mode, row in modes.items()))
 
 
 def secondary_lines(metric: str, meaning: str, summary: Mapping[str, Any], online: Mapping[str, Any],
                     digits: int = 1) -> list[str]:
-    """A second score of the same runs (e.g. OGBench's return where the success rate is at its ceiling): its
-    overview (:func:`overview`) and online protocol (:func:`online_protocol`), under one heading."""
+    """A second score of the same runs: its :func:`overview` and :func:`online_protocol` under one heading."""
     lines = [f"## Second score: {metric} ({meaning})", "",
              "The rules were chosen on the first score; this one is reported, not used for a choice.", "",
              *_overview_lines(summary, digits)]
@@ -141,38 +132,34 @@ def secondary_lines(metric: str, meaning: str, summary: Mapping[str, Any], onlin
     return [*lines, ""]
 
 
+def _arm_row(arm: str, row: Mapping[str, Any], digits: int) -> list[str]:
+    """One arm of a checkpoint's table: its score, collision rate, ``L_t`` and paired differences."""
+    paired = row.get("paired") or {}
+    random_cut = next((v for k, v in paired.items() if k.endswith(":random")), None)
+    k_cut = next((v for k, v in paired.items() if k.endswith(":fixed_k")), None)
+    return [arm, f"{row['mean']:.{digits}f}", "—" if row["collision"] is None else f"{row['collision']:.2f}",
+            format_length_shares(row["length_shares"]), _interval(paired["fixed"], digits) if "fixed" in paired else "",
+            _interval(random_cut, digits) if paired else "", _interval(k_cut, digits) if paired else ""]
+
+
 def markdown(summary: Mapping[str, Any], header: Sequence[str], thresholds: Mapping[str, Sequence[float]] = {},
              online: Mapping[str, Any] = {}, task: str = "MixedTraffic-v0", metric: str = "reward",
              digits: int = 1, secondary: Sequence[str] = ()) -> str:
-    """The overview, the online protocol (:func:`online_protocol`), the ``H_u`` quantiles, the ``secondary``
-    lines (:func:`secondary_lines`) and the tables of :func:`summarize`, one per checkpoint and mode; scores are
-    ``metric`` with ``digits`` decimals."""
-    lines = [f"# Execution rules on {task}", "", *header, "",
-             "## Overview", "",
-             "Means over every checkpoint and mode below (descriptive; the intervals are in the tables).", "",
-             *_overview_lines(summary, digits)]
+    """The report: the overview, online protocol, ``H_u`` quantiles, ``secondary`` lines and every checkpoint's tables."""
+    lines = [f"# Execution rules on {task}", "", *header,
+             *section("Overview", "Means over every checkpoint and mode below (descriptive; the intervals are in the "
+                      "tables).", "", *_overview_lines(summary, digits))]
     if online:
-        lines += ["", "## Online protocol (Figure 2 (c)): fine-tuned and acting with the rule, against fixed chunks",
-                  "", *_online_lines(online, metric, digits)]
+        lines += section("Online protocol (Figure 2 (c)): fine-tuned and acting with the rule, against fixed chunks",
+                         *_online_lines(online, metric, digits))
     if thresholds:
-        lines += ["", "## H_u over dataset histories (pre-trained checkpoints, mean over runs)", "",
-                  "| quantile rule | δ_u for u = 1..k (nats) |", "|---|---|"]
-        lines += [f"| {arm} | {' '.join(f'{x:+.2f}' for x in values)} |" for arm, values in thresholds.items()]
+        lines += section("H_u over dataset histories (pre-trained checkpoints, mean over runs)",
+                         *table(["quantile rule", "δ_u for u = 1..k (nats)"],
+                                ([arm, " ".join(f"{x:+.2f}" for x in values)] for arm, values in thresholds.items())))
     lines += ["", *secondary]
     for checkpoint, modes in summary.items():
-        for mode, table in modes.items():
-            lines += [f"## {checkpoint}, {mode}", "",
-                      f"| arm | {metric} (mean of runs) | collision | L_t = 1..k (% of plans) | − fixed | − random cut "
-                      "| − fixed k' |", "|---|---|---|---|---|---|---|"]
-            for arm, row in table.items():
-                paired = row.get("paired") or {}
-                random_cut = next((v for k, v in paired.items() if k.endswith(":random")), None)
-                k_cut = next((v for k, v in paired.items() if k.endswith(":fixed_k")), None)
-                cells = [_interval(paired["fixed"], digits) if "fixed" in paired else "",
-                         _interval(random_cut, digits) if paired else "", _interval(k_cut, digits) if paired else ""]
-                shares = format_length_shares(row["length_shares"])
-                collision = "—" if row["collision"] is None else f"{row['collision']:.2f}"
-                lines.append(f"| {arm} | {row['mean']:.{digits}f} | {collision} | {shares} "
-                             f"| {' | '.join(cells)} |")
-            lines.append("")
+        for mode, arms in modes.items():
+            lines += [f"## {checkpoint}, {mode}", "", *table(
+                ["arm", f"{metric} (mean of runs)", "collision", "L_t = 1..k (% of plans)", "− fixed", "− random cut",
+                 "− fixed k'"], (_arm_row(arm, row, digits) for arm, row in arms.items())), ""]
     return "\n".join(lines)

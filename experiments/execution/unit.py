@@ -1,12 +1,10 @@
-"""One run of the execution-rule study on ``MixedTraffic-v0`` (:func:`run_traffic_study`): collect the seed's data,
-pre-train (Phase 1), fine-tune one checkpoint per online rule (Phase 2), and evaluate every checkpoint
-under every screened rule and under its controls (:func:`evaluate_rules`), deterministic and with fresh
-noise, on the seed's evaluation scenarios. ``make main``'s pipeline and budget, one seed per unit."""
+"""One run (seed) of the execution-rule study: data, Phase 1, one Phase-2 checkpoint per online rule, and every
+checkpoint evaluated under the screened rules and their controls (:func:`evaluate_rules`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +14,11 @@ import torch as th
 from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
 from envs.evaluation import evaluate
 from experiments.common.names import DATASET_SEED_BASE
+from experiments.common.records import episode_rows
 from experiments.execution.controls import RULES, FixedCut, RandomCut, apply_control, apply_rule
+from experiments.ogbench.env import OGBenchSingleTask
+from experiments.ogbench.runner import default_budget
+from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset, run_episodes
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.pipeline import env_settings, finetune, load_checkpoint, pretrain
 
@@ -25,10 +27,6 @@ BUDGETS = {
     "full": {"episodes": 200, "pretrain_steps": 3000, "finetune_steps": 6000, "eval_episodes": 20},
     "quick": {"episodes": 3, "pretrain_steps": 8, "finetune_steps": 30, "eval_episodes": 1, "time_limit": 4.0},
 }
-
-
-def _episode_rows(results: Sequence[Any]) -> list[dict[str, Any]]:
-    return [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in results]
 
 
 #: ``run_episodes(model, deterministic) -> (episode rows, executed lengths L_t of every plan)``: one evaluation
@@ -41,15 +39,14 @@ def traffic_episodes(scenario_seed: int, n_episodes: int, settings: Mapping[str,
     def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
         results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
                            deterministic=deterministic)
-        return _episode_rows(results), [n for e in results for n in e.plan_lengths]
+        return episode_rows(results), [n for e in results for n in e.plan_lengths]
 
     return run
 
 
 def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], run_episodes: EpisodeRunner,
                    control_seed: int) -> dict[str, Any]:
-    """Each rule, deterministic and with fresh noise, then its controls (a random cut from the rule's own
-    ``L_t`` histogram in that mode, and fixed ``k' = round(mean L_t)``): ``{arm: {mode: {...}}}``."""
+    """Each rule in both modes, then its controls (a random cut from its ``L_t`` shares, fixed ``k'``)."""
     out: dict[str, Any] = {}
     for name in rules:
         for mode, deterministic in (("deterministic", True), ("sampled", False)):
@@ -73,8 +70,7 @@ def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any],
 
 
 def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bool) -> list[str]:
-    """The rules checkpoint ``name`` is evaluated under: every screened rule, or, for a fine-tuned checkpoint
-    (``online_<rule>``) with ``own_rule_only``, fixed chunks and the rule it was trained with."""
+    """Every screened rule, or with ``own_rule_only`` for a fine-tuned checkpoint fixed chunks and its own rule."""
     if own_rule_only and name != "offline":
         return list(dict.fromkeys(["fixed", name.removeprefix("online_")]))
     return list(screened_rules)
@@ -82,9 +78,7 @@ def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bo
 
 def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
              screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
-    """One run: data, Phase 1, one Phase-2 checkpoint per rule of ``online_rules``, and the evaluation of
-    the pre-trained checkpoint under ``screened_rules`` and their controls, and of every fine-tuned one
-    under the same (``own_rule_only=False``) or under fixed chunks and the rule it was trained with."""
+    """One run on ``MixedTraffic-v0`` with ``make main``'s pipeline and budget (see the module docstring)."""
     th.set_num_threads(1)
     root = Path(work) / f"seed{seed}"
     env_kwargs = {"time_limit": budget["time_limit"]} if "time_limit" in budget else None
@@ -97,18 +91,22 @@ def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_ru
     for rule in online_rules:
         checkpoints[f"online_{rule}"] = finetune(pre, root / f"online_{rule}.zip", budget["finetune_steps"], dataset=ds,
                                                  seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_traffic_env)
-    record: dict[str, Any] = {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
-                              "dataset_mean_return": ds.metadata["mean_return"], "checkpoints": {}}
-    env = make_traffic_env(**settings)
+    episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
+    return {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
+            "dataset_mean_return": ds.metadata["mean_return"],
+            "checkpoints": evaluate_checkpoints(checkpoints, make_traffic_env(**settings), episodes, ds.episodes,
+                                                screened_rules, own_rule_only, seed)}
+
+
+def evaluate_checkpoints(checkpoints: Mapping[str, Any], env: Any, run_episodes: EpisodeRunner,
+                         calibration: Sequence[Any], screened_rules: Sequence[str], own_rule_only: bool,
+                         seed: int) -> dict[str, Any]:
+    """:func:`evaluate_rules` of every checkpoint loaded on ``env`` (closed afterwards) under its rules."""
     try:
-        for name, path in checkpoints.items():
-            model = load_checkpoint(path, env)
-            episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
-            record["checkpoints"][name] = evaluate_rules(
-                model, checkpoint_rules(name, screened_rules, own_rule_only), ds.episodes, episodes, control_seed=seed)
+        return {name: evaluate_rules(load_checkpoint(path, env), checkpoint_rules(name, screened_rules, own_rule_only),
+                                     calibration, run_episodes, control_seed=seed) for name, path in checkpoints.items()}
     finally:
         env.close()
-    return record
 
 
 # ------------------------------------------------------------------------------------ OGBench
@@ -123,20 +121,13 @@ OGBENCH_EVAL_EPISODES = 20
 
 
 def study_budget(task: str, quick: bool = False) -> Any:
-    """The OGBench harness's budget of ``task`` (:func:`~experiments.ogbench.runner.default_budget`; a bad task
-    raises ``ValueError`` naming ``--task``), with :data:`OGBENCH_EVAL_EPISODES` evaluation episodes unless ``quick``."""
-    import dataclasses
-
-    from experiments.ogbench.runner import default_budget
-
+    """The OGBench harness's budget of ``task``, with :data:`OGBENCH_EVAL_EPISODES` evaluation episodes unless ``quick``."""
     budget = default_budget(task, quick)
     return budget if quick else dataclasses.replace(budget, eval_episodes=OGBENCH_EVAL_EPISODES)
 
 
 def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -> EpisodeRunner:
     """The task's evaluation on the run's reset seeds, as the study's :data:`EpisodeRunner`."""
-    from experiments.ogbench.unit import run_episodes
-
     def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
         return run_episodes(model, env, n_episodes, seed, deterministic=deterministic, seed_base=scenario_base)
 
@@ -145,34 +136,19 @@ def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -
 
 def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
                       screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
-    """One run (see the module docstring); the arguments are those of
-    :func:`run_traffic_study`, with ``budget`` an :class:`OGBenchBudget` as a dict and the
-    OGBench ``task``."""
-    from experiments.ogbench.env import OGBenchSingleTask
-    from experiments.ogbench.unit import OGBenchBudget, ensure_dataset, offline_dataset
-
+    """One run on an OGBench ``task`` (``budget``: an :class:`OGBenchBudget` as a dict)."""
     th.set_num_threads(1)
     b = OGBenchBudget.from_dict(budget)
     root = Path(work) / f"seed{seed}"
     path, _ = ensure_dataset(task, b, Path(work) / "data")  # one dataset per domain, shared by the seeds
-    env_kwargs = {"sparse": b.sparse, "max_episode_steps": b.max_episode_steps}
-    ds = offline_dataset(task, path, env_kwargs)
-    kwargs = dict(b.algo_kwargs)  # UA2C's default k, as the OGBench harness's adaptive and fixed arms
-    kwargs.setdefault("buffer_size", max(b.finetune_steps, 1))
+    ds = offline_dataset(task, path, b.env_kwargs)
+    kwargs = b.arm_kwargs({})  # UA2C's default k, as the OGBench harness's adaptive and fixed arms
     checkpoints = {"offline": pretrain(ds, root / "pretrained.zip", b.pretrain_steps, seed=seed, algo_kwargs=kwargs)}
-    for rule in online_rules:  # the same cadence for every rule: one update per train_freq env steps
-        overrides = {**RULES[rule], "train_freq": b.train_freq, "gradient_steps": 1}  # same as default: the cadence
+    for rule in online_rules:  # the same cadence for every rule
         checkpoints[f"online_{rule}"] = finetune(checkpoints["offline"], root / f"online_{rule}.zip", b.finetune_steps,
-                                                 dataset=ds, seed=seed, algo_overrides=overrides)
-    record: dict[str, Any] = {"seed": seed, "task": task, "budget": b.to_dict(),
-                              "scenario_seed": scenario_base + 1000 * seed, "checkpoints": {}}
-    env = OGBenchSingleTask(task, **env_kwargs)
-    try:
-        runner = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
-        for name, ckpt in checkpoints.items():
-            rules = checkpoint_rules(name, screened_rules, own_rule_only)
-            record["checkpoints"][name] = evaluate_rules(load_checkpoint(ckpt, env), rules, ds.episodes, runner,
-                                                         control_seed=seed)
-    finally:
-        env.close()
-    return record
+                                                 dataset=ds, seed=seed, algo_overrides={**RULES[rule], **b.cadence})
+    env = OGBenchSingleTask(task, **b.env_kwargs)
+    episodes = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
+    return {"seed": seed, "task": task, "budget": b.to_dict(), "scenario_seed": scenario_base + 1000 * seed,
+            "checkpoints": evaluate_checkpoints(checkpoints, env, episodes, ds.episodes, screened_rules, own_rule_only,
+                                                seed)}

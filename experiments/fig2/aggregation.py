@@ -4,26 +4,28 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from experiments.common import names
 from experiments.common.budget import library_default
-from experiments.common.names import (
-    CLAIM_COMPARISONS,
-    MAIN_METHODS,
-    METRICS,
-    ONLINE_ARMS,
-    PAPER,
-    acting_name,
-    delta_name,
-    replicate_name,
-    sampled_name,
-)
-from experiments.common.stats import compare, t_confidence_interval
-from experiments.fig2.budget import Fig2Budget
-from experiments.fig2.manifest import RunPaths
+from experiments.common.stats import compare, t_summary
+from experiments.fig2.budget import Fig2Budget, RunPaths
+
+#: Comparisons of a method with a baseline in a metric: (a), (b), (b'') jerk per step, (c''') the execution rule
+#: alone and, beyond the paper, (a') and (b'): the offline chunk policy with Eq. 7 execution
+METHOD_PAIRS = {
+    "offline_reward": ("chunk", "onestep", "reward"),
+    "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
+    "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
+    "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
+    "offline_reward_chunk_adaptive": ("chunk_adaptive", "onestep", "reward"),
+    "offline_jerk_chunk_adaptive": ("chunk_adaptive", "onestep", "cumulative_jerk"),
+}
+#: Those also compared between the evaluations with fresh candidate noise (``<key>_sampled``)
+SAMPLED_PAIRS = ("offline_reward", "offline_jerk", "offline_jerk_per_step", "online_execution_rule")
 
 
 def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[str, Any]]]:
@@ -44,8 +46,7 @@ def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[
 def online_curve(
     episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int, n_bins: int = 10
 ) -> dict[str, list[float]]:
-    """Learning curve of one arm: the mean return of the episodes that end in each of ``n_bins`` equal
-    windows of the ``total_steps`` online steps, averaged over seeds (NaN where no episode ended)."""
+    """One arm's learning curve: the mean return of the episodes ending in each window of online steps."""
     edges = np.linspace(0, total_steps, n_bins + 1)
     per_seed = []
     for episodes in episodes_per_seed:
@@ -61,8 +62,7 @@ def online_curve(
 
 
 def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: float = 0.25) -> dict[str, float]:
-    """Phase-2 training episodes of one arm and seed: mean return and collision rate over all of them and
-    over the last ``last_fraction`` (at least one episode), and their number."""
+    """Mean return and collision rate of one seed's Phase-2 training episodes, and the mean return of the last ones."""
     if not episodes:
         return {"reward": math.nan, "reward_last": math.nan, "collision": math.nan, "episodes": 0}
     last = episodes[-max(1, int(round(last_fraction * len(episodes)))) :]
@@ -76,11 +76,8 @@ def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: flo
 
 def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
     out: dict[str, Any] = {"seeds": list(seeds)}
-    for key in METRICS:  # a key missing from the raw data of an earlier version counts as NaN
-        values = [float(per_seed[s].get(key, math.nan)) for s in seeds]
-        finite = [v for v in values if math.isfinite(v)]
-        mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
-        out[key] = {"mean": mean, "ci95": half, "per_seed": values}
+    for key in names.METRICS:  # a key missing from the raw data of an earlier version counts as NaN
+        out[key] = t_summary([float(per_seed[s].get(key, math.nan)) for s in seeds])
     if all("length_shares" in per_seed[s] for s in seeds):  # the L_t histogram, recorded since 2026-12-04
         out["length_shares"] = np.mean([per_seed[s]["length_shares"] for s in seeds], axis=0).tolist()
     return out
@@ -88,22 +85,15 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
 
 def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
               default_elite: int | None = None) -> dict[str, Any]:
-    """Everything ``fig2.json`` holds, computed from the per-seed raw results only.
-
-    :param raw: output of :func:`load_raw`
-    :param seeds: the seeds to aggregate (all must be present for every method)
-    :param budget: the run's budget (recorded, and it names the sweep arms)
-    :param default_elite: the ``n_elite`` the checkpoints acted with when the budget leaves it to the library
-        (``None``: today's default; a rebuilt report passes the one it recorded)
-    """
+    """Everything ``fig2.json`` holds, from the raw results of ``seeds`` (``default_elite``: as the report recorded)."""
     seeds = list(seeds)
     methods = _methods(raw, seeds)
     online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
-    comparisons = _claim_comparisons(methods, online_phases)
+    comparisons = _comparisons(methods, online_phases)
     result: dict[str, Any] = {
-        **{paper_key: comparisons[key]["change_pct"] for paper_key, key in CLAIM_COMPARISONS.items()},
+        **{paper_key: comparisons[key]["change_pct"] for paper_key, key in names.CLAIM_COMPARISONS.items()},
         "comparisons": comparisons,
-        "paper": dict(PAPER),
+        "paper": dict(names.PAPER),
         "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
         "methods": methods,
         "seeds": seeds,
@@ -114,35 +104,29 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         "k_sweep": _k_sweep(methods, budget),
         **_acting_sweep(methods, budget, default_elite),
     }
-    comparisons.update(_further_comparisons(methods, online_phases))
     training = _training_episodes(raw, seeds, budget)
     if training:
         result["online_phase"] = training
-    if all(sampled_name(m) in methods for m in MAIN_METHODS):  # (a)-(c) with fresh candidate noise
-        comparisons.update(_sampled_comparisons(methods, online_phases))
-        result["sampled"] = {
-            paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
-            for paper_key, key in CLAIM_COMPARISONS.items()
-        }
+    if all(names.sampled_name(m) in methods for m in names.MAIN_METHODS):  # (a)-(c) with fresh candidate noise
+        comparisons.update(_method_comparisons(methods, SAMPLED_PAIRS, "_sampled"))
+        if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):  # pooled over the online phases, like (c)
+            comparisons["online_reward_sampled"] = compare(online_phases["adaptive_sampled"]["per_seed"],
+                                                           online_phases["fixed_sampled"]["per_seed"])
+        result["sampled"] = {paper_key: comparisons.get(f"{key}_sampled", {}).get("change_pct", math.nan)
+                             for paper_key, key in names.CLAIM_COMPARISONS.items()}
     if "adaptive_style" in methods:
-        result["style_context"] = {
-            "with": "adaptive_style",
-            "without": "adaptive",
-            "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward"),
-        }
+        result["style_context"] = {"with": "adaptive_style", "without": "adaptive",
+                                   "reward_gain_pct": _compare(methods, "adaptive_style", "adaptive", "reward")}
     return result
 
 
 def _methods(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int]) -> dict[str, Any]:
     """:func:`_stats` of every method evaluated on all ``seeds``; the four arms of (a)-(c) must be."""
-    missing = [m for m in MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
+    missing = [m for m in names.MAIN_METHODS if m not in raw or any(s not in raw[m] for s in seeds)]
     if missing:
         raise ValueError(f"raw results incomplete for method(s) {missing} and seeds {seeds}")
-    return {
-        m: _stats(raw[m], seeds)
-        for m in raw
-        if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)
-    }
+    return {m: _stats(raw[m], seeds) for m in raw
+            if m != "style" and not m.startswith("online/") and all(s in raw[m] for s in seeds)}
 
 
 def _per_seed(methods: Mapping[str, Any], method: str, key: str) -> list[float]:
@@ -156,75 +140,43 @@ def _compare(methods: Mapping[str, Any], new: str, base: str, key: str) -> dict[
 
 def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int]:
     """The online phases whose two arms were evaluated on every seed: (c) pools their paired runs."""
-    return [
-        r for r in range(budget.online_replicates)
-        if all(replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))
-    ]
+    return [r for r in range(budget.online_replicates)
+            if all(names.replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
 
 
-def _claim_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """(a), (b) and (c): the comparisons behind the paper's three numbers (:data:`CLAIM_COMPARISONS`)."""
-    return {
-        "offline_reward": _compare(methods, "chunk", "onestep", "reward"),
-        "offline_jerk": _compare(methods, "chunk", "onestep", "cumulative_jerk"),
-        "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"]),
-    }
-
-
-def _further_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """The comparisons beyond the paper's numbers, for the arms the run has: (c''') the execution rule
-    alone, (a') and (b') the offline chunk policy with Eq. 7 execution, (c') and (c'') the Phase-2
-    training episodes (pooled over the online phases like (c)), (b'') jerk per step."""
-    out: dict[str, Any] = {}
-    if "fixed_adaptive" in methods:  # the execution rule alone, on the fixed arm's checkpoint
-        out["online_execution_rule"] = _compare(methods, "fixed_adaptive", "fixed", "reward")
-    if "chunk_adaptive" in methods:  # beyond the paper: the offline chunk policy with Eq. 7 execution
-        out["offline_reward_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "reward")
-        out["offline_jerk_chunk_adaptive"] = _compare(methods, "chunk_adaptive", "onestep", "cumulative_jerk")
+def _comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
+    """(a)-(c), the comparisons behind the paper's numbers, and those beyond them the run's arms allow."""
+    out = {**_method_comparisons(methods, METHOD_PAIRS),
+           "online_reward": compare(online_phases["adaptive"]["per_seed"], online_phases["fixed"]["per_seed"])}
     episodes = online_phases["training_episodes"]
     if episodes:  # (c') and (c''), pooled over the online phases like (c)
         out["online_phase_reward"] = compare(episodes["adaptive"]["reward"], episodes["fixed"]["reward"])
         out["online_phase_reward_last"] = compare(episodes["adaptive"]["reward_last"], episodes["fixed"]["reward_last"])
-    if {"chunk", "onestep"} <= set(methods) and all(
-        math.isfinite(v) for m in ("chunk", "onestep") for v in _per_seed(methods, m, "jerk_per_step")):
-        out["offline_jerk_per_step"] = _compare(methods, "chunk", "onestep", "jerk_per_step")
     return out
 
 
-def _sampled_comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
-    """(a)-(c), (b'') and (c''') between the evaluations with fresh candidate noise (``<key>_sampled``)."""
-    sampled = {
-        "offline_reward": ("chunk", "onestep", "reward"),
-        "offline_jerk": ("chunk", "onestep", "cumulative_jerk"),
-        "online_reward": ("adaptive", "fixed", "reward"),
-        "offline_jerk_per_step": ("chunk", "onestep", "jerk_per_step"),
-        "online_execution_rule": ("fixed_adaptive", "fixed", "reward"),
-    }
-    out: dict[str, Any] = {}
-    for key, (new, base, metric) in sampled.items():
-        names = (sampled_name(new), sampled_name(base))
-        if key == "online_reward":  # pooled over the online phases, like (c)
-            if {"adaptive_sampled", "fixed_sampled"} <= set(online_phases):
-                out[f"{key}_sampled"] = compare(
-                    online_phases["adaptive_sampled"]["per_seed"], online_phases["fixed_sampled"]["per_seed"])
-        elif all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in names):
-            out[f"{key}_sampled"] = _compare(methods, names[0], names[1], metric)
+def _method_comparisons(methods: Mapping[str, Any], keys: Iterable[str], suffix: str = "") -> dict[str, Any]:
+    """The :data:`METHOD_PAIRS` of ``keys`` (their methods with ``suffix``) that have finite values on every seed."""
+    out = {}
+    for key in keys:
+        new, base, metric = METHOD_PAIRS[key]
+        pair = (new + suffix, base + suffix)
+        if all(n in methods and all(math.isfinite(v) for v in _per_seed(methods, n, metric)) for n in pair):
+            out[key + suffix] = _compare(methods, *pair, metric)
     return out
 
 
 def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -> dict[str, Any]:
-    """(d): ``style_macro_accuracy`` (NaN without style results for every seed) and ``style``, the
-    classifier's accuracies and its confusion matrix summed over seeds."""
+    """(d): the style classifier's accuracies and confusion matrix summed over seeds."""
     if not ("style" in raw and all(s in raw["style"] for s in seeds)):
         return {"style_macro_accuracy": math.nan}
     styles = [raw["style"][s] for s in seeds]
-    macro = [float(r["macro_accuracy"]) for r in styles]
-    mean, half = t_confidence_interval(macro)
+    macro = t_summary([float(r["macro_accuracy"]) for r in styles])
     matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
     return {
-        "style_macro_accuracy": mean,
+        "style_macro_accuracy": macro["mean"],
         "style": {
-            "macro_accuracy": {"mean": mean, "ci95": half, "per_seed": macro},
+            "macro_accuracy": macro,
             "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
             "baseline_macro_accuracy_per_seed": [
                 float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
@@ -239,7 +191,7 @@ def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[st
     """The fine-tuned adaptive checkpoint executed with each threshold δ of the sweep."""
     rows = []
     for d in budget.delta_sweep:
-        name = f"delta_{delta_name(d)}"
+        name = f"delta_{names.delta_name(d)}"
         if name in methods:
             keys = ("reward", "mean_executed_length", "cumulative_jerk")
             rows.append({"delta": d, "method": name, **{k: methods[name][k] for k in keys}})
@@ -249,21 +201,17 @@ def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[st
 def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
     """The chunk policies pre-trained with each chunk length k of the sweep."""
     keys = ("reward", "cumulative_jerk", "collision")
-    return [
-        {"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
-        for k in budget.k_sweep
-        if f"k{k}" in methods
-    ]
+    return [{"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
+            for k in budget.k_sweep if f"k{k}" in methods]
 
 
 def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
-    """``acting_sweep``: the offline one-step and chunk checkpoints acting with each other rule (Euler
-    steps N, elite size m) and the chunk-vs-one-step changes under it; ``acting_default``: how (a), (b) act."""
+    """The offline checkpoints acting with each other rule (N, m), and how (a) and (b) act."""
     default_n = int(budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
     default_elite = budget.default_elite if default_elite is None else default_elite
     rows = []
     for n, m in budget.acting_variants(default_elite):  # other acting rules for the offline checkpoints
-        arms = {arm: acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
+        arms = {arm: names.acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
         row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
@@ -276,55 +224,42 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
 
 
 def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], budget: Fig2Budget) -> dict[str, Any]:
-    """Phase-2 training episodes of each logged arm (:data:`ONLINE_ARMS`, first online phase): mean return,
-    over the last quarter, collision rate and episode count over seeds, and the learning curve."""
+    """Per logged arm (first online phase), its :func:`online_phase_stats` over seeds and its learning curve."""
     out: dict[str, Any] = {}
-    for arm in ONLINE_ARMS:
+    for arm in names.ONLINE_ARMS:
         if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
             continue
         logs = raw[f"online/{arm}"]
         rows = [online_phase_stats(logs[s]["episodes"]) for s in seeds]
-        stats: dict[str, Any] = {}
-        for key in ("reward", "reward_last", "collision", "episodes"):
-            values = [r[key] for r in rows]
-            mean, half = t_confidence_interval(values)
-            stats[key] = {"mean": mean, "ci95": half, "per_seed": values}
-        stats["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
-        out[arm] = stats
+        out[arm] = {key: t_summary([r[key] for r in rows]) for key in ("reward", "reward_last", "collision", "episodes")}
+        out[arm]["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
     return out
 
 
 def _online_phases(
     raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int], phases: Sequence[int]
 ) -> dict[str, Any]:
-    """The online phases behind (c): which were pooled, (c) within each, and the pooled per-run
-    rewards of both arms (``runs``: phase-major, ``len(phases) · len(seeds)``): final evaluations
-    (``adaptive``, ``fixed``, and ``*_sampled`` when every phase has them) and Phase-2 training
-    episodes (``training_episodes``: empty unless every run has its log)."""
+    """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards."""
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
-        return [v for r in phases for v in methods[replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
+        return [v for r in phases for v in methods[names.replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
 
     out: dict[str, Any] = {"phases": list(phases), "runs": len(phases) * len(seeds), "per_phase": []}
     for r in phases:
-        names = {arm: replicate_name(arm, r) for arm in ("adaptive", "fixed")}
-        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in names.items()}}
-        row["change"] = compare(methods[names["adaptive"]]["reward"]["per_seed"], methods[names["fixed"]]["reward"]["per_seed"])
-        if all(sampled_name(n) in methods for n in names.values()):
-            row["change_sampled"] = compare(methods[sampled_name(names["adaptive"])]["reward"]["per_seed"],
-                                            methods[sampled_name(names["fixed"])]["reward"]["per_seed"])
+        units = {arm: names.replicate_name(arm, r) for arm in ("adaptive", "fixed")}
+        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in units.items()}}
+        row["change"] = compare(methods[units["adaptive"]]["reward"]["per_seed"], methods[units["fixed"]]["reward"]["per_seed"])
+        if all(names.sampled_name(n) in methods for n in units.values()):
+            row["change_sampled"] = compare(methods[names.sampled_name(units["adaptive"])]["reward"]["per_seed"],
+                                            methods[names.sampled_name(units["fixed"])]["reward"]["per_seed"])
         out["per_phase"].append(row)
     for arm in ("adaptive", "fixed"):
         for suffix in ("", "_sampled"):
-            if suffix and not all(sampled_name(replicate_name(arm, r)) in methods for r in phases):
+            if suffix and not all(names.sampled_name(names.replicate_name(arm, r)) in methods for r in phases):
                 continue
-            values = rewards(arm, suffix)
-            mean, half = t_confidence_interval(values) if values else (math.nan, math.nan)
-            out[arm + suffix] = {"mean": mean, "ci95": half, "per_seed": values}  # per run
-    logs = {
-        arm: [raw.get(f"online/{replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
-        for arm in ("adaptive", "fixed")
-    }
+            out[arm + suffix] = t_summary(rewards(arm, suffix))  # per run
+    logs = {arm: [raw.get(f"online/{names.replicate_name(arm, r)}", {}).get(s) for r in phases for s in seeds]
+            for arm in ("adaptive", "fixed")}
     out["training_episodes"] = {}
     if phases and all(log is not None for runs in logs.values() for log in runs):
         for arm, runs in logs.items():

@@ -1,4 +1,4 @@
-"""Configuration of a Figure-2 run: :class:`Fig2Budget` and its default and ``--quick`` budgets."""
+"""Configuration of a Figure-2 run: :class:`Fig2Budget`, its default and ``--quick`` budgets, and its directories."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from experiments.common import records
 from experiments.common.budget import (
     Budget,
     Check,
@@ -18,6 +19,9 @@ from experiments.common.budget import (
     mapping,
     reserved_keys,
 )
+from experiments.common.estimate import estimate, recorded, seconds_per_size
+from experiments.common.names import MAIN_METHODS, SAMPLED_METHODS
+from experiments.common.runner import list_schedule_seconds
 
 
 def _deltas(label: str, values: Any) -> None:
@@ -27,72 +31,28 @@ def _deltas(label: str, values: Any) -> None:
 
 @dataclass(frozen=True)
 class Fig2Budget(Budget):
-    """Budget and hyperparameters of one Figure-2 run (per seed); an unknown key or a bad value
-    raises ``ValueError`` naming it.
+    """Budget and hyperparameters of one Figure-2 run, per seed (``docs/figure2.md``)."""
 
-    :param dataset_episodes: offline episodes collected per seed (behaviour policy of
-        :class:`~sb3_ua2c.offline.BehaviourConfig`)
-    :param pretrain_steps: Phase-1 gradient steps, the same for every pre-trained arm
-    :param finetune_steps: Phase-2 environment steps, the same for adaptive and fixed; both arms make
-        one gradient step per ``chunk_size`` environment steps (the same number of updates, whatever
-        the executed lengths)
-    :param eval_episodes: evaluation episodes per method and seed (same scenarios for all methods)
-    :param chunk_size: ``k`` of the chunk policy
-    :param entropy_threshold: δ of the adaptive arm (Eq. 7); the fixed arm uses ``inf``
-    :param style_episodes: episodes of the driving-style dataset per seed (>= 3: split by episode)
-    :param style_max_epochs: epochs bound of the style classifier's training (early stopping)
-    :param delta_sweep: thresholds δ at which the fine-tuned adaptive checkpoint is executed
-    :param k_sweep: chunk lengths pre-trained for the k sweep (``1`` and ``chunk_size`` reuse
-        the arms of panel (a))
-    :param style_ablation: run the "adaptive + style context" arm
-    :param elite_sweep: ``n_elite`` values (elite-mean execution, ``UA2C.set_n_elite``) at which the
-        offline one-step and chunk checkpoints are also evaluated (full chunks)
-    :param flow_sweep: Euler steps ``N`` of the sampler (``UA2C.set_flow_steps``) at which the same
-        two checkpoints are also evaluated, with ``n_elite = 1`` and each value of ``elite_sweep``
-    :param env_kwargs: ``MixedTraffic-v0`` keyword arguments (the same for every unit)
-    :param algo_kwargs: extra UA2C constructor arguments of every pre-trained arm (the fine-tuned
-        arms inherit them from their checkpoint), e.g. ``{"smooth_weight": 100.0}``
-    :param onestep_kwargs: UA2C constructor arguments of the one-step baseline (k = 1, also the k
-        sweep's k = 1) that replace those of ``algo_kwargs`` key by key, so that each arm can run
-        at its own size, e.g. ``{"policy_kwargs": {"net_arch": [128, 128]}}`` next to a larger
-        chunk actor in ``algo_kwargs``; empty = the same arguments as the chunk policy
-    :param finetune_kwargs: UA2C attributes overridden for Phase 2 only, the same for every
-        fine-tuned arm (e.g. ``{"smooth_weight": 100.0}`` or ``{"n_elite": 4}``; ``train_freq`` and ``gradient_steps``
-        are set by the runner, see :func:`finetune_overrides`)
-    :param online_seed_offset: Phase 2 of seed ``s`` runs with seed ``s + MAX_SEED · offset``
-        (online scenarios, sampling noise, minibatches; the networks start from the same
-        checkpoint): a replicate of the online phase on the same pre-trained checkpoints. 0 = the
-        seed itself
-    :param online_replicates: online phases per seed, all from the same pre-trained checkpoint: phase
-        ``r`` runs with offset ``online_seed_offset + r`` (units ``adaptive_r<r>`` / ``fixed_r<r>``
-        for ``r >= 1``). (c) pools the paired runs of every phase: one online phase moves a
-        five-seed mean by 10-20 %, more than the paper's +13.17 %
-    :param sampled_eval: also evaluate :data:`SAMPLED_METHODS` with fresh candidate noise at every
-        replanning (``predict(deterministic=False)``, seeded per episode), the acting rule of the
-        Phase-2 rollouts, into ``<method>_sampled``; the headline rows use the fixed noise of
-        ``deterministic=True``
-    """
-
-    dataset_episodes: int = 200
-    pretrain_steps: int = 6000
-    finetune_steps: int = 10000
-    eval_episodes: int = 20
+    dataset_episodes: int = 200  # offline episodes per seed (the behaviour policy of envs.collection)
+    pretrain_steps: int = 6000  # Phase-1 gradient steps of every pre-trained arm
+    finetune_steps: int = 10000  # Phase-2 env steps of every fine-tuned arm, one update per chunk_size steps
+    eval_episodes: int = 20  # per method and seed, the same scenarios for every method
     chunk_size: int = 5  # same as default: the paper's Figure 2 runs k = 5
     entropy_threshold: float = 0.0  # same as default: the paper's adaptive arm runs δ = 0
-    style_episodes: int = 400
-    style_max_epochs: int = 40
-    delta_sweep: tuple[float, ...] = (-0.5, 0.0, 0.25, 0.5, 1.0, math.inf)
-    k_sweep: tuple[int, ...] = (1, 3, 5, 10)
-    style_ablation: bool = True
-    elite_sweep: tuple[int, ...] = (4, 8, 16)
-    flow_sweep: tuple[int, ...] = (2,)
-    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    onestep_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    online_seed_offset: int = 0
-    online_replicates: int = 1
-    sampled_eval: bool = True
+    style_episodes: int = 400  # of the driving-style dataset per seed (>= 3: split by episode)
+    style_max_epochs: int = 40  # of the style classifier (early stopping)
+    delta_sweep: tuple[float, ...] = (-0.5, 0.0, 0.25, 0.5, 1.0, math.inf)  # δ the adaptive checkpoint acts with
+    k_sweep: tuple[int, ...] = (1, 3, 5, 10)  # chunk lengths pre-trained for the k sweep
+    style_ablation: bool = True  # the "adaptive + style context" arm
+    elite_sweep: tuple[int, ...] = (4, 8, 16)  # n_elite the offline one-step and chunk checkpoints also act with
+    flow_sweep: tuple[int, ...] = (2,)  # Euler steps N they also act with, with n_elite 1 and elite_sweep
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)  # MixedTraffic-v0's, for every unit
+    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)  # UA2C's, for every pre-trained arm
+    onestep_kwargs: Mapping[str, Any] = field(default_factory=dict)  # over algo_kwargs for the one-step baseline
+    finetune_kwargs: Mapping[str, Any] = field(default_factory=dict)  # UA2C attributes of Phase 2 only
+    online_seed_offset: int = 0  # Phase 2 of seed s runs with s + MAX_SEED * offset
+    online_replicates: int = 1  # online phases per seed from the same checkpoint, pooled into (c)
+    sampled_eval: bool = True  # also evaluate SAMPLED_METHODS with fresh candidate noise
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
         **{name: integer() for name in ("pretrain_steps", "finetune_steps", "chunk_size", "style_max_epochs",
@@ -130,9 +90,7 @@ class Fig2Budget(Budget):
         return _policy_elite(self, self.chunk_size)
 
     def acting_variants(self, default_elite: int | None = None) -> tuple[tuple[int | None, int], ...]:
-        """``(flow_steps, n_elite)`` pairs of the acting sweep (``None`` = the checkpoint's ``N``):
-        ``n_elite`` in ``default_elite`` (:attr:`default_elite` unless given), 1 and ``elite_sweep``, without
-        ``(None, default_elite)``, which is how (a) and (b) act."""
+        """``(flow_steps, n_elite)`` pairs of the acting sweep, but how (a) and (b) act."""
         m0 = self.default_elite if default_elite is None else default_elite
         elites = (m0, *sorted({1, *self.elite_sweep} - {m0}))
         pairs = [(n, m) for n in (None, *self.flow_sweep) for m in elites]
@@ -149,41 +107,41 @@ class Fig2Budget(Budget):
         return tuple(sorted({1, self.chunk_size, *self.k_sweep}))
 
 
-def _policy_kwargs(kwargs: Mapping[str, Any]) -> Mapping[str, Any]:
-    """``policy_kwargs`` of UA2C arguments ``kwargs`` (empty when unset or not a mapping: UA2C itself
-    rejects the latter when the arm is built)."""
-    policy_kwargs = kwargs.get("policy_kwargs") or {}
-    return policy_kwargs if isinstance(policy_kwargs, Mapping) else {}
-
-
 def _policy_elite(budget: Fig2Budget, k: int) -> int:
     """``policy_kwargs["n_elite"]`` of the arm with chunk length ``k`` (UA2C's default when unset)."""
-    return int(_policy_kwargs(budget.arm_kwargs(k)).get("n_elite", library_default("policy_kwargs")["n_elite"]))
+    policy_kwargs = budget.arm_kwargs(k).get("policy_kwargs") or {}
+    policy_kwargs = policy_kwargs if isinstance(policy_kwargs, Mapping) else {}
+    return int(policy_kwargs.get("n_elite", library_default("policy_kwargs")["n_elite"]))
 
 
-#: Default budget: about two hours for 5 seeds on 2 cores. The chunk policy at UA2C's defaults (3 × 512
-#: velocity field, elite mean of 8 candidates); the one-step baseline at its better size by reward, 128 × 2,
-#: acting by the same elite mean; two online phases pooled into (c); the k sweep stops at k = 5 to stay
-#: within the budget (k = 10 collapsed at 128 × 2).
+#: Default budget, about two hours for 5 seeds on 2 cores (its choices: ``docs/figure2.md``).
 FULL_BUDGET = Fig2Budget(k_sweep=(1, 3, 5), onestep_kwargs={"policy_kwargs": {"net_arch": [128, 128]}},
                          online_replicates=2)
 
 
-#: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI; the arms act as UA2C's
-#: defaults do (its ``n_elite``), the labels of the acting sweep name the same default.
+#: ``--quick``: 4-second episodes and a handful of updates, for smoke tests and CI.
 QUICK_BUDGET = Fig2Budget(dataset_episodes=3, pretrain_steps=8, finetune_steps=30, eval_episodes=1, style_episodes=6,
                           style_max_epochs=2, delta_sweep=(0.0, math.inf), k_sweep=(1, 2, 3), elite_sweep=(2,),
                           flow_sweep=(2,), chunk_size=3, env_kwargs={"time_limit": 4.0},
                           algo_kwargs={"batch_size": 32}, online_replicates=2)
 
 
-def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
-    """Phase-2 update cadence of every fine-tuned arm: one gradient step per ``chunk_size`` env steps.
+#: Budget fields that change what an existing unit holds; the sweeps may grow between calls.
+UNIT_FIELDS = ("dataset_episodes", "pretrain_steps", "finetune_steps", "eval_episodes", "chunk_size",
+               "entropy_threshold", "style_episodes", "style_max_epochs", "env_kwargs", "algo_kwargs",
+               "onestep_kwargs", "finetune_kwargs", "online_seed_offset")
 
-    UA2C's default (one update per plan) would give the adaptive arm, whose plans are shorter,
-    up to ``k`` times the updates of the fixed arm for the same environment steps. The budget's
-    ``finetune_kwargs`` come on top.
-    """
+
+class RunPaths(records.RunPaths):
+    """Where a Figure-2 run keeps its files, and the budget manifest that refuses to resume it under another."""
+
+    NAME = "fig2"
+    BUDGET = Fig2Budget
+    FIELDS = UNIT_FIELDS
+
+
+def finetune_overrides(budget: Fig2Budget) -> dict[str, Any]:
+    """Phase-2 attributes of every fine-tuned arm: ``finetune_kwargs`` and one update per ``chunk_size`` env steps."""
     return {**budget.finetune_kwargs, "train_freq": budget.chunk_size, "gradient_steps": 1}  # same as default: the cadence
 
 
@@ -194,10 +152,7 @@ STYLE_STAGES = ("style", "style_ablation")
 
 
 def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
-    """The size of each stage of one seed, what its recorded seconds scale with: env episodes collected,
-    gradient steps, online env steps, evaluation episodes."""
-    from experiments.common.names import MAIN_METHODS, SAMPLED_METHODS
-
+    """The size of each stage of one seed, what its recorded seconds scale with."""
     n_evals = (
         len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
         + 2 * len(budget.acting_variants()) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
@@ -215,11 +170,7 @@ def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
 
 def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping[str, Any]] | None = None,
                      ) -> dict[str, float]:
-    """CPU seconds per stage of a run (summed over seeds, before resuming) and ``"total"``: the stage times
-    measured by earlier runs (``reports``: their ``fig2.json``; default: every committed one) scaled by
-    :func:`stage_sizes`."""
-    from experiments.common.estimate import estimate, recorded, seconds_per_size
-
+    """CPU seconds per stage of a run and ``"total"``, from the ``reports`` (default: the committed ones)."""
     reports = recorded("**/fig2.json") if reports is None else reports
     rates = seconds_per_size(
         (stage, seconds, size * len(report["seeds"]))
@@ -232,10 +183,7 @@ def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping
 
 
 def estimate_wall_seconds(stages: Mapping[str, float], n_seeds: int, workers: int) -> float:
-    """Wall time of a run whose CPU seconds per stage are ``stages``: each seed's ``"main"`` part, then its
-    ``"style"`` part (:data:`STYLE_STAGES`), as :func:`experiments.fig2.units.run_all` submits them."""
-    from experiments.common.runner import list_schedule_seconds
-
+    """Wall time of a run of ``stages`` CPU seconds, its parts scheduled as :func:`~experiments.fig2.units.run_all` does."""
     style = sum(stages.get(name, 0.0) for name in STYLE_STAGES) / n_seeds
     main = stages["total"] / n_seeds - style
     return list_schedule_seconds([main] * n_seeds + [style] * n_seeds, workers)  # run_all's order

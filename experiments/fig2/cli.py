@@ -8,32 +8,26 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
+from experiments.common.cli import harness_main, harness_parent, select_seeds
 from experiments.common.names import PAPER
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header
 from experiments.fig2.aggregation import aggregate, load_raw
 from experiments.fig2.budget import (
     FULL_BUDGET,
     QUICK_BUDGET,
     Fig2Budget,
+    RunPaths,
     estimate_seconds,
     estimate_wall_seconds,
 )
-from experiments.fig2.manifest import RunPaths, read_manifest
 from experiments.fig2.report import format_pct, write_report
 from experiments.fig2.units import SEED_PARTS, measured_seconds, run_all
 from sb3_ua2c.checks import check_int
 
 
 def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
-    """The budget a report ran with: the ``budget`` key of its ``fig2.json`` (``report`` is that file or
-    the directory holding it). Fields newer than the report take their class defaults, which are the
-    values every report made before them ran with.
-
-    :raises ValueError: naming the path, when it holds no readable ``fig2.json`` with a budget
-    """
+    """The budget of a ``fig2.json`` or of the directory holding it (newer fields take their defaults)."""
     path = Path(report)
     path = path / "fig2.json" if path.is_dir() else path
     try:
@@ -73,7 +67,6 @@ def _check(args: argparse.Namespace) -> tuple[list[int], Fig2Budget]:
     base = recorded_budget(args.budget_of) if args.budget_of is not None else QUICK_BUDGET if args.quick else FULL_BUDGET
     seeds = select_seeds(args.seeds, range(5))
     check_int("--workers", args.workers)
-    check_extras(["ray"] if args.ray_address is not None and not args.report_only else [])
     return seeds, base.replace(**args.budget) if args.budget else base
 
 
@@ -94,21 +87,16 @@ def _run_units(args: argparse.Namespace, seeds: list[int], budget: Fig2Budget, p
 def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], command: str) -> int:
     seeds, budget = checked
     paths = RunPaths.under(args.out, args.raw, args.work)
-    previous = paths.out / "fig2.json"  # a rebuilt report keeps the command and date of the run
-    command, date = run_header(command, previous if args.report_only else None)
+    recorded = previous_report(paths.out / "fig2.json", args.report_only)
+    command, date = run_header(command, recorded)  # a rebuilt report keeps the command and date of the run
     est = None if args.report_only else _run_units(args, seeds, budget, paths)
-    recorded: dict[str, Any] = {}
     default_elite = None
     if args.report_only:
-        if previous.is_file():
-            recorded = json.loads(previous.read_text())
-        # the budget the run was made with: its manifest, else the one recorded in fig2.json; and the n_elite
-        # its checkpoints acted with where the budget left it to the library (whose default may have changed)
-        manifest = read_manifest(paths)
-        if manifest is None and "budget" in recorded:
-            manifest = Fig2Budget.from_dict(recorded["budget"])
+        # without the run's manifest, fig2.json gives the n_elite its checkpoints acted with where the budget left it
+        # to the library (whose default may have changed)
+        if paths.recorded_budget() is None:
             default_elite = recorded.get("acting_default", {}).get("n_elite")
-        budget = manifest or budget
+        budget = paths.rebuilt_budget(recorded, budget)
     summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
     seconds = recorded.get("seconds", {})
     summary["seconds"] = {

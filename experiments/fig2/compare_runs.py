@@ -1,9 +1,5 @@
 """An ablation against its control: two Figure-2 reports on the same seeds and datasets, paired run by run
-(``python -m experiments compare-runs A B --labels a b [--out FILE.md]``).
-
-Per method both reports hold, each report's mean reward and the paired difference ``B − A`` over the runs
-both hold (fine-tuned arms pooled over online phases) with its Student-t interval; and Figure 2 (c) of each
-report on the same runs."""
+(``python -m experiments compare-runs A B``): per method the paired difference ``B − A``, and each (c)."""
 
 from __future__ import annotations
 
@@ -35,6 +31,13 @@ def run_rewards(report: Path, method: str) -> dict[tuple[int, str], float]:
     return out
 
 
+def c_runs(report: Path, suffix: str = "") -> dict[tuple[int, str], tuple[float, float]]:
+    """``{(seed, unit): (adaptive reward, fixed reward)}``: Figure 2 (c)'s paired runs in a report directory."""
+    ad, fx = run_rewards(report, "adaptive" + suffix), run_rewards(report, "fixed" + suffix)
+    return {(s, u): (ad[(s, u)], fx[(s, u.replace("adaptive", "fixed"))]) for s, u in sorted(ad)
+            if (s, u.replace("adaptive", "fixed")) in fx}
+
+
 def compare(a: Path, b: Path) -> list[dict]:
     """One row per :data:`ROWS` entry both reports hold, plus (c) of each report."""
     rows = []
@@ -47,11 +50,9 @@ def compare(a: Path, b: Path) -> list[dict]:
             rows.append({"label": label, "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
     for name, report in (("A", a), ("B", b)):
         for suffix in ("", "_sampled"):
-            ad, fx = run_rewards(report, "adaptive" + suffix), run_rewards(report, "fixed" + suffix)
-            pairs = sorted((s, u) for s, u in ad if (s, u.replace("adaptive", "fixed")) in fx)
-            if len(pairs) >= 2:
-                x = [ad[p] for p in pairs]
-                y = [fx[(s, u.replace("adaptive", "fixed"))] for s, u in pairs]
+            runs = list(c_runs(report, suffix).values())
+            if len(runs) >= 2:
+                x, y = [adaptive for adaptive, _ in runs], [fixed for _, fixed in runs]
                 rows.append({"label": f"{name}: (c) adaptive − fixed{', sampled' if suffix else ''}",
                              "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
     return rows

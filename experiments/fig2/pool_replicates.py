@@ -1,11 +1,6 @@
 """Pool claim (c) over replicates of the online phase (``Fig2Budget.online_seed_offset``):
 ``python -m experiments pool-replicates REPORT [REPORT ...] [--sampled]``.
-
-Every online phase a report holds (``fig2_raw/seed*/{adaptive,fixed}[_r<r>].json``) is a run; the reports
-must share their pre-trained checkpoints and differ in the online seeds only (never pass a report and its
-own rerun). Prints per report and pooled: both arms' mean rewards, (c) as the change of the means, and the
-paired per-run changes with their 95 % Student-t interval. ``--sampled`` pools the evaluations with fresh
-candidate noise instead."""
+"""
 
 from __future__ import annotations
 
@@ -14,26 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common.names import PAPER, replicate_name
+from experiments.common.names import PAPER
 from experiments.common.stats import relative_change_pct, t_confidence_interval
-from experiments.fig2.aggregation import load_raw
-from experiments.fig2.manifest import RunPaths
-
-
-def arm_rewards(report: Path, suffix: str = "") -> dict[tuple[int, int], tuple[float, float]]:
-    """``{(seed, phase): (adaptive reward, fixed reward)}`` of one report directory, for every online
-    phase it holds (``suffix``: ``"_sampled"``)."""
-    seeds = sorted(int(d.name.removeprefix("seed")) for d in (report / "fig2_raw").glob("seed*"))
-    if not seeds:
-        raise SystemExit(f"error: no fig2_raw/seed*/ results under {report}")
-    raw = load_raw(RunPaths.under(report), seeds)  # {method: {seed: summary}}
-    out = {}
-    for seed in seeds:
-        phase = 0
-        while all(seed in raw.get(replicate_name(arm, phase) + suffix, {}) for arm in ("adaptive", "fixed")):
-            out[(seed, phase)] = tuple(raw[replicate_name(arm, phase) + suffix][seed]["reward"] for arm in ("adaptive", "fixed"))
-            phase += 1
-    return out
+from experiments.fig2.compare_runs import c_runs
 
 
 def describe(name: str, pairs: list[tuple[float, float]]) -> str:
@@ -51,7 +29,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     parser.add_argument("reports", nargs="+", type=Path)
     parser.add_argument("--sampled", action="store_true", help="pool the evaluations with fresh candidate noise")
     args = parser.parse_args(argv)
-    runs = {report: arm_rewards(report, "_sampled" if args.sampled else "") for report in args.reports}
+    runs = {report: c_runs(report, "_sampled" if args.sampled else "") for report in args.reports}
+    empty = [report for report, by_seed in runs.items() if not by_seed]
+    if empty:
+        raise SystemExit(f"error: no fig2_raw/seed*/ results under {empty[0]}")
     seeds = {tuple(sorted({seed for seed, _ in r})) for r in runs.values()}
     if len(seeds) != 1:
         raise SystemExit(f"error: the reports hold different seeds: {sorted(seeds)}")

@@ -1,5 +1,4 @@
-"""The Figure-2 report: ``fig2.md`` (:func:`format_markdown`, one builder per section), ``fig2.json``
-and the PNG panels (:func:`write_report`)."""
+"""The Figure-2 report: ``fig2.md`` (one builder per section), ``fig2.json`` and the PNG panels."""
 
 from __future__ import annotations
 
@@ -10,19 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common import records
-from experiments.common.names import (
-    CLAIM_COMPARISONS,
-    MAX_SEED,
-    METHOD_LABELS,
-    PAPER,
-    SAMPLED_METHODS,
-    sampled_name,
-)
-from experiments.common.stats import interval, t_confidence_interval
-from experiments.fig2.budget import STAGES
-from experiments.fig2.manifest import RunPaths
-from experiments.fig2.plots import bar_panel, curve_panel, sweep_panel
+from envs.style import plot_confusion
+from experiments.common import names, records
+from experiments.common.records import figure, section, table
+from experiments.common.stats import interval, t_summary
+from experiments.fig2.budget import STAGES, RunPaths
 from sb3_ua2c.execution import format_length_shares
 
 Lines = list[str]
@@ -40,10 +31,9 @@ def format_pct(x: float) -> str:
 
 
 def paper_verdict(paper_key: str, change_pct: float) -> str:
-    """``"at or beyond"`` when our relative change is at least as good as the paper's (higher reward,
-    lower jerk), ``"short"`` otherwise (also for a NaN change)."""
+    """``"at or beyond"`` when our relative change is at least as good as the paper's, else ``"short"``."""
     better_is_lower = paper_key == "offline_jerk_change_pct"
-    ours, paper = float(change_pct), PAPER[paper_key]
+    ours, paper = float(change_pct), names.PAPER[paper_key]
     ok = ours <= paper if better_is_lower else ours >= paper
     return "at or beyond" if ok else "short"
 
@@ -54,7 +44,7 @@ def format_markdown(summary: Mapping[str, Any], command: str, date: str) -> str:
                 _online_phases_table(summary), _training_episodes_table(summary), _style_section(summary),
                 _delta_sweep_table(summary), _k_sweep_table(summary), _acting_sweep_table(summary),
                 _style_context_section(summary), _budget_section(summary), _compute_table(summary))
-    return "\n".join([line for section in sections for line in section] + [""])
+    return "\n".join([line for part in sections for line in part] + [""])
 
 
 def _n_phases(summary: Mapping[str, Any]) -> int:
@@ -100,12 +90,8 @@ def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None]
         (f"(c') online reward during Phase 2 (mean return of the training episodes), adaptive vs fixed{pooled}",
          "online_phase_reward", None),
         (f"(c'') the same over the last quarter of the training episodes{pooled}", "online_phase_reward_last", None),
-        (
-            "(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks"
-            + (" (first online phase)" if pooled else ""),
-            "online_execution_rule",
-            None,
-        ),
+        ("(c''') the execution rule alone: the fixed arm's checkpoint executed adaptively vs with fixed chunks"
+         + (" (first online phase)" if pooled else ""), "online_execution_rule", None),
     )
     sampled = tuple(
         (f"{label} — sampled", f"{key}_sampled", paper_key) for label, key, paper_key in (*rows, extra[2], extra[5]))
@@ -115,18 +101,17 @@ def _claim_rows(summary: Mapping[str, Any]) -> tuple[tuple[str, str, str | None]
 def _claims_table(summary: Mapping[str, Any]) -> Lines:
     """The headline table: our relative change of each claim next to the paper's."""
     c = summary["comparisons"]
-    lines = ["| claim | ours | per-seed changes | paired difference [95 % CI] | paper | vs paper |",
-             "|---|---|---|---|---|---|"]
+    rows = []
     for label, key, paper_key in _claim_rows(summary):
         if key not in c:
             continue
-        cmp = c[key]
+        cmp, paired = c[key], c[key].get("paired")
         per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]}) + "%"
-        paired = cmp.get("paired")
         diff = f"{interval(paired)} ({paired['x_better_runs']} of {paired['runs']} runs higher)" if paired else ""
-        paper = "not in the paper" if paper_key is None else f"{PAPER[paper_key]:+.2f}%"
+        paper = "not in the paper" if paper_key is None else f"{names.PAPER[paper_key]:+.2f}%"
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
-        lines.append(f"| {label} | {format_pct(cmp['change_pct'])} | {per_seed} | {diff} | {paper} | {verdict} |")
+        rows.append([label, format_pct(cmp["change_pct"]), per_seed, diff, paper, verdict])
+    lines = table(["claim", "ours", "per-seed changes", "paired difference [95 % CI]", "paper", "vs paper"], rows)
     style = summary.get("style")
     if style:
         lines.append(
@@ -137,30 +122,20 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
 
 def _methods_table(summary: Mapping[str, Any]) -> Lines:
     """Every metric of the main methods (and their "sampled" evaluations), mean ± interval over seeds."""
-    lines = [
-        "",
-        "## Methods",
-        "",
-        "| method | reward | cum. jerk | jerk per step | collision rate | merge success | mean speed [m/s] | mean L_t |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
     order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
-    order += [sampled_name(m) for m in SAMPLED_METHODS]
-    for m in order:
-        if m not in summary["methods"]:
-            continue
-        s = summary["methods"][m]
-        lines.append(
-            f"| {METHOD_LABELS[m]} | {_fmt(s['reward'])} | {_fmt(s['cumulative_jerk'], 1)} "
-            f"| {_fmt(s['jerk_per_step'])} | {_fmt(s['collision'])} "
-            f"| {_fmt(s['merge_success'])} | {_fmt(s['mean_speed'])} | {_fmt(s['mean_executed_length'])} |"
-        )
-    shares = [(METHOD_LABELS[m], summary["methods"][m]["length_shares"]) for m in order
-              if "length_shares" in summary["methods"].get(m, {})]
+    methods = [m for m in (*order, *map(names.sampled_name, names.SAMPLED_METHODS)) if m in summary["methods"]]
+    keys = ("reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed",
+            "mean_executed_length")
+    lines = section("Methods", *table(
+        ["method", "reward", "cum. jerk", "jerk per step", "collision rate", "merge success", "mean speed [m/s]",
+         "mean L_t"],
+        ([names.METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2) for k in keys)]
+         for m in methods)))
+    shares = [[names.METHOD_LABELS[m], format_length_shares(summary["methods"][m]["length_shares"])] for m in methods
+              if "length_shares" in summary["methods"][m]]
     if shares:
         lines += ["", "Executed lengths (share of plans with L_t = 1..k, %, mean over seeds):", "",
-                  "| method | L_t = 1..k |", "|---|---|"]
-        lines += [f"| {label} | {format_length_shares(row)} |" for label, row in shares]
+                  *table(["method", "L_t = 1..k"], shares)]
     return lines
 
 
@@ -170,49 +145,31 @@ def _online_phases_table(summary: Mapping[str, Any]) -> Lines:
         return []
     c, op = summary["comparisons"], summary["online_phases"]
     offset = summary["budget"].get("online_seed_offset", 0)
-    lines = [
-        "",
-        "## (c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
-        "",
+    rows = [[offset + row["phase"], _fmt(row["fixed"]), _fmt(row["adaptive"]), format_pct(row["change"]["change_pct"]),
+             format_pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""]
+            for row in op["per_phase"]]
+    rows.append([f"pooled ({op['runs']} runs)", _fmt(op["fixed"]), _fmt(op["adaptive"]),
+                 format_pct(c["online_reward"]["change_pct"]),
+                 format_pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""])
+    return section(
+        "(c) per online phase (both arms fine-tuned again from the same pre-trained checkpoint)",
         "The methods table and the Phase-2 table show the first online phase; (c), (c') and (c'') pool "
         f"the {op['runs']} paired runs of all phases. Phase r runs seed s with "
-        f"s + {MAX_SEED} × (online_seed_offset + r).",
+        f"s + {names.MAX_SEED} × (online_seed_offset + r).",
         "",
-        "| online phase | fixed | adaptive | (c) | (c) sampled |",
-        "|---|---|---|---|---|",
-    ]
-    for row in op["per_phase"]:
-        sampled_change = format_pct(row["change_sampled"]["change_pct"]) if "change_sampled" in row else ""
-        lines.append(
-            f"| {offset + row['phase']} | {_fmt(row['fixed'])} | {_fmt(row['adaptive'])} "
-            f"| {format_pct(row['change']['change_pct'])} | {sampled_change} |"
-        )
-    sampled_pooled = format_pct(c["online_reward_sampled"]["change_pct"]) if "online_reward_sampled" in c else ""
-    lines.append(
-        f"| pooled ({op['runs']} runs) | {_fmt(op['fixed'])} | {_fmt(op['adaptive'])} "
-        f"| {format_pct(c['online_reward']['change_pct'])} | {sampled_pooled} |"
-    )
-    return lines
+        *table(["online phase", "fixed", "adaptive", "(c)", "(c) sampled"], rows))
 
 
 def _training_episodes_table(summary: Mapping[str, Any]) -> Lines:
     """The Phase-2 training episodes of each logged arm (first online phase)."""
     if not summary.get("online_phase"):
         return []
-    lines = [
-        "",
-        "## Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
+    return section(
+        "Phase 2: the training episodes (candidates drawn with fresh noise, as during training)"
         + (", first online phase" if _n_phases(summary) > 1 else ""),
-        "",
-        "| arm | mean return | mean return, last quarter | collision rate | episodes |",
-        "|---|---|---|---|---|",
-    ]
-    for arm, st in summary["online_phase"].items():
-        lines.append(
-            f"| {METHOD_LABELS[arm]} | {_fmt(st['reward'])} | {_fmt(st['reward_last'])} "
-            f"| {_fmt(st['collision'])} | {_fmt(st['episodes'], 1)} |"
-        )
-    return lines
+        *table(["arm", "mean return", "mean return, last quarter", "collision rate", "episodes"],
+               ([names.METHOD_LABELS[arm], _fmt(st["reward"]), _fmt(st["reward_last"]), _fmt(st["collision"]),
+                 _fmt(st["episodes"], 1)] for arm, st in summary["online_phase"].items())))
 
 
 def _style_section(summary: Mapping[str, Any]) -> Lines:
@@ -220,40 +177,27 @@ def _style_section(summary: Mapping[str, Any]) -> Lines:
     style = summary.get("style")
     if not style:
         return []
-    lines = ["", "## (d) Driving-style inference", "", f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
-             "| inferred \\ truth | " + " | ".join(style["classes"]) + " |",
-             "|---" * (len(style["classes"]) + 1) + "|"]
-    for name, row in zip(style["classes"], style["confusion_matrix"], strict=True):
-        lines.append(f"| {name} | " + " | ".join(str(v) for v in row) + " |")
+    lines = section("(d) Driving-style inference", f"Confusion matrix ({style['confusion_matrix_layout']}):", "",
+                     *table(["inferred \\ truth", *style["classes"]],
+                            ([name, *row] for name, row in zip(style["classes"], style["confusion_matrix"], strict=True))))
     if style["baseline_macro_accuracy_per_seed"]:
-        base = t_confidence_interval(style["baseline_macro_accuracy_per_seed"])
-        lines += [
-            "",
-            f"Logistic-regression baseline on summary features: macro accuracy "
-            f"{_fmt({'mean': base[0], 'ci95': base[1]}, 3)}.",
-        ]
+        base = t_summary(style["baseline_macro_accuracy_per_seed"])
+        lines += ["", f"Logistic-regression baseline on summary features: macro accuracy {_fmt(base, 3)}."]
     return lines
 
 
-def _sweep_table(title: str, columns: str, rows: Sequence[str]) -> Lines:
-    """A section with one table: ``columns`` (``"| a | b |"``) over ``rows`` (none: no section)."""
-    if not rows:
-        return []
-    return ["", f"## {title}", "", columns, "|" + "---|" * columns.count(" | ") + "---|", *rows]
-
-
 def _delta_sweep_table(summary: Mapping[str, Any]) -> Lines:
-    rows = [f"| {row['delta']:g} | {_fmt(row['mean_executed_length'])} | {_fmt(row['reward'])} "
-            f"| {_fmt(row['cumulative_jerk'], 1)} |" for row in summary["delta_sweep"]]
-    return _sweep_table("δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
-                        "| δ | mean L_t | reward | cum. jerk |", rows)
+    rows = [[f"{row['delta']:g}", _fmt(row["mean_executed_length"]), _fmt(row["reward"]), _fmt(row["cumulative_jerk"], 1)]
+            for row in summary["delta_sweep"]]
+    return section("δ sweep (fine-tuned adaptive checkpoint, execution threshold only)",
+                    *table(["δ", "mean L_t", "reward", "cum. jerk"], rows)) if rows else []
 
 
 def _k_sweep_table(summary: Mapping[str, Any]) -> Lines:
-    rows = [f"| {row['k']} | {_fmt(row['reward'])} | {_fmt(row['cumulative_jerk'], 1)} | {_fmt(row['collision'])} |"
+    rows = [[row["k"], _fmt(row["reward"]), _fmt(row["cumulative_jerk"], 1), _fmt(row["collision"])]
             for row in summary["k_sweep"]]
-    return _sweep_table("k sweep (offline, same data and gradient budget, full chunks)",
-                        "| k | reward | cum. jerk | collision rate |", rows)
+    return section("k sweep (offline, same data and gradient budget, full chunks)",
+                    *table(["k", "reward", "cum. jerk", "collision rate"], rows)) if rows else []
 
 
 def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
@@ -261,25 +205,16 @@ def _acting_sweep_table(summary: Mapping[str, Any]) -> Lines:
     if not summary.get("acting_sweep"):
         return []
     default = summary.get("acting_default", {"n_elite": 1})
-    lines = [
-        "",
-        "## Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
+    rows = [[row["flow_steps"], row["n_elite"], _fmt(row["onestep"]["reward"]), _fmt(row["chunk"]["reward"]),
+             _fmt(row["onestep"]["cumulative_jerk"], 1), _fmt(row["chunk"]["cumulative_jerk"], 1),
+             format_pct(row["jerk_change"]["change_pct"]), _fmt(row["chunk"]["jerk_per_step"]),
+             _fmt(row["chunk"]["collision"])] for row in summary["acting_sweep"]]
+    return section(
+        "Acting rule (offline checkpoints, full chunks): N Euler steps of the sampler, elite mean of "
         f"the m best candidates (`flow_steps`, `n_elite`); (a) and (b) act with the checkpoints' N and "
         f"m = {default['n_elite']}",
-        "",
-        "| N | m | one-step reward | chunk reward | one-step cum. jerk | chunk cum. jerk | jerk change | "
-        "chunk jerk per step | chunk collision rate |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for row in summary["acting_sweep"]:
-        one, ch = row["onestep"], row["chunk"]
-        lines.append(
-            f"| {row['flow_steps']} | {row['n_elite']} | {_fmt(one['reward'])} | {_fmt(ch['reward'])} "
-            f"| {_fmt(one['cumulative_jerk'], 1)} "
-            f"| {_fmt(ch['cumulative_jerk'], 1)} | {format_pct(row['jerk_change']['change_pct'])} "
-            f"| {_fmt(ch['jerk_per_step'])} | {_fmt(ch['collision'])} |"
-        )
-    return lines
+        *table(["N", "m", "one-step reward", "chunk reward", "one-step cum. jerk", "chunk cum. jerk", "jerk change",
+                "chunk jerk per step", "chunk collision rate"], rows))
 
 
 def _style_context_section(summary: Mapping[str, Any]) -> Lines:
@@ -287,13 +222,9 @@ def _style_context_section(summary: Mapping[str, Any]) -> Lines:
         return []
     cmp = summary["style_context"]["reward_gain_pct"]
     per_seed = _fmt({"mean": cmp["per_seed_mean_pct"], "ci95": cmp["per_seed_ci95_pct"]})
-    return [
-        "",
-        "## Style context c_t (Eq. 6) in the observation",
-        "",
-        f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
-        f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).",
-    ]
+    return section("Style context c_t (Eq. 6) in the observation",
+                    f"Adaptive arm with vs without c_t (own dataset, same budgets): reward change "
+                    f"{format_pct(cmp['change_pct'])} (per seed {per_seed}%).")
 
 
 def _budget_section(summary: Mapping[str, Any]) -> Lines:
@@ -301,16 +232,14 @@ def _budget_section(summary: Mapping[str, Any]) -> Lines:
     phases = f" in each of {b['online_replicates']} online phases" if b.get("online_replicates", 1) > 1 else ""
     onestep = f"; one-step baseline {b['onestep_kwargs']}" if b.get("onestep_kwargs") else ""
     phase2 = f"; Phase 2 {b['finetune_kwargs']}" if b.get("finetune_kwargs") else ""
-    offset = f"; Phase 2 seeds offset by {MAX_SEED} × {b['online_seed_offset']}" if b.get("online_seed_offset") else ""
-    return [
-        "",
-        "## Budget (per seed)",
-        "",
+    offset = b.get("online_seed_offset")
+    offset = f"; Phase 2 seeds offset by {names.MAX_SEED} × {offset}" if offset else ""
+    return section(
+        "Budget (per seed)",
         f"{b['dataset_episodes']} offline episodes; {b['pretrain_steps']} gradient steps per pre-trained arm; "
         f"{b['finetune_steps']} online steps per fine-tuned arm{phases}; {b['eval_episodes']} evaluation "
         f"episode(s) per method and seed; k = {b['chunk_size']}, δ = {b['entropy_threshold']:g}; "
-        f"env {b['env_kwargs'] or 'defaults'}; UA2C {b['algo_kwargs'] or 'defaults'}{onestep}{phase2}{offset}.",
-    ]
+        f"env {b['env_kwargs'] or 'defaults'}; UA2C {b['algo_kwargs'] or 'defaults'}{onestep}{phase2}{offset}.")
 
 
 def _compute_table(summary: Mapping[str, Any]) -> Lines:
@@ -319,21 +248,11 @@ def _compute_table(summary: Mapping[str, Any]) -> Lines:
     if not seconds.get("measured"):
         return []
     measured, estimated = seconds["measured"], seconds.get("estimated", {})
-    lines = [
-        "",
-        "Compute, summed over seeds (one worker = one core; measured = units run by the calls "
-        "that built these results):",
-        "",
-        "| stage | measured [min] | estimated [min] |",
-        "|---|---|---|",
-    ]
     listed = [k for k in STAGES if k in estimated] + [k for k in estimated if k not in (*STAGES, "total")]
-    for stage in (*listed, "total"):
-        got = measured.get(stage)
-        lines.append(
-            f"| {stage} | {'n/a' if got is None else f'{got / 60:.1f}'} | {estimated.get(stage, math.nan) / 60:.1f} |"
-        )
-    return lines
+    rows = [[stage, "n/a" if measured.get(stage) is None else f"{measured[stage] / 60:.1f}",
+             f"{estimated.get(stage, math.nan) / 60:.1f}"] for stage in (*listed, "total")]
+    return ["", "Compute, summed over seeds (one worker = one core; measured = units run by the calls "
+            "that built these results):", "", *table(["stage", "measured [min]", "estimated [min]"], rows)]
 
 
 #: Bar panels of (a)-(c): file name, title, y label, arms (baseline first), metric, PAPER key.
@@ -349,9 +268,7 @@ _SHORT_LABELS = {"onestep": "one-step", "chunk": "chunk", "fixed": "fixed", "ada
 
 
 def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[tuple[str, Any]], str]]:
-    """Arguments of :func:`~experiments.fig2.plots.bar_panel` for (a)-(c), then the same for the
-    evaluations with fresh candidate noise (``*_sampled.png``) when the run has them: file name, title,
-    y label, ``[(arm label, stat)]``, note. (c) shows every pooled run when there are several phases."""
+    """Arguments of :func:`bar_panel` for (a)-(c), then for their "sampled" evaluations."""
     methods, op = summary["methods"], summary.get("online_phases", {})
     suffixes = ("", "_sampled") if "sampled" in summary else ("",)
     panels = []
@@ -361,11 +278,11 @@ def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[
                 name, title = name.replace(".png", "_sampled.png"), f"{title}, sampled"
                 ours = summary["sampled"][paper_key]
             else:
-                ours = summary["comparisons"][CLAIM_COMPARISONS[paper_key]]["change_pct"]
+                ours = summary["comparisons"][names.CLAIM_COMPARISONS[paper_key]]["change_pct"]
             stats = {a: methods[a + suffix][metric] for a in arms}
             if paper_key == "online_reward_gain_pct" and len(op.get("phases", [0])) > 1:  # every pooled run
                 stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"
-            note = f"ours {format_pct(ours)}, paper {PAPER[paper_key]:+.2f}%"
+            note = f"ours {format_pct(ours)}, paper {names.PAPER[paper_key]:+.2f}%"
             panels.append((name, title, ylabel, [(_SHORT_LABELS[a], stats[a]) for a in arms], note))
     return panels
 
@@ -378,21 +295,62 @@ def write_report(summary: Mapping[str, Any], paths: RunPaths, command: str, date
 
 def write_panels(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """The PNG panels of a report: (a)-(c) as bars, (d)'s confusion matrix, the online curves and the sweeps."""
-    files = []
-    for name, title, ylabel, arms, note in _claim_panels(summary):
-        bar_panel(out / name, title, ylabel, arms, note)
-        files.append(out / name)
+    files = [bar_panel(out / name, *panel) for name, *panel in _claim_panels(summary)]
     if "style" in summary:
-        from envs.style import plot_confusion
-
         st = summary["style"]
         plot_confusion(np.asarray(st["confusion_matrix"]), out / "fig2_d_style_confusion.png", st["classes"],
                        title=f"(d) driving style, macro acc {_fmt(st['macro_accuracy'], 3)}")
         files.append(out / "fig2_d_style_confusion.png")
     if summary.get("online_phase"):
-        curve_panel(out / "fig2_c_online_curves.png", summary)
-        files.append(out / "fig2_c_online_curves.png")
+        files.append(curve_panel(out / "fig2_c_online_curves.png", summary))
     if summary["delta_sweep"] or summary["k_sweep"]:
-        sweep_panel(out / "fig2_sweeps.png", summary)
-        files.append(out / "fig2_sweeps.png")
+        files.append(sweep_panel(out / "fig2_sweeps.png", summary))
     return files
+
+
+def bar_panel(path: Path, title: str, ylabel: str, arms: Sequence[tuple[str, Mapping[str, Any]]], note: str) -> Path:
+    with figure(path, (4.2, 3.6)) as fig:
+        ax = fig.add_subplot()
+        for i, (_label, stat) in enumerate(arms):
+            half = stat["ci95"] if math.isfinite(stat["ci95"]) else 0.0
+            ax.bar(i, stat["mean"], yerr=half, capsize=6, color=("#9e9e9e", "#1f77b4")[i % 2], alpha=0.85)
+            ax.scatter(np.full(len(stat["per_seed"]), i) + np.linspace(-0.15, 0.15, len(stat["per_seed"])),
+                       stat["per_seed"], color="black", s=12, zorder=3)
+        ax.set_xticks(range(len(arms)), [a[0] for a in arms])
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{title}\n{note}", fontsize=9)
+    return path
+
+
+def sweep_panel(path: Path, summary: Mapping[str, Any]) -> Path:
+    with figure(path, (8.4, 3.6)) as fig:
+        ax1, ax2 = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+        for row in summary["delta_sweep"]:
+            x, y = row["mean_executed_length"], row["reward"]
+            ax1.errorbar(x["mean"], y["mean"], xerr=np.nan_to_num(x["ci95"]), yerr=np.nan_to_num(y["ci95"]), fmt="o")
+            ax1.annotate(f"δ={row['delta']:g}", (x["mean"], y["mean"]), fontsize=7, xytext=(3, 3),
+                         textcoords="offset points")
+        ax1.set_xlabel("mean executed length L_t")
+        ax1.set_ylabel("episode reward")
+        ax1.set_title("δ sweep (adaptive checkpoint)", fontsize=9)
+        ks = summary["k_sweep"]
+        if ks:
+            ax2.errorbar([r["k"] for r in ks], [r["reward"]["mean"] for r in ks],
+                         yerr=[np.nan_to_num(r["reward"]["ci95"]) for r in ks], fmt="o-")
+        ax2.set_xlabel("chunk length k")
+        ax2.set_ylabel("offline episode reward")
+        ax2.set_title("k sweep (same gradient budget)", fontsize=9)
+    return path
+
+
+def curve_panel(path: Path, summary: Mapping[str, Any]) -> Path:
+    with figure(path, (5.2, 3.6)) as fig:
+        ax = fig.add_subplot()
+        for arm, st in summary["online_phase"].items():
+            curve = st["curve"]
+            ax.plot(curve["steps"], curve["reward"], "o-", label=names.METHOD_LABELS[arm], markersize=3)
+        ax.set_xlabel("online environment steps")
+        ax.set_ylabel("training episode return")
+        ax.set_title(f"(c) Phase 2 training episodes, mean over {len(summary['seeds'])} seed(s)", fontsize=9)
+        ax.legend(fontsize=7)
+    return path

@@ -1,5 +1,4 @@
-"""Units of work of a Figure-2 run, one file each and skipped when it exists: the per-seed stages,
-their scheduler (:func:`run_fig2_seed`, :func:`run_all`), the seed lock and the measured unit times."""
+"""Units of work of a Figure-2 run, one file each and skipped when it exists, and their scheduler."""
 
 from __future__ import annotations
 
@@ -7,86 +6,39 @@ import json
 import math
 import os
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
+
+from envs import collection, evaluation, style
 from envs.collection import TRAFFIC_DEFAULTS, make_traffic_env
-from experiments.common.names import (
-    DATASET_SEED_BASE,
-    EVAL_SEED_BASE,
-    MAX_SEED,
-    SAMPLED_METHODS,
-    STYLE_SEED_BASE,
-    acting_name,
-    delta_name,
-    replicate_name,
-    sampled_name,
-)
-from experiments.fig2.budget import Fig2Budget, finetune_overrides
-from experiments.fig2.manifest import RunPaths, check_manifest
+from experiments.common import names
+from experiments.common.runner import Unit, make_executor, run_units
+from experiments.fig2.budget import Fig2Budget, RunPaths, finetune_overrides
+from sb3_ua2c import pipeline
 from sb3_ua2c.checks import check_int
+from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
+
+#: The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the dataset,
+#: Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"style"`` ((d)'s style classifier
+#: and the style-context ablation, with its own dataset and arms); each with its lock and unit-seconds files.
+SEED_PARTS = ("main", "style")
+_PART_FILES = {"main": (".lock", "unit_seconds.json"), "style": (".lock-style", "unit_seconds_style.json")}
 
 
-class UnitLog(list):
-    """Names of the units run, in order, and their wall-clock seconds (``seconds[name]``)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.seconds: dict[str, float] = {}
-
-    @contextmanager
-    def timed(self, name: str) -> Iterator[None]:
-        """Record unit ``name`` and the time the ``with`` block takes (only if it completes)."""
-        start = time.perf_counter()
-        yield
-        self.append(name)
-        self.seconds[name] = time.perf_counter() - start
-
-
-def _dataset(path: Path, n_episodes: int, seed: int, env_kwargs: dict[str, Any], style_classifier: str | None,
-             log: UnitLog, unit: str):
-    """Load the dataset at ``path``, or collect it (unit ``unit``) when missing or damaged."""
-    from envs.collection import collect_dataset
-    from sb3_ua2c.offline import METADATA_FILE, OfflineDatasetError, load_dataset
-
+def complete_dataset(path: Path, n_episodes: int) -> Any:
+    """The dataset at ``path`` when it holds ``n_episodes`` episodes, else ``None`` (missing, damaged: collect it)."""
     if (path / METADATA_FILE).is_file():
         try:
-            return load_dataset(path)
+            ds = load_dataset(path)
         except OfflineDatasetError:
-            pass  # damaged: collect again
-    with log.timed(unit):
-        return collect_dataset(path, n_episodes, env_kwargs=env_kwargs, style_classifier=style_classifier, seed=seed,
-                               overwrite=True)
-
-
-def _evaluation(raw: Path, method: str, checkpoint: Path, seed: int, budget: Fig2Budget, settings: dict[str, Any],
-                entropy_threshold: float | None, log: UnitLog, n_elite: int | None = None,
-                flow_steps: int | None = None, deterministic: bool = True) -> None:
-    """Evaluate ``checkpoint`` on seed ``seed``'s scenarios into ``<raw>/<method>.json`` unless it exists
-    (``deterministic``: fixed candidate noise, see :func:`envs.evaluation.evaluate`)."""
-    from envs.evaluation import evaluate, plan_length_shares, summarize
-    from sb3_ua2c.pipeline import write_json
-
-    path = raw / f"{method}.json"
-    if path.is_file():
-        return
-    with log.timed(f"seed{seed}/evaluate/{method}"):
-        episodes = evaluate(checkpoint, n_episodes=budget.eval_episodes, seeds=(EVAL_SEED_BASE + seed,),
-                            env_settings_=settings, entropy_threshold=entropy_threshold, n_elite=n_elite,
-                            flow_steps=flow_steps, deterministic=deterministic)
-        delta = None if entropy_threshold is None else delta_name(float(entropy_threshold))
-        write_json(path, {
-            "method": method, "seed": seed, "checkpoint": checkpoint.name, "entropy_threshold": delta,
-            "eval_seed": EVAL_SEED_BASE + seed, "n_elite": n_elite, "flow_steps": flow_steps,
-            "deterministic": deterministic,
-            "summary": {**summarize(episodes),  # the L_t histogram up to the longest chunk of the run
-                        "length_shares": plan_length_shares(episodes, max((budget.chunk_size, *budget.k_sweep)))},
-            "episodes": episodes,
-        })
-
+            return None
+        return ds if len(ds) == n_episodes else None
+    return None
 
 
 class SeedBusyError(ValueError):
@@ -95,12 +47,7 @@ class SeedBusyError(ValueError):
 
 @contextmanager
 def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
-    """Hold an exclusive lock on a seed's work directory (``<work>/<name>``, ``flock``; one per part of a seed)
-    while inside: two ``fig2`` processes on one work directory would otherwise train the same unit at once.
-    The lock dies with its process; without ``fcntl`` (Windows) there is none.
-
-    :raises SeedBusyError: if another open lock holds it, naming the directory and the holder's pid
-    """
+    """Hold an exclusive ``flock`` on ``<work>/<name>`` while inside: two processes would train the same unit."""
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows
@@ -124,215 +71,188 @@ def seed_lock(work: Path, name: str = ".lock") -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-SEED_PARTS = ("main", "style")
-"""The two independent chains of a seed's units, which may run at the same time: ``"main"`` (the
-dataset, Phase 1, Phase 2 and their evaluations: (a)-(c) and the sweeps) and ``"style"`` (the
-style classifier of (d) and the style-context ablation, which has its own dataset and arms)."""
-
-
 def run_fig2_seed(seed: int, budget: Fig2Budget, paths: RunPaths, part: str = "all") -> list[str]:
-    """Run (or resume) the units of one seed's ``part`` (one of :data:`SEED_PARTS`, or ``"all"``) under the part's
-    lock; return the names of the units executed. Their wall-clock seconds are merged into the part's
-    ``<work>/seed<s>/unit_seconds[_style].json`` (the measured cost, next to :func:`estimate_seconds`)."""
-    import torch
-
+    """Run (or resume) one seed's ``part`` under its lock, recording its units' seconds; return the units run."""
     if part not in (*SEED_PARTS, "all"):
         raise ValueError(f"part must be one of {[*SEED_PARTS, 'all']}, got {part!r}")
     torch.set_num_threads(1)
-    work, raw = paths.seed_work(seed), paths.seed_raw(seed)
-    work.mkdir(parents=True, exist_ok=True)
-    raw.mkdir(parents=True, exist_ok=True)
+    units = SeedUnits(seed, budget, paths.seed_work(seed), paths.seed_raw(seed))
+    units.work.mkdir(parents=True, exist_ok=True)
+    units.raw.mkdir(parents=True, exist_ok=True)
     executed: list[str] = []
     for name in SEED_PARTS if part == "all" else (part,):
         lock_file, seconds_file = _PART_FILES[name]
-        log = UnitLog()
-        with seed_lock(work, lock_file):
+        units.seconds = {}
+        with seed_lock(units.work, lock_file):
             try:
-                _PART_UNITS[name](seed, budget, work, raw, log)
+                getattr(units, name)()  # units.main() or units.style()
             finally:  # also on an interruption: the finished units' times are kept
-                _merge_seconds(work / seconds_file, log.seconds)
-        executed += log
+                if units.seconds:
+                    path = units.work / seconds_file
+                    old = json.loads(path.read_text()) if path.is_file() else {}
+                    pipeline.write_json(path, {**old, **units.seconds})
+        executed += list(units.seconds)
     return executed
 
 
-def _merge_seconds(path: Path, seconds: Mapping[str, float]) -> None:
-    from sb3_ua2c.pipeline import write_json
-
-    if not seconds:
-        return
-    old = json.loads(path.read_text()) if path.is_file() else {}
-    write_json(path, {**old, **seconds})
-
-
-@dataclass(frozen=True)
-class _SeedUnits:
-    """The units of one seed; each one is skipped when its file exists."""
+@dataclass
+class SeedUnits:
+    """The units of one seed, each skipped when its file exists; ``seconds``: those run, with their seconds."""
 
     seed: int
     budget: Fig2Budget
     work: Path
     raw: Path
-    log: UnitLog
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @contextmanager
+    def timed(self, name: str) -> Iterator[None]:
+        """Record unit ``seed<s>/<name>`` and the time the ``with`` block takes (only if it completes)."""
+        start = time.perf_counter()
+        yield
+        self.seconds[f"seed{self.seed}/{name}"] = time.perf_counter() - start
 
     def dataset(self, name: str, style_classifier: str | None = None) -> Any:
         """The seed's offline dataset ``<work>/<name>`` (the style ablation's: with the style context)."""
-        return _dataset(self.work / name, self.budget.dataset_episodes, DATASET_SEED_BASE + 10_000 * self.seed,
-                        dict(self.budget.env_kwargs), style_classifier, self.log, f"seed{self.seed}/{name}")
+        path, n_episodes = self.work / name, self.budget.dataset_episodes
+        ds = complete_dataset(path, n_episodes)
+        if ds is None:
+            with self.timed(name):
+                ds = collection.collect_dataset(path, n_episodes, env_kwargs=dict(self.budget.env_kwargs), overwrite=True,
+                                                style_classifier=style_classifier,
+                                                seed=names.DATASET_SEED_BASE + 10_000 * self.seed)
+        return ds
 
     def pretrained(self, k: int, dataset: Any, name: str) -> Path:
         """Phase 1 of the arm with chunk length ``k`` into ``<work>/<name>.zip``."""
-        from sb3_ua2c.pipeline import pretrain
-
         path = self.work / f"{name}.zip"
         if not path.is_file():
-            with self.log.timed(f"seed{self.seed}/pretrain/{name}"):
-                pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_traffic_env,
-                         algo_kwargs={**TRAFFIC_DEFAULTS, **self.budget.arm_kwargs(k)})
+            with self.timed(f"pretrain/{name}"):
+                pipeline.pretrain(dataset, path, self.budget.pretrain_steps, seed=self.seed, make_env=make_traffic_env,
+                                  algo_kwargs={**TRAFFIC_DEFAULTS, **self.budget.arm_kwargs(k)})
         return path
 
     def finetuned(self, start: Path, dataset: Any, name: str, delta: float, replicate: int = 0) -> Path:
-        """Phase 2 from ``start`` with threshold ``delta`` in online phase ``replicate``, into
-        ``<work>/<name>.zip``; its training episodes go to ``<raw>/online/<name>.json``."""
-        from sb3_ua2c.pipeline import finetune
-
+        """Phase 2 from ``start`` with ``delta`` into ``<work>/<name>.zip``, its episodes into ``<raw>/online/``."""
         path, monitor = self.work / f"{name}.zip", self.work / f"{name}.monitor.csv"
         if not path.is_file():
-            with self.log.timed(f"seed{self.seed}/finetune/{name}"):
-                finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
-                         seed=self.seed + MAX_SEED * (self.budget.online_seed_offset + replicate),
-                         algo_overrides=finetune_overrides(self.budget), monitor_file=monitor, make_env=make_traffic_env)
-        _online_episodes(self.raw / "online" / f"{name}.json", monitor)
+            with self.timed(f"finetune/{name}"):
+                pipeline.finetune(start, path, self.budget.finetune_steps, dataset=dataset, entropy_threshold=delta,
+                                  seed=self.seed + names.MAX_SEED * (self.budget.online_seed_offset + replicate),
+                                  algo_overrides=finetune_overrides(self.budget), monitor_file=monitor,
+                                  make_env=make_traffic_env)
+        episodes = self.raw / "online" / f"{name}.json"  # not the wall times; none from a run of an earlier version
+        if not episodes.is_file() and monitor.is_file():
+            rows = [{"reward": e["r"], "length": int(e["l"]), "collision": bool(e["collision"])}
+                    for e in pipeline.read_monitor(monitor)]
+            pipeline.write_json(episodes, {"episodes": rows})
         return path
 
-    def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None, **kwargs: Any) -> None:
-        """:func:`_evaluation` of ``checkpoint`` as ``method`` (``kwargs``: ``n_elite``, ``flow_steps``,
-        ``deterministic``)."""
-        _evaluation(self.raw, method, checkpoint, self.seed, self.budget, settings, delta, self.log, **kwargs)
+    def evaluate(self, method: str, checkpoint: Path, settings: dict[str, Any], delta: float | None,
+                 n_elite: int | None = None, flow_steps: int | None = None, deterministic: bool = True) -> None:
+        """Evaluate ``checkpoint`` on the seed's scenarios into ``<raw>/<method>.json``."""
+        path, budget = self.raw / f"{method}.json", self.budget
+        if path.is_file():
+            return
+        with self.timed(f"evaluate/{method}"):
+            episodes = evaluation.evaluate(checkpoint, n_episodes=budget.eval_episodes,
+                                           seeds=(names.EVAL_SEED_BASE + self.seed,), env_settings_=settings,
+                                           entropy_threshold=delta, n_elite=n_elite, flow_steps=flow_steps,
+                                           deterministic=deterministic)
+            pipeline.write_json(path, {
+                "method": method, "seed": self.seed, "checkpoint": checkpoint.name,
+                "entropy_threshold": None if delta is None else names.delta_name(float(delta)),
+                "eval_seed": names.EVAL_SEED_BASE + self.seed, "n_elite": n_elite, "flow_steps": flow_steps,
+                "deterministic": deterministic,
+                "summary": {**evaluation.summarize(episodes),  # the L_t histogram up to the longest chunk of the run
+                            "length_shares": evaluation.plan_length_shares(episodes,
+                                                                           max((budget.chunk_size, *budget.k_sweep)))},
+                "episodes": episodes,
+            })
 
+    def main(self) -> None:
+        """The units of part ``"main"``, in dependency order: (a)-(c) and the sweeps."""
+        budget, k, delta = self.budget, self.budget.chunk_size, self.budget.entropy_threshold
+        ds = self.dataset("dataset")
+        settings = pipeline.env_settings(ds)
+        ckpt = self.offline(ds, settings)
+        adaptive, fixed = self.online(ds, settings, ckpt[k])
+        if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
+            sampled = {"onestep": (ckpt[1], None), "chunk": (ckpt[k], math.inf), "chunk_adaptive": (ckpt[k], delta),
+                       "fixed": (fixed, math.inf), "adaptive": (adaptive, delta), "fixed_adaptive": (fixed, delta)}
+            for method in names.SAMPLED_METHODS:
+                checkpoint, threshold = sampled[method]
+                self.evaluate(names.sampled_name(method), checkpoint, settings, threshold, deterministic=False)
+        # more online phases from the same checkpoint, pooled into (c) (the first one is in online())
+        for r in range(1, budget.online_replicates):
+            for arm, threshold in (("adaptive", delta), ("fixed", math.inf)):
+                name = names.replicate_name(arm, r)
+                tuned = self.finetuned(ckpt[k], ds, name, threshold, r)
+                self.evaluate(name, tuned, settings, threshold)
+                if budget.sampled_eval:
+                    self.evaluate(names.sampled_name(name), tuned, settings, threshold, deterministic=False)
 
-def _main_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
-    """The units of part ``"main"`` of a seed, in dependency order: (a)-(c) and the sweeps."""
-    from sb3_ua2c.pipeline import env_settings
+    def offline(self, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
+        """(a), (b), the k and the acting sweeps; returns the checkpoints by chunk length."""
+        budget = self.budget
+        ckpt = {k: self.pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
+        self.evaluate("onestep", ckpt[1], settings, None)
+        self.evaluate("chunk", ckpt[budget.chunk_size], settings, math.inf)
+        self.evaluate("chunk_adaptive", ckpt[budget.chunk_size], settings, budget.entropy_threshold)
+        for k in budget.k_sweep:
+            self.evaluate(f"k{k}", ckpt[k], settings, math.inf)
+        for n, m in budget.acting_variants():  # other acting rules for the same two checkpoints
+            for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
+                name = names.acting_name(arm, n, m, budget.default_elite)
+                self.evaluate(name, ckpt[k], settings, None if k == 1 else math.inf, n_elite=m, flow_steps=n)
+        return ckpt
 
-    units = _SeedUnits(seed, budget, work, raw, log)
-    ds = units.dataset("dataset")
-    settings = env_settings(ds)
-    ckpt = _offline_units(units, ds, settings)
-    adaptive, fixed = _online_units(units, ds, settings, ckpt[budget.chunk_size])
-    if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
-        k, delta = budget.chunk_size, budget.entropy_threshold
-        sampled = {
-            "onestep": (ckpt[1], None), "chunk": (ckpt[k], math.inf), "chunk_adaptive": (ckpt[k], delta),
-            "fixed": (fixed, math.inf), "adaptive": (adaptive, delta), "fixed_adaptive": (fixed, delta),
-        }
-        for method in SAMPLED_METHODS:
-            checkpoint, threshold = sampled[method]
-            units.evaluate(sampled_name(method), checkpoint, settings, threshold, deterministic=False)
-    # more online phases from the same checkpoint, pooled into (c) (the first one is in _online_units)
-    for r in range(1, budget.online_replicates):
-        for arm, delta in (("adaptive", budget.entropy_threshold), ("fixed", math.inf)):
-            name = replicate_name(arm, r)
-            tuned = units.finetuned(ckpt[budget.chunk_size], ds, name, delta, r)
-            units.evaluate(name, tuned, settings, delta)
-            if budget.sampled_eval:
-                units.evaluate(sampled_name(name), tuned, settings, delta, deterministic=False)
+    def online(self, ds: Any, settings: dict[str, Any], start: Path) -> tuple[Path, Path]:
+        """(c) and the δ sweep, first online phase; returns the adaptive and fixed checkpoints."""
+        delta = self.budget.entropy_threshold
+        adaptive = self.finetuned(start, ds, "adaptive", delta)
+        fixed = self.finetuned(start, ds, "fixed", math.inf)
+        self.evaluate("adaptive", adaptive, settings, delta)
+        self.evaluate("fixed", fixed, settings, math.inf)
+        self.evaluate("fixed_adaptive", fixed, settings, delta)  # the execution rule alone
+        for d in self.budget.delta_sweep:
+            self.evaluate(f"delta_{names.delta_name(d)}", adaptive, settings, d)
+        return adaptive, fixed
 
+    def style(self) -> None:
+        """The units of part ``"style"``: (d), then the arm with the style context c_t (Eq. 6)."""
+        budget, seed = self.budget, self.seed
+        data = self._stored(self.work / "style_data.npz", style.StyleDataset.load, "style/collect",
+                            lambda: style.collect_style_dataset(budget.style_episodes, env_kwargs=dict(budget.env_kwargs),
+                                                                seed=names.STYLE_SEED_BASE + 10_000 * seed,
+                                                                progress_bar=False))
+        classifier = self.work / "style_classifier.pt"
+        model = self._stored(classifier, style.DrivingStyleClassifier.load, "style/train",
+                             lambda: style.train_style_classifier(data, progress_bar=False, train_config={
+                                 "max_epochs": budget.style_max_epochs, "seed": seed})[0])
+        if not (self.raw / "style.json").is_file():
+            with self.timed("style/evaluate"):
+                pipeline.write_json(self.raw / "style.json", {"seed": seed, **style.evaluate_style_classifier(model, data)})
+        if budget.style_ablation:
+            ds_style = self.dataset("dataset_style", str(classifier.resolve()))
+            pre_style = self.pretrained(budget.chunk_size, ds_style, "pretrain_style")
+            fine_style = self.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
+            self.evaluate("adaptive_style", fine_style, pipeline.env_settings(ds_style), budget.entropy_threshold)
 
-def _style_units(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> None:
-    """The units of part ``"style"`` of a seed: (d), driving-style inference, then (beyond the paper)
-    the style context c_t appended to the observation (Eq. 6), pre-trained and fine-tuned on its own data."""
-    from sb3_ua2c.pipeline import env_settings
-
-    classifier = _style_unit(seed, budget, work, raw, log)
-    if budget.style_ablation:
-        units = _SeedUnits(seed, budget, work, raw, log)
-        ds_style = units.dataset("dataset_style", str(classifier.resolve()))
-        pre_style = units.pretrained(budget.chunk_size, ds_style, "pretrain_style")
-        fine_style = units.finetuned(pre_style, ds_style, "adaptive_style", budget.entropy_threshold)
-        units.evaluate("adaptive_style", fine_style, env_settings(ds_style), budget.entropy_threshold)
-
-
-_PART_UNITS = {"main": _main_units, "style": _style_units}
-_PART_FILES = {"main": (".lock", "unit_seconds.json"), "style": (".lock-style", "unit_seconds_style.json")}  # lock, seconds
-
-
-def _offline_units(units: _SeedUnits, ds: Any, settings: dict[str, Any]) -> dict[int, Path]:
-    """(a), (b), the k sweep and the acting sweep: every chunk length pre-trained on the same data with
-    the same gradient budget, then evaluated; returns the checkpoints by chunk length."""
-    budget = units.budget
-    ckpt = {k: units.pretrained(k, ds, f"pretrain_k{k}") for k in budget.pretrain_ks}
-    units.evaluate("onestep", ckpt[1], settings, None)
-    units.evaluate("chunk", ckpt[budget.chunk_size], settings, math.inf)
-    units.evaluate("chunk_adaptive", ckpt[budget.chunk_size], settings, budget.entropy_threshold)
-    for k in budget.k_sweep:
-        units.evaluate(f"k{k}", ckpt[k], settings, math.inf)
-    default_elite = budget.default_elite
-    for n, m in budget.acting_variants():  # other acting rules for the same two checkpoints
-        for arm, k in (("onestep", 1), ("chunk", budget.chunk_size)):
-            delta = None if k == 1 else math.inf
-            units.evaluate(acting_name(arm, n, m, default_elite), ckpt[k], settings, delta, n_elite=m, flow_steps=n)
-    return ckpt
-
-
-def _online_units(units: _SeedUnits, ds: Any, settings: dict[str, Any], start: Path) -> tuple[Path, Path]:
-    """(c) and the δ sweep, first online phase: adaptive and fixed fine-tuned from the same chunk
-    checkpoint ``start`` with the same online budget; returns their checkpoints."""
-    budget = units.budget
-    adaptive = units.finetuned(start, ds, "adaptive", budget.entropy_threshold)
-    fixed = units.finetuned(start, ds, "fixed", math.inf)
-    units.evaluate("adaptive", adaptive, settings, budget.entropy_threshold)
-    units.evaluate("fixed", fixed, settings, math.inf)
-    # the execution rule alone: the fixed arm's checkpoint executed with adaptive chunks
-    units.evaluate("fixed_adaptive", fixed, settings, budget.entropy_threshold)
-    for delta in budget.delta_sweep:
-        units.evaluate(f"delta_{delta_name(delta)}", adaptive, settings, delta)
-    return adaptive, fixed
-
-
-def _online_episodes(path: Path, monitor: Path) -> None:
-    """Copy the Phase-2 training episodes (return, length, collision; not the wall times) of one arm from its
-    Monitor log into the raw results, unless done (or the log is missing: a run of an earlier version)."""
-    from sb3_ua2c.pipeline import read_monitor, write_json
-
-    if path.is_file() or not monitor.is_file():
-        return
-    episodes = [{"reward": e["r"], "length": int(e["l"]), "collision": bool(e["collision"])} for e in read_monitor(monitor)]
-    write_json(path, {"episodes": episodes})
-
-
-def _style_unit(seed: int, budget: Fig2Budget, work: Path, raw: Path, log: UnitLog) -> Path:
-    """Style data, classifier (Eq. 5) and its held-out evaluation of one seed; returns the classifier path."""
-    from envs import style
-    from sb3_ua2c.pipeline import write_json
-
-    data_path, model_path, result_path = work / "style_data.npz", work / "style_classifier.pt", raw / "style.json"
-    if data_path.is_file():
-        data = style.StyleDataset.load(data_path)
-    else:
-        with log.timed(f"seed{seed}/style/collect"):
-            data = style.collect_style_dataset(budget.style_episodes, seed=STYLE_SEED_BASE + 10_000 * seed,
-                                               env_kwargs=dict(budget.env_kwargs), progress_bar=False)
-            tmp = data_path.with_name(".style_data.tmp.npz")
-            data.save(tmp)
-            os.replace(tmp, data_path)
-    if model_path.is_file():
-        model = style.DrivingStyleClassifier.load(model_path)
-    else:
-        with log.timed(f"seed{seed}/style/train"):
-            model, _ = style.train_style_classifier(data, train_config={"max_epochs": budget.style_max_epochs,
-                                                                          "seed": seed}, progress_bar=False)
-            tmp = model_path.with_name(".style_classifier.tmp.pt")
-            model.save(tmp)
-            os.replace(tmp, model_path)
-    if not result_path.is_file():
-        with log.timed(f"seed{seed}/style/evaluate"):
-            write_json(result_path, {"seed": seed, **style.evaluate_style_classifier(model, data)})
-    return model_path
+    def _stored(self, path: Path, load: Callable[[Path], Any], unit: str, make: Callable[[], Any]) -> Any:
+        """The object saved at ``path``, or ``make()``'s (unit ``unit``), saved there atomically."""
+        if path.is_file():
+            return load(path)
+        with self.timed(unit):
+            obj = make()
+            tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+            obj.save(tmp)
+            os.replace(tmp, path)
+        return obj
 
 
 def measured_seconds(paths: RunPaths, seeds: Sequence[int]) -> dict[str, float]:
-    """Wall-clock seconds of the units run so far (``<work>/seed<s>/unit_seconds*.json``) per stage of
-    :func:`estimate_seconds` and ``"total"`` (stages without a record are absent)."""
+    """Wall-clock seconds of the units run so far per stage of :func:`~experiments.fig2.budget.estimate_seconds`."""
     out: dict[str, float] = {}
     for s in seeds:
         records: dict[str, float] = {}
@@ -356,17 +276,9 @@ def run_fig2_seed_unit(seed: int, budget: dict[str, Any], paths: RunPaths, part:
 
 def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: int = 1, printer: Any = print,
             ray_address: str | None = None) -> list[str]:
-    """Run (or resume) every seed as two :mod:`experiments.common.runner` units, its parts (:data:`SEED_PARTS`):
-    every ``"main"`` part first, then the shorter ``"style"`` parts, which fill the workers the main parts leave
-    idle. A part resumes its own units (they are files), so the units have no result file and always run.
-
-    :return: the units executed, over all seeds
-    :raises UnitsFailedError: after every part ran, naming the parts that raised
-    """
-    from experiments.common.runner import Unit, make_executor, run_units
-
+    """Run (or resume) every seed's parts as executor units, the ``"main"`` parts first; return the units run."""
     check_int("Fig2Budget.workers", workers)
-    check_manifest(paths, budget)
+    paths.check_budget(budget)
     parts = [(s, part) for part in SEED_PARTS for s in seeds]
     serial = ray_address is None and workers == 1
     executor = make_executor(min(workers, len(parts)), ray_address, serial=serial)

@@ -5,11 +5,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.common.cli import harness_main, harness_parent
+from experiments.common.cli import check_extras, harness_main, harness_parent
+from experiments.common.records import previous_report, run_header
+from experiments.common.runner import make_executor
+from experiments.ogbench import report, runner
+from experiments.ogbench.runner import DEFAULT_TASK
 from experiments.ogbench.unit import ARMS
+from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments ogbench"
 PARENT = harness_parent(seeds="0 1 2 3 4; 0 1 with --quick", work="<out>/ogbench_work", workers=1,
@@ -18,8 +24,6 @@ PARENT = harness_parent(seeds="0 1 2 3 4; 0 1 with --quick", work="<out>/ogbench
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
-    from experiments.ogbench.runner import DEFAULT_TASK
-
     parser = argparse.ArgumentParser(
         prog=prog, parents=[PARENT], description="OGBench single-task benchmark: offline pre-training on locally "
         "generated data, then online fine-tuning, per arm and seed; success rates with rliable statistics. Resumable.")
@@ -39,20 +43,11 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
 
 
 def _run(args: argparse.Namespace, _: None, command: str) -> int:
-    import warnings
-
-    from experiments.common.cli import check_extras
-    from experiments.common.records import run_header
-    from experiments.common.runner import make_executor
-    from experiments.ogbench import report, runner
-    from sb3_ua2c.checks import check_int
-
     runner.check_task(args.task)
     arms = runner.check_arms(args.arms)
     seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
-    # ogbench: the environments; rliable: the report's statistics
-    check_extras(["ogbench", "rliable", *(["ray"] if args.ray_address is not None and not args.report_only else [])])
+    check_extras(["ogbench", "rliable"])  # the environments, the report's statistics
     budget = runner.default_budget(args.task, quick=args.quick)
     if args.episodes is not None:
         check_int("--episodes", args.episodes)
@@ -82,7 +77,7 @@ def _run(args: argparse.Namespace, _: None, command: str) -> int:
             warnings.simplefilter("ignore", UserWarning)
             records = runner.run_benchmark(args.task, arms, seeds, budget, work, executor)
     # the quick run's statistics mean nothing: fewer bootstrap replications keep it fast
-    command, date = run_header(command, out / "ogbench.json" if args.report_only else None)
+    command, date = run_header(command, previous_report(out / "ogbench.json", args.report_only))
     summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000,
                                   date=date, plots=plots)
     for arm, s in summary["arms"].items():

@@ -1,29 +1,5 @@
-"""OGBench "play" datasets generated locally with OGBench's scripted oracles, and their conversion.
-
-OGBench (PyPI ``ogbench``) ships the manipulation environments and the scripted oracles but not
-the datasets. :func:`generate_play_dataset` reproduces OGBench's own procedure
-(``data_gen_scripts/generate_manipspace.py --dataset_type=play``): the environment in
-``data_collection`` mode (random initial scene, no termination at the goal), one
-:class:`~ogbench.manipspace.oracles.plan.plan_oracle.PlanOracle` per subtask with action noise 0.1
-and noise smoothing 0.5, a new random target whenever the oracle finishes its plan (no stacking
-for ``cube-single``), episodes of 1001 steps, and a validation split of one tenth of the episodes.
-It writes OGBench's ``.npz`` format (``observations``, ``actions``, ``terminals``, ``qpos``,
-``qvel`` and, with buttons, ``button_states``), so ``ogbench.make_env_and_datasets(name,
-dataset_path=...)`` loads it and adds the single-task rewards and masks itself.
-
-For ``pointmaze`` it writes the "navigate" dataset as ``generate_locomaze.py --dataset_type=navigate``
-does: from a random free cell, the point moves along the unit direction to the maze's oracle
-subgoal plus Gaussian noise 0.5, and a new random goal (a vertex cell) is set whenever it reaches
-one; episodes of 1001 steps.
-
-The only departure from the scripts: it seeds NumPy's global generator (the oracles draw from it)
-and the environment, so the same arguments write the same file; the scripts leave both unseeded.
-
-:func:`to_episodes` turns a loaded single-task dataset into :class:`~sb3_ua2c.offline.Episode`
-objects for UA2C's replay buffer: a trajectory is cut after every transition whose OGBench mask is
-0 (the task is solved in its state ``s``: no bootstrap, as the online environment terminates
-there), and the end of a trajectory (the 1001-step time limit) is a truncation.
-"""
+"""OGBench "play" and "navigate" datasets generated locally with OGBench's scripted oracles and procedure, seeded
+(``docs/ogbench.md``), and their conversion to UA2C's offline episodes."""
 
 from __future__ import annotations
 
@@ -56,14 +32,7 @@ GENERATED = {"play": MANIPSPACE_DOMAINS, "navigate": ("pointmaze",)}
 
 @dataclass(frozen=True)
 class TaskName:
-    """The parts of an OGBench single-task dataset name such as ``cube-single-play-singletask-task2-v0``.
-
-    :param dataset_name: the full name (what ``ogbench.make_env_and_datasets`` takes)
-    :param env_name: the goal-conditioned environment the data are collected in (``cube-single-v0``)
-    :param dataset_type: ``play`` (the only type generated here)
-    :param dataset_file: file name of the shared dataset, ``cube-single-play-v0.npz`` (all five
-        tasks of a domain use the same data; only the rewards differ)
-    """
+    """The parts of an OGBench single-task name such as ``cube-single-play-singletask-task2-v0``."""
 
     dataset_name: str
     env_name: str
@@ -153,20 +122,23 @@ def _collect_episode(env: Any, oracles: dict[str, Any], env_name: str, seed: int
             agent_ob, agent_info = env.unwrapped.set_new_target(p_stack=p_stack)
             agent = oracles[agent_info["privileged/target_task"]]
             agent.reset(agent_ob, agent_info)
-        rows["observations"].append(ob)
-        rows["actions"].append(action)
-        rows["terminals"].append(done)
-        rows["qpos"].append(info["prev_qpos"])
-        rows["qvel"].append(info["prev_qvel"])
-        if has_buttons:
-            rows["button_states"].append(info["prev_button_states"])
+        _append_step(rows, ob, action, done, info, has_buttons)
         ob = next_ob
     return rows
 
 
+def _append_step(rows: dict[str, list], ob: Any, action: Any, done: bool, info: dict[str, Any],
+                 buttons: bool = False) -> None:
+    """One step of an episode into ``rows``, under the keys of OGBench's files."""
+    for key, value in (("observations", ob), ("actions", action), ("terminals", done), ("qpos", info["prev_qpos"]),
+                       ("qvel", info["prev_qvel"])):
+        rows[key].append(value)
+    if buttons:
+        rows["button_states"].append(info["prev_button_states"])
+
+
 def _maze_cells(maze_map: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """Free cells of a maze and its "vertex" cells (free cells that are not straight hallway
-    cells), from which ``generate_locomaze.py`` draws the navigation goals."""
+    """Free cells of a maze and its "vertex" cells, from which ``generate_locomaze.py`` draws the goals."""
     free, vertex = [], []
     for i, j in zip(*np.nonzero(maze_map == 0), strict=True):
         free.append((int(i), int(j)))
@@ -178,9 +150,7 @@ def _maze_cells(maze_map: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple
 
 
 def _collect_navigate_episode(env: Any, noise: float, seed: int | None) -> dict[str, list]:
-    """One ``navigate`` episode of ``pointmaze`` (``generate_locomaze.py``): the point moves along
-    the unit direction to the oracle's next subgoal plus Gaussian noise, and a new random goal
-    (a vertex cell) is set whenever the current one is reached."""
+    """One ``navigate`` episode of ``pointmaze``, as ``generate_locomaze.py`` collects it."""
     maze = env.unwrapped
     free, vertex = _maze_cells(maze.maze_map)
     init_ij = free[np.random.randint(len(free))]  # noqa: NPY002  (as OGBench draws it)
@@ -197,11 +167,7 @@ def _collect_navigate_episode(env: Any, noise: float, seed: int | None) -> dict[
         done = terminated or truncated
         if info["success"]:
             maze.set_goal(vertex[np.random.randint(len(vertex))])  # noqa: NPY002
-        rows["observations"].append(ob)
-        rows["actions"].append(action)
-        rows["terminals"].append(done)
-        rows["qpos"].append(info["prev_qpos"])
-        rows["qvel"].append(info["prev_qvel"])
+        _append_step(rows, ob, action, done, info)
         ob = next_ob
     return rows
 
@@ -225,20 +191,7 @@ def val_path(path: str | os.PathLike) -> Path:
 def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
                           episode_steps: int = PLAY_EPISODE_STEPS, seed: int = 0, noise: float | None = None,
                           noise_smoothing: float = PLAY_NOISE_SMOOTHING) -> dict[str, Any]:
-    """Generate the 'play' dataset of ``task``'s domain with OGBench's oracles (see the module
-    docstring), or the 'navigate' dataset of a ``pointmaze`` (``generate_locomaze.py``).
-
-    :param task: an OGBench single-task name (``cube-single-play-singletask-task2-v0``) or its
-        domain's dataset name; the data are the same for the five tasks of a domain
-    :param path: the training file (``.npz``); the validation file (``n_episodes // 10`` more
-        episodes) goes to :func:`val_path`
-    :param n_episodes: training episodes (OGBench publishes 1000 of 1001 steps: 1M transitions)
-    :param episode_steps: steps per episode (1001 in OGBench: 1000 transitions once loaded)
-    :param seed: seed of NumPy's global generator (oracle noise) and of the first ``reset``
-    :param noise: action noise (default OGBench's: :data:`PLAY_NOISE`, :data:`NAVIGATE_NOISE`)
-    :param noise_smoothing: noise smoothing of the 'play' oracles
-    :return: ``{"steps", "seconds", "cpu_seconds", "steps_per_cpu_second", "bytes", "path"}``
-    """
+    """Generate the dataset of ``task``'s domain into ``path`` and :func:`val_path`; return its measurements."""
     import gymnasium as gym
     import ogbench.locomaze  # noqa: F401  (registers the environments)
     import ogbench.manipspace  # noqa: F401
@@ -287,13 +240,7 @@ def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
 
 
 def load_singletask(task: str, path: str | os.PathLike, sparse: bool = False) -> tuple[Any, dict, dict]:
-    """``ogbench.make_env_and_datasets(task, dataset_path=path)``: env, train and validation data.
-
-    OGBench adds ``rewards`` and ``masks`` for the task (``reward = #solved subtasks - #subtasks``
-    of the state ``s`` of a transition, ``mask = 0`` iff all are solved). With ``sparse=True`` the
-    reward becomes -1 unless the whole task is solved (Q-chunking's ``--sparse``, used for ``scene``
-    and ``puzzle``; ``cube-single`` has one subtask, so both are the same there).
-    """
+    """``ogbench.make_env_and_datasets(task, dataset_path=path)``: env, train and validation data."""
     import ogbench
 
     TaskName.parse(task)
@@ -313,15 +260,8 @@ def sparse_reward(rewards: np.ndarray) -> np.ndarray:
 
 
 def to_episodes(dataset: dict[str, np.ndarray]) -> list[Episode]:
-    """Cut a loaded single-task dataset (``compact_dataset=False``) into UA2C offline episodes.
-
-    A segment ends after a transition with ``mask == 0`` (terminated: the task is solved in ``s``)
-    or with ``terminals == 1`` (the end of an OGBench trajectory, a time limit: truncated).
-    Observations of a segment are its ``observations`` plus the last ``next_observations``.
-
-    :param dataset: ``observations (N, obs_dim)``, ``next_observations (N, obs_dim)``,
-        ``actions (N, act_dim)``, ``rewards (N,)``, ``masks (N,)``, ``terminals (N,)``
-    """
+    """Cut a loaded single-task dataset into UA2C offline episodes: terminated where the task is solved
+    (``mask == 0``), truncated at an OGBench trajectory's end."""
     required = ("observations", "next_observations", "actions", "rewards", "masks", "terminals")
     missing = [k for k in required if k not in dataset]
     if missing:

@@ -1,13 +1,4 @@
-"""A Gymnasium env around an OGBench single-task environment, shaped for Stable-Baselines3.
-
-``OGBenchSingleTask-v0`` (registered by importing :mod:`experiments.ogbench`, or made directly with
-``gym.make("experiments.ogbench:OGBenchSingleTask-v0", task=...)``) builds the environment the way
-OGBench asks (``ogbench.make_env_and_datasets(task, env_only=True)``), with its time limit and its
-reward ``r(s)`` computed before the action (``success_timing='pre'``, OGBench >= 1.2). It changes
-only what SB3 needs: float32 observations (as the datasets hold them) and ``info["success"]`` as a
-``bool`` on every step and reset. With ``sparse=True`` the reward is Q-chunking's sparse one (see
-:func:`experiments.ogbench.data.sparse_reward`).
-"""
+"""``OGBenchSingleTask-v0``: an OGBench single-task environment as OGBench builds it, shaped for SB3."""
 
 from __future__ import annotations
 
@@ -23,13 +14,8 @@ ENV_ID = "OGBenchSingleTask-v0"
 
 
 class OGBenchSingleTask(gym.Env):
-    """OGBench single-task environment with a float32 Box observation and ``info["success"]``.
-
-    :param task: OGBench single-task name, e.g. ``cube-single-play-singletask-task2-v0``
-    :param sparse: reward -1 unless the whole task is solved (Q-chunking's ``--sparse``)
-    :param max_episode_steps: time limit (default: OGBench's, 200 steps for ``cube-single``); a
-        shorter one is for quick checks only
-    """
+    """OGBench single-task environment with a float32 Box observation and ``info["success"]``; ``sparse``: the
+    reward of Q-chunking's ``--sparse``; ``max_episode_steps``: a shorter time limit than OGBench's."""
 
     metadata = {"render_modes": []}
 
@@ -64,8 +50,7 @@ class OGBenchSingleTask(gym.Env):
         return obs.astype(np.float32), float(reward), bool(terminated), bool(truncated), self._info(info, success)
 
     def _info(self, info: dict[str, Any], success: bool) -> dict[str, Any]:
-        """Only what a learner reads: success and the physical state (the rest holds goal renders;
-        the mazes' reset info has no ``qpos``, so it is read from the simulator)."""
+        """Only what a learner reads: success and the physical state (from the simulator when ``info`` lacks it)."""
         qpos = info["qpos"] if "qpos" in info else self._env.unwrapped.data.qpos
         return {"success": success, "qpos": np.asarray(qpos).copy()}
 

@@ -1,16 +1,4 @@
-"""Report of the OGBench benchmark: success after the offline and the online phase, per arm.
-
-Statistics are run-level (:mod:`experiments.common.stats`): each run (seed) scores its success
-rate over its evaluation episodes; per arm the mean and the IQM over runs with rliable's stratified
-bootstrap 95 % interval, per pair of arms the probability of improvement over runs and, as the
-arms of a seed share its data and evaluation goals, the mean paired per-seed difference with its
-Student-t interval. The ranking of fixed chunks against one-step is set against Q-chunking's
-published one (Li, Zhou, Levine 2025: QC > FQL on every OGBench domain, cube-single included).
-
-Outputs: ``ogbench.md``, ``ogbench.json`` and the learning curves ``ogbench_online_success.png``
-(evaluation success vs online environment steps) and ``ogbench_online_return.png`` (return of the
-online training episodes).
-"""
+"""Report of the OGBench benchmark: ``ogbench.md``, ``ogbench.json`` and the learning-curve PNGs."""
 
 from __future__ import annotations
 
@@ -22,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from experiments.common import records as records_module
+from experiments.common.records import figure, table
 from experiments.common.stats import interval, iqm_with_ci, paired_difference, probability_of_improvement
 from sb3_ua2c.execution import format_length_shares
 
@@ -36,8 +26,7 @@ SUCCESS_BAR = 0.10
 
 
 def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarray:
-    """``(n_runs, 1)``: each run's success rate over its evaluation episodes after ``phase``
-    (``record["success_<phase>"]``), rows by seed."""
+    """``(n_runs, 1)``: each run's success rate after ``phase``, rows by seed."""
     if phase not in PHASES:
         raise ValueError(f"phase must be one of {PHASES}, got {phase!r}")
     if not records:
@@ -47,8 +36,7 @@ def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarr
 
 
 def records_from_report(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The run records kept in a written ``ogbench.json`` (its parsed ``summary``: arm, seed, task,
-    budget, success rates and seconds), to rebuild the report where the unit records are gone."""
+    """The run records a written ``ogbench.json`` keeps, to rebuild the report where the unit records are gone."""
     return [{**r, "task": summary["task"], "budget": summary["budget"]} for r in summary["records"]]
 
 
@@ -72,8 +60,7 @@ def ranking(poi: Mapping[str, float] | None) -> str:
 
 
 def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
-    """Everything the report shows, JSON-able: per arm and phase the mean success, per-seed success
-    and IQM with its 95 % interval; per pair of arms and phase the probability of improvement."""
+    """Everything the report shows: per arm and phase the success rates, per pair of arms their comparisons."""
     groups = by_arm(records)
     tasks = sorted({r["task"] for r in records})
     if len(tasks) != 1:
@@ -89,9 +76,7 @@ def summarize(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[st
             if all("length_shares" in e for e in evaluations):  # recorded since 2026-12-04
                 arms[arm][phase]["length_shares"] = np.mean([e["length_shares"] for e in evaluations], axis=0).tolist()
     pairs: dict[str, Any] = {}
-    for x, y in itertools.permutations(groups, 2):
-        if (y, x) in {tuple(k.split(" > ")) for k in pairs}:
-            continue
+    for x, y in itertools.combinations(groups, 2):
         pairs[f"{x} > {y}"] = {phase: probability_of_improvement(matrices[phase][x], matrices[phase][y], reps=reps)
                                for phase in PHASES}
         if arms[x]["seeds"] == arms[y]["seeds"] and len(arms[x]["seeds"]) >= 2:
@@ -117,6 +102,10 @@ def _pct(x: float) -> str:
     return "n/a" if x is None or not math.isfinite(x) else f"{100 * x:.1f} %"
 
 
+def _iqm(stat: Mapping[str, float], key: str = "iqm") -> str:
+    return f"{_pct(stat[key])} [{_pct(stat['ci_low'])}, {_pct(stat['ci_high'])}]"
+
+
 def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> str:
     """``ogbench.md``: the success table, probabilities of improvement, budget next to QC's, ranking."""
     b, qc = summary["budget"], summary["qc_reference"]
@@ -132,35 +121,29 @@ def format_markdown(summary: Mapping[str, Any], command: str | None = None) -> s
     lines += [compute + ".", ""]
     lines += ["Success rate after each phase. A run's score is its success rate over its evaluation episodes; "
               "the table gives the mean over runs, the IQM over runs with its stratified bootstrap 95 % interval "
-              "(rliable), and every run's rate.", "",
-              "| arm | seeds | offline mean | offline IQM [95 % CI] | online mean | online IQM [95 % CI] | per seed (online) |",
-              "|---|---|---|---|---|---|---|"]
-    for arm, s in summary["arms"].items():
-        off, on = s["offline"], s["online"]
-        lines.append(f"| {LABELS.get(arm, arm)} | {len(s['seeds'])} | {_pct(off['mean'])} | {_pct(off['iqm'])} "
-                     f"[{_pct(off['ci_low'])}, {_pct(off['ci_high'])}] | {_pct(on['mean'])} | {_pct(on['iqm'])} "
-                     f"[{_pct(on['ci_low'])}, {_pct(on['ci_high'])}] | "
-                     f"{', '.join(f'{100 * v:.0f}' for v in on['per_seed'])} |")
+              "(rliable), and every run's rate.", ""]
+    lines += table(["arm", "seeds", "offline mean", "offline IQM [95 % CI]", "online mean", "online IQM [95 % CI]",
+                    "per seed (online)"],
+                   ([LABELS.get(arm, arm), len(s["seeds"]), _pct(s["offline"]["mean"]), _iqm(s["offline"]),
+                     _pct(s["online"]["mean"]), _iqm(s["online"]), ", ".join(f"{100 * v:.0f}" for v in s["online"]["per_seed"])]
+                    for arm, s in summary["arms"].items()))
     shares = [(arm, s) for arm, s in summary["arms"].items() if "length_shares" in s["offline"]]
     if shares:
         lines += ["", "Executed lengths L_t of the evaluation plans (share of plans with L_t = 1..k, %, mean over runs):",
-                  "", "| arm | offline | online |", "|---|---|---|"]
-        lines += [f"| {LABELS.get(arm, arm)} | {format_length_shares(s['offline']['length_shares'])} "
-                  f"| {format_length_shares(s['online'].get('length_shares', []))} |" for arm, s in shares]
+                  "", *table(["arm", "offline", "online"],
+                             ([LABELS.get(arm, arm), format_length_shares(s["offline"]["length_shares"]),
+                               format_length_shares(s["online"].get("length_shares", []))] for arm, s in shares))]
     if not summary["improvement"]:
         lines += ["", "One arm ran: no pair of arms to compare within this run (`python -m experiments paired` "
                   "pairs its per-seed rates with another run's on the same seeds)."]
     else:
         lines += ["", "Probability of improvement P(X > Y) over runs (0.5 = no difference), and the mean paired "
                   "per-seed difference of the success rate X − Y (percentage points) with its 95 % Student-t "
-                  "interval:", "", "| X > Y | P offline [95 % CI] | P online [95 % CI] | X − Y offline | X − Y online |",
-                  "|---|---|---|---|---|"]
-    for pair, p in summary["improvement"].items():
-        paired = [f"{_pct(p[f'{ph}_paired']['difference'])} [{_pct(p[f'{ph}_paired']['ci_low'])}, "
-                  f"{_pct(p[f'{ph}_paired']['ci_high'])}]" if f"{ph}_paired" in p else "–" for ph in PHASES]
-        lines.append("| " + pair + " | " + " | ".join(
-            interval(p[ph], "probability", sign="") for ph in PHASES)
-            + " | " + " | ".join(paired) + " |")
+                  "interval:", "", *table(
+                      ["X > Y", "P offline [95 % CI]", "P online [95 % CI]", "X − Y offline", "X − Y online"],
+                      ([pair, *(interval(p[ph], "probability", sign="") for ph in PHASES),
+                        *(_iqm(p[f"{ph}_paired"], "difference") if f"{ph}_paired" in p else "–" for ph in PHASES)]
+                       for pair, p in summary["improvement"].items()))]
     r = summary["ranking"]
     lines += ["", "## Budget and ranking next to Q-chunking", "",
               "| | this run | Q-chunking |", "|---|---|---|",
@@ -200,25 +183,19 @@ def return_curve(records: Sequence[Mapping[str, Any]], bins: int = 10) -> tuple[
 
 
 def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
-    """The two learning-curve PNGs (matplotlib's Agg canvas; no pyplot)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
+    """The two learning-curve PNGs: evaluation success and online episode return against online env steps."""
     paths = []
     for name, ylabel, curve in (("ogbench_online_success.png", "evaluation success", curve_points),
                                 ("ogbench_online_return.png", "online episode return", return_curve)):
-        fig = Figure(figsize=(5.0, 3.6), dpi=120)
-        FigureCanvasAgg(fig)
-        ax = fig.add_subplot()
-        for arm, recs in by_arm(records).items():
-            x, y = curve(recs)
-            ax.plot(x, y, marker="o", label=LABELS.get(arm, arm))
-        ax.set_xlabel("online environment steps")
-        ax.set_ylabel(ylabel)
-        ax.set_title(f"{records[0]['task']} ({len(records)} units)", fontsize=9)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / name)
+        with figure(out / name, (5.0, 3.6)) as fig:
+            ax = fig.add_subplot()
+            for arm, recs in by_arm(records).items():
+                x, y = curve(recs)
+                ax.plot(x, y, marker="o", label=LABELS.get(arm, arm))
+            ax.set_xlabel("online environment steps")
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{records[0]['task']} ({len(records)} units)", fontsize=9)
+            ax.legend(fontsize=8)
         paths.append(out / name)
     return paths
 
@@ -226,18 +203,12 @@ def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
 def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command: str | None = None,
                  estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None,
                  plots: bool = True) -> dict[str, Any]:
-    """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary
-    (``date``: when the run ended, e.g. ``"2026-12-03 11:03 UTC"``)."""
-    from experiments.common import records as report_files
-
+    """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary."""
     summary = summarize(records, reps=reps)
     summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
     summary["date"] = date
     kept = [{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]
-    report_files.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
+    records_module.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
                               (lambda d: write_plots(records, d)) if plots else None)
     return summary
 
-
-__all__ = ["QC_REFERENCE", "format_markdown", "ranking", "records_from_report", "success_matrix", "summarize",
-           "write_report"]

@@ -1,17 +1,5 @@
-"""The OGBench benchmark as executor units: one dataset per task first, then one unit per (arm, seed).
-
-Stage 1 generates the task's dataset (:func:`experiments.ogbench.unit.ensure_dataset`) once; every
-arm and seed of stage 2 reads it. Each unit's result is a JSON file in the work directory, so an
-interrupted run resumes with the units not yet stored, and deleting one unit's directory reruns
-that unit alone. A work directory belongs to one budget: units stored under another budget raise a
-``ValueError`` instead of being mixed into the table.
-
-Layout of ``<work>``::
-
-    data/<n>ep-<steps>-s<seed>/<dataset>.npz        the generated dataset (+ -val.npz)
-    data/<n>ep-<steps>-s<seed>/<dataset>.json       its generation's measurements (stage 1's result)
-    units/<task>/<arm>-s<seed>/record.json          a unit's record (stage 2's result), checkpoints
-"""
+"""The OGBench benchmark as executor units: the task's dataset (``<work>/data/``) first, then one unit per (arm,
+seed), its record in ``<work>/units/<task>/<arm>-s<seed>/record.json``."""
 
 from __future__ import annotations
 
@@ -22,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from experiments.common.cli import select_seeds
+from experiments.common.estimate import estimate as scaled
+from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
 from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, run_units
 from experiments.ogbench.data import TaskName
@@ -30,20 +20,10 @@ from experiments.ogbench.unit import ARMS, OGBenchBudget, dataset_file, ensure_d
 #: The default task: see docs/ogbench.md ("Why these tasks") and the probes in docs/research-log.md.
 DEFAULT_TASK = "pointmaze-medium-navigate-singletask-task1-v0"
 
-#: Budgets per task: ``full`` fits 3 arms x 5 seeds in 3 h wall on 2 cores (see :func:`estimate`),
-#: ``quick`` runs end to end in well under a minute (CI).
-BUDGETS: dict[str, dict[str, OGBenchBudget]] = {
-    "cube-single": {
-        "full": OGBenchBudget(dataset_episodes=200, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50),
-    },
-    "pointmaze-medium": {
-        "full": OGBenchBudget(dataset_episodes=200, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50),
-    },
-    "scene": {
-        "full": OGBenchBudget(dataset_episodes=100, pretrain_steps=20_000, finetune_steps=20_000, eval_episodes=50,
-                              sparse=True),
-    },
-}
+#: The budget of each task family (3 arms x 5 seeds in 3 h wall on 2 cores); ``QUICK_BUDGET`` runs end to end
+#: in well under a minute (CI).
+BUDGETS = {"cube-single": OGBenchBudget(), "pointmaze-medium": OGBenchBudget(),
+           "scene": OGBenchBudget(dataset_episodes=100, sparse=True)}
 QUICK_BUDGET = OGBenchBudget(dataset_episodes=2, episode_steps=30, pretrain_steps=4, finetune_steps=25,
                              eval_episodes=2, curve_points=1, curve_episodes=1, max_episode_steps=20)
 
@@ -51,8 +31,7 @@ _TASK_ID = re.compile(r"^task[1-5]$")
 
 
 def check_task(task: str) -> TaskName:
-    """``task`` parsed, or a ``ValueError`` naming ``--task``: an OGBench single-task name
-    (``<domain>-<type>-singletask-task<1..5>-v0``) whose dataset can be generated here."""
+    """``task`` parsed, or a ``ValueError`` naming ``--task`` unless it is a single task whose data can be made here."""
     try:
         name = TaskName.parse(task)
     except (TypeError, ValueError) as exc:
@@ -73,31 +52,17 @@ def check_arms(arms: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(arms))
 
 
-def task_family(task: str) -> str:
-    """The key of :data:`BUDGETS` for ``task`` (``cube-single``, ``scene``, ``pointmaze-medium``)."""
-    env_name = check_task(task).env_name  # e.g. cube-single-v0
-    family = env_name.rsplit("-", 1)[0]
+def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
+    """The budget of ``task``: :data:`QUICK_BUDGET` with ``quick``, else its family's in :data:`BUDGETS`."""
+    family = check_task(task).env_name.rsplit("-", 1)[0]  # cube-single-v0 -> cube-single
     if family not in BUDGETS:
         raise ValueError(f"--task: no budget is set for {family!r} tasks (known: {sorted(BUDGETS)})")
-    return family
-
-
-def default_budget(task: str, quick: bool = False) -> OGBenchBudget:
-    """The budget of ``task``: the CI budget with ``quick``, else its family's full budget."""
-    family = task_family(task)
-    return QUICK_BUDGET if quick else BUDGETS[family]["full"]
+    return QUICK_BUDGET if quick else BUDGETS[family]
 
 
 def estimate(arms: Sequence[str], n_seeds: int, budget: OGBenchBudget, workers: int,
              reports: Sequence[dict[str, Any]] | None = None) -> dict[str, float]:
-    """CPU and wall seconds of a run: each arm's recorded unit seconds (``reports``: ``ogbench.json`` files;
-    default, the committed ones) scaled by its offline and online steps (the dataset is not priced).
-
-    :return: ``{"units_cpu", "total_cpu", "wall"}``
-    """
-    from experiments.common.estimate import estimate as scaled
-    from experiments.common.estimate import recorded, seconds_per_size, wall_seconds
-
+    """CPU and wall seconds of a run from the unit seconds in the ``reports`` (default: the committed ones)."""
     reports = recorded("**/ogbench.json") if reports is None else reports
     rates = seconds_per_size((r["arm"], r["seconds"]["total_cpu"], rep["budget"]["pretrain_steps"]
                               + rep["budget"]["finetune_steps"]) for rep in reports for r in rep.get("records", []))
@@ -143,8 +108,7 @@ def build_units(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OG
 
 
 def check_stored_budget(units: Sequence[Unit], budget: OGBenchBudget) -> None:
-    """Refuse a work directory whose stored units ran under another budget (``--work``;
-    :func:`~experiments.common.records.check_budget_record` on each unit's record)."""
+    """Refuse a work directory whose stored units ran under another budget (``--work``)."""
     for unit in units:
         if unit.result_file is not None:
             check_budget_record(unit.result_file, budget.to_dict(), f"--work: {unit.result_file}",
@@ -176,11 +140,6 @@ def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: s
 
 
 def seeds_arg(values: Iterable[int]) -> list[int]:
-    """``--seeds S [S ...]`` -> the distinct seeds in increasing order; each an integer in ``[0, 1000)``
-    (episode ``i`` of seed ``s`` resets with ``base + 1000 * s + i``, so larger seeds would meet the next base)."""
+    """The distinct seeds of ``--seeds`` in increasing order, each in ``[0, 1000)`` (below the next reset base)."""
     return sorted(select_seeds(list(values), [], high=1000))
-
-
-__all__ = ["BUDGETS", "DEFAULT_TASK", "QUICK_BUDGET", "build_units", "check_arms", "check_task",
-           "default_budget", "estimate", "format_estimate", "run_benchmark", "stored_records"]
 

@@ -1,11 +1,5 @@
-"""One unit of the OGBench benchmark: (arm, task, seed) -> offline pre-training, online fine-tuning.
-
-A unit pre-trains UA2C on a locally generated OGBench "play" dataset (Phase 1, through
-:func:`sb3_ua2c.pipeline.pretrain`), evaluates the success rate, fine-tunes online with the
-offline data kept in the replay buffer (Phase 2, :func:`sb3_ua2c.pipeline.finetune`) and evaluates
-again. The three arms are the same code with different chunking (see :data:`ARMS`). The record it
-returns is JSON-able: success rates, learning curves, wall-clock and CPU seconds.
-"""
+"""One unit of the OGBench benchmark, (arm, task, seed): UA2C pre-trained, evaluated, fine-tuned online and
+evaluated again; the arms differ in their chunking only (:data:`ARMS`)."""
 
 from __future__ import annotations
 
@@ -18,14 +12,16 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from experiments.common.budget import Budget, Check, flag, integer, optional, reserved_keys
 from experiments.common.records import recorded_path
-from experiments.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes
+from experiments.ogbench.data import TaskName, generate_play_dataset, load_singletask, to_episodes, val_path
 from experiments.ogbench.env import ENV_ID, OGBenchSingleTask
 from sb3_ua2c.execution import length_shares
 from sb3_ua2c.offline import OfflineDataset
+from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
 
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
 #: ``adaptive`` is UA2C's default chunking (k and δ), ``fixed`` executes every chunk in full (δ = inf: how
@@ -44,36 +40,20 @@ VALIDATION_SEED_BASE = 20_000_000
 
 @dataclass(frozen=True)
 class OGBenchBudget(Budget):
-    """Budget of one unit; a bad value raises ``ValueError`` naming it.
+    """Budget of one unit; a bad value raises ``ValueError`` naming it."""
 
-    :param dataset_episodes: training episodes of the generated dataset (``episode_steps`` each)
-    :param episode_steps: steps per dataset episode (OGBench: 1001)
-    :param data_seed: seed of the dataset (one dataset per domain, shared by arms and seeds)
-    :param pretrain_steps: Phase-1 gradient steps
-    :param finetune_steps: Phase-2 environment steps
-    :param train_freq: Phase-2 environment steps per gradient step, the same for every arm (the
-        adaptive arm would otherwise update more often: once per plan)
-    :param eval_episodes: evaluation episodes after each phase
-    :param curve_points: evaluations during Phase 2 (evenly spaced; 0 = only before and after)
-    :param curve_episodes: episodes of each of those evaluations
-    :param sparse: Q-chunking's sparse reward (-1 until the whole task is solved)
-    :param max_episode_steps: time limit of the online and evaluation episodes (``None``: OGBench's);
-        shorter only for quick checks
-    :param algo_kwargs: UA2C constructor arguments of every arm (not ``chunk_size`` / ``entropy_threshold``)
-    """
-
-    dataset_episodes: int = 200
-    episode_steps: int = 1001
+    dataset_episodes: int = 200  # of the generated dataset, one per domain (shared by arms and seeds)
+    episode_steps: int = 1001  # per dataset episode, as OGBench's
     data_seed: int = 0
-    pretrain_steps: int = 20_000
-    finetune_steps: int = 20_000
-    train_freq: int = 5
-    eval_episodes: int = 50
-    curve_points: int = 4
+    pretrain_steps: int = 20_000  # Phase-1 gradient steps
+    finetune_steps: int = 20_000  # Phase-2 env steps
+    train_freq: int = 5  # Phase-2 env steps per gradient step, the same for every arm
+    eval_episodes: int = 50  # after each phase
+    curve_points: int = 4  # evaluations during Phase 2, of curve_episodes each
     curve_episodes: int = 10
-    sparse: bool = False
-    max_episode_steps: int | None = None
-    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    sparse: bool = False  # Q-chunking's sparse reward
+    max_episode_steps: int | None = None  # None: OGBench's time limit (shorter for quick checks only)
+    algo_kwargs: Mapping[str, Any] = field(default_factory=dict)  # UA2C's arguments for every arm
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
         **{name: integer() for name in ("dataset_episodes", "pretrain_steps", "finetune_steps", "train_freq",
@@ -83,6 +63,22 @@ class OGBenchBudget(Budget):
         "algo_kwargs": reserved_keys("chunk_size", "entropy_threshold", why="the arm sets them"),
     }
 
+    @property
+    def env_kwargs(self) -> dict[str, Any]:
+        """The :class:`OGBenchSingleTask` arguments of the online and evaluation episodes."""
+        return {"sparse": self.sparse, "max_episode_steps": self.max_episode_steps}
+
+    def arm_kwargs(self, arm: Mapping[str, Any]) -> dict[str, Any]:
+        """UA2C's arguments of an arm: ``algo_kwargs``, the arm's, and a buffer that holds Phase 2."""
+        kwargs = {**self.algo_kwargs, **arm}
+        kwargs.setdefault("buffer_size", max(self.finetune_steps, 1))
+        return kwargs
+
+    @property
+    def cadence(self) -> dict[str, int]:
+        """Phase 2's updates, the same for every arm (the adaptive arm would otherwise update once per plan)."""
+        return {"train_freq": self.train_freq, "gradient_steps": 1}  # same as default: the cadence
+
 
 def dataset_file(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) -> Path:
     """Where the unit's dataset lives: ``<data_dir>/<n>ep-<steps>-s<seed>/<domain>-play-v0.npz``."""
@@ -91,18 +87,15 @@ def dataset_file(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) 
 
 
 def ensure_dataset(task: str, budget: OGBenchBudget, data_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
-    """The dataset of ``task`` at ``budget``, generated if missing; returns its path and the
-    generation's measurements (``None`` when it already existed)."""
+    """The dataset of ``task`` at ``budget``, generated if missing: its path and the generation's measurements."""
     path = dataset_file(task, budget, data_dir)
-    if path.is_file() and Path(str(path).replace(".npz", "-val.npz")).is_file():
+    if path.is_file() and val_path(path).is_file():
         return path, None
     return path, generate_play_dataset(task, path, budget.dataset_episodes, budget.episode_steps, budget.data_seed)
 
 
 def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> OfflineDataset:
-    """The generated data as the project's :class:`~sb3_ua2c.offline.OfflineDataset` (rewards by
-    OGBench); its metadata make :func:`sb3_ua2c.offline.make_env` build :class:`OGBenchSingleTask`
-    with ``env_kwargs`` (``sparse``, ``max_episode_steps``)."""
+    """The generated data as an :class:`~sb3_ua2c.offline.OfflineDataset` of :class:`OGBenchSingleTask`."""
     env, train, _ = load_singletask(task, path, sparse=bool(env_kwargs.get("sparse", False)))
     env.close()
     probe = OGBenchSingleTask(task, **env_kwargs)
@@ -115,13 +108,8 @@ def offline_dataset(task: str, path: Path, env_kwargs: Mapping[str, Any]) -> Off
 
 def run_episodes(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int, deterministic: bool = True,
                  seed_base: int = EVAL_SEED_BASE) -> tuple[list[dict[str, float]], list[int]]:
-    """``n_episodes`` of ``model`` (stateful ``predict``), episode ``i`` reset with seed ``seed_base + 1000 * seed + i``.
-
-    An episode succeeds when the environment reports ``info["success"]`` (it then terminates).
-
-    :return: one row per episode (``success`` 0/1, ``return``, ``length`` in steps) and the executed length
-        ``L_t`` of every plan
-    """
+    """``n_episodes`` of ``model``, episode ``i`` reset with ``seed_base + 1000 * seed + i``: one row per episode and
+    the executed length ``L_t`` of every plan."""
     rows, plans = [], []
     for i in range(n_episodes):
         obs, _ = env.reset(seed=seed_base + 1000 * seed + i)
@@ -142,8 +130,7 @@ def run_episodes(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int,
 
 
 def evaluate_success(model: Any, env: OGBenchSingleTask, n_episodes: int, seed: int) -> dict[str, Any]:
-    """Success rate of ``model`` with deterministic candidates over ``n_episodes`` (:func:`run_episodes`).
-    ``length_shares``: the share of the plans with ``L_t = 1 .. k`` over all episodes."""
+    """Success rate of ``model`` over ``n_episodes`` (:func:`run_episodes`) and the shares of its ``L_t``."""
     rows, plans = run_episodes(model, env, n_episodes, seed)
     return {"success": float(np.mean([r["success"] for r in rows])), "successes": [r["success"] for r in rows],
             "lengths": [r["length"] for r in rows], "returns": [r["return"] for r in rows],
@@ -175,19 +162,7 @@ class _OnlineCurve(BaseCallback):
 
 def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_dir: str | os.PathLike,
                      data_dir: str | os.PathLike | None = None) -> dict[str, Any]:
-    """Run one (arm, task, seed) unit and return its record (also written to ``<out_dir>/record.json``).
-
-    :param arm: a key of :data:`ARMS`
-    :param task: OGBench single-task name, e.g. ``cube-single-play-singletask-task2-v0``
-    :param seed: seed of the networks, minibatches, online episodes and evaluation scenarios
-    :param budget: the unit's budget
-    :param out_dir: checkpoints and the record
-    :param data_dir: datasets (default ``<out_dir>/data``); generated there when missing
-    """
-    import torch as th
-
-    from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
-
+    """Run one unit into ``out_dir`` (the dataset in ``data_dir``, default ``<out_dir>/data``); return its record."""
     if arm not in ARMS:
         raise ValueError(f"arm must be one of {sorted(ARMS)}, got {arm!r}")
     TaskName.parse(task)
@@ -199,11 +174,9 @@ def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_
     th.set_num_threads(1)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     path, generation = ensure_dataset(task, budget, data_dir if data_dir is not None else out / "data")
-    env_kwargs = {"sparse": budget.sparse, "max_episode_steps": budget.max_episode_steps}
-    ds = offline_dataset(task, path, env_kwargs)
+    ds = offline_dataset(task, path, budget.env_kwargs)
     times: dict[str, float] = {"data_wall": time.perf_counter() - wall0, "data_cpu": time.process_time() - cpu0}
-    kwargs = {**budget.algo_kwargs, **ARMS[arm]}
-    kwargs.setdefault("buffer_size", max(budget.finetune_steps, 1))
+    kwargs = budget.arm_kwargs(ARMS[arm])
 
     def phase(name: str, fn: Any) -> Any:
         wall, cpu = time.perf_counter(), time.process_time()
@@ -211,7 +184,7 @@ def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_
         times[f"{name}_wall"], times[f"{name}_cpu"] = time.perf_counter() - wall, time.process_time() - cpu
         return result
 
-    env = OGBenchSingleTask(task, **env_kwargs)
+    env = OGBenchSingleTask(task, **budget.env_kwargs)
     try:
         ckpt = phase("pretrain", lambda: pretrain(ds, out / "pretrained.zip", budget.pretrain_steps, seed=seed,
                                                   algo_kwargs=kwargs))
@@ -220,10 +193,8 @@ def run_ogbench_unit(arm: str, task: str, seed: int, budget: OGBenchBudget, out_
         every = budget.finetune_steps / (budget.curve_points + 1)
         curve = _OnlineCurve(env, [round(every * (i + 1)) for i in range(budget.curve_points)],
                              budget.curve_episodes, seed)
-        tuned = phase("finetune", lambda: finetune(
-            ckpt, out / "finetuned.zip", budget.finetune_steps, dataset=ds, seed=seed, callback=curve,
-            algo_overrides={"train_freq": budget.train_freq, "gradient_steps": 1},  # same as default: the cadence
-        ))
+        tuned = phase("finetune", lambda: finetune(ckpt, out / "finetuned.zip", budget.finetune_steps, dataset=ds,
+                                                   seed=seed, callback=curve, algo_overrides=budget.cadence))
         online_eval = phase("eval_online", lambda: evaluate_success(load_checkpoint(tuned, env), env,
                                                                      budget.eval_episodes, seed))
     finally:

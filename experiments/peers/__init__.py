@@ -1,8 +1,6 @@
-"""Peers of UA2C on the Figure-2 protocol: one function per arm kind trains one unit (one arm, one seed)
-and returns its record; ``python -m experiments peers`` (:mod:`~experiments.peers.cli`) runs them (see
-``docs/peers.md``)."""
+"""Peers of UA2C on the Figure-2 protocol, one unit per arm and seed: ``python -m experiments peers``."""
 
-from experiments.peers.common import EvalProtocol, zoo_hyperparams
+from experiments.peers.common import ArmInputs, zoo_hyperparams
 from experiments.peers.sb3_arms import OfflineMixReplayBuffer, run_sb3_offline_mix, run_sb3_online
 
 
@@ -13,4 +11,4 @@ def run_d3rlpy(*args, **kwargs):
     return run(*args, **kwargs)
 
 
-__all__ = ["EvalProtocol", "OfflineMixReplayBuffer", "run_d3rlpy", "run_sb3_offline_mix", "run_sb3_online", "zoo_hyperparams"]
+__all__ = ["ArmInputs", "OfflineMixReplayBuffer", "run_d3rlpy", "run_sb3_offline_mix", "run_sb3_online", "zoo_hyperparams"]

@@ -1,13 +1,4 @@
-"""Budget and arms of the head-to-head (``python -m experiments peers``).
-
-Every arm of a seed runs on the Figure-2 protocol of that seed: the same dataset (Figure 2's, built
-once per seed), the same online env-step budget, the same held-out evaluation scenarios. The UA2C
-arms are Figure 2's: pre-trained offline (one-step k = 1, chunk k), then fine-tuned online from that
-checkpoint, acting with adaptive chunks (δ of the budget), fixed chunks (δ = inf) or one step.
-
-The estimate printed before a run (:func:`estimate_units`) scales the CPU seconds of each arm's committed
-records by its steps (:mod:`experiments.common.estimate`).
-"""
+"""Budget and arms of the head-to-head, every arm of a seed on that seed's Figure-2 protocol."""
 
 from __future__ import annotations
 
@@ -17,24 +8,15 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from experiments.common.budget import Budget, Check, integer, mapping, one_of, optional
+from experiments.common.estimate import estimate, format_minutes, recorded, seconds_per_size, wall_seconds
 from experiments.common.names import SCENARIO_BASES
 from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finetune_overrides
 
 
 @dataclass(frozen=True)
 class UA2CArm:
-    """How a UA2C arm is built from the budget.
-
-    :param k: chunk length (``"k"``: the budget's ``chunk_size``)
-    :param delta: δ it acts with (``"delta"``: the budget's ``entropy_threshold``; ``"inf"``: fixed
-        chunks; ``None``: its checkpoint's own, so one step for ``k = 1`` and Eq. 7's δ for the preset)
-    :param config: its constructor arguments: ``"budget"``, the budget's ``algo_kwargs`` over UA2C's
-        defaults; ``"paper"``, the preset :data:`sb3_ua2c.presets.PAPER` with the budget's optimisation
-        settings (``learning_rate``, ``batch_size``, ``gamma``, ``tau``)
-    :param cadence: its online updates: ``"fig2"``, one gradient step per ``chunk_size`` env steps
-        (Figure 2's); ``"per_step"``, one per env step (the peers'); ``"own"``, its configuration's
-        ``train_freq`` and ``gradient_steps``
-    """
+    """How a UA2C arm is built from the budget (``"k"``, ``"delta"``, ``"budget"``: the budget's; ``None``: its
+    checkpoint's; ``"paper"``: the preset)."""
 
     k: str | int = "k"
     delta: str | None = "delta"
@@ -42,11 +24,8 @@ class UA2CArm:
     cadence: str = "fig2"
 
 
-#: UA2C arms by name. ``ua2c`` is UA2C as a user gets it (the defaults of this release with the
-#: budget's ``algo_kwargs``, its own update schedule), ``ua2c_paper`` the paper as written (the
-#: preset); ``ua2c_fixed`` and ``ua2c_onestep`` are ``ua2c`` with δ = inf and with k = 1 at the same
-#: schedule, the arms Figure 2 (a)-(c) compare with it; ``ua2c_adaptive`` is ``ua2c`` at Figure 2's
-#: cadence (the paper's one update per ``k`` env steps), ``ua2c_adaptive_per_step`` at the peers'.
+#: UA2C arms by name (``docs/peers.md``): as a user gets it, as the paper writes it, Figure 2's arms at the
+#: defaults, and the adaptive arm at Figure 2's and at the peers' update cadence.
 UA2C_ARMS: dict[str, UA2CArm] = {
     "ua2c": UA2CArm(cadence="own"),
     "ua2c_paper": UA2CArm(delta=None, config="paper", cadence="own"),
@@ -114,36 +93,18 @@ def _fig2_budget(label: str, value: Any) -> None:
 
 @dataclass(frozen=True)
 class PeersBudget(Budget):
-    """Budget of a head-to-head run (per seed); a bad value raises ``ValueError`` naming it.
+    """Budget of a head-to-head run (per seed); a bad value raises ``ValueError`` naming it."""
 
-    :param ua2c: the Figure-2 budget the UA2C arms and the shared inputs come from: dataset
-        (``dataset_episodes``, ``env_kwargs``), offline gradient steps (``pretrain_steps``, also the
-        d3rlpy arms' offline steps), online env steps of EVERY arm (``finetune_steps``), evaluation
-        episodes, ``chunk_size``, δ and the UA2C constructor arguments
-    :param sb3_hyperparams: constructor arguments replacing those of ``zoo_configs/{sac,tqc}.yml`` key by
-        key, for the SAC, TQC and SAC + offline arms (empty: the zoo's)
-    :param d3rlpy_batch_size: minibatch size of IQL and Cal-QL (the SAC zoo entry's 256)
-    :param calql_offline_steps: offline gradient steps of Cal-QL (``None``: ``ua2c.pretrain_steps``,
-        like every other offline phase)
-    :param rlpd_updates_per_step: gradient steps per online env step of the RLPD arm (its update-to-data
-        ratio; RLPD's paper: 20, here as many as the budget allows)
-    :param scenarios: the evaluation scenarios of every arm (:data:`~experiments.common.names.SCENARIO_BASES`):
-        ``"validation"`` for choices (tuning), ``"test"`` for reported numbers, ``"figure2"`` for Figure 2's
-        held-out scenarios (those of the records made before the split; UA2C's earlier choices were made on them)
-    :param iql_best_of_n: IQL's final policy is also evaluated acting as UA2C does, by the best of this
-        many sampled actions under its critic (the report's row ``iql_best_of_n``; 0: not)
-    :param peer_kwargs: per peer arm, hyperparameters on top of its defaults (a tuning configuration): SB3
-        constructor arguments for the SB3 arms (after ``sb3_hyperparams``), d3rlpy config arguments for the
-        d3rlpy arms (after their published settings), e.g. ``{"iql": {"expectile": 0.9, "weight_temp": 10.0}}``
-    """
-
+    #: the Figure-2 budget of the UA2C arms and of the shared inputs: dataset, offline steps (also the d3rlpy
+    #: arms'), the online env steps of EVERY arm (``finetune_steps``), evaluation episodes
     ua2c: Fig2Budget = field(default_factory=lambda: FULL_BUDGET.replace(finetune_steps=5000))
-    sb3_hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    sb3_hyperparams: Mapping[str, Any] = field(default_factory=dict)  # over the zoo files', for every SB3 arm
     d3rlpy_batch_size: int = 256
-    calql_offline_steps: int | None = None
-    rlpd_updates_per_step: int = 4
-    scenarios: str = "test"
-    iql_best_of_n: int = 32
+    calql_offline_steps: int | None = None  # None: ua2c.pretrain_steps, like every other offline phase
+    rlpd_updates_per_step: int = 4  # RLPD's update-to-data ratio (its paper: 20)
+    scenarios: str = "test"  # the evaluation scenarios (SCENARIO_BASES): validation for choices, test to report
+    iql_best_of_n: int = 32  # IQL also evaluated acting by the best of this many actions (0: not)
+    #: per peer arm, hyperparameters on top of its defaults (a tuning configuration), e.g. {"iql": {"expectile": 0.9}}
     peer_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
@@ -153,7 +114,8 @@ class PeersBudget(Budget):
     }
 
     def validate(self) -> None:  # peer_kwargs in the arms' order, however given (a report prints them)
-        object.__setattr__(self, "peer_kwargs", {a: self.peer_kwargs[a] for a in (*PEER_ARMS, "bc") if a in self.peer_kwargs})
+        kwargs = self.peer_kwargs
+        object.__setattr__(self, "peer_kwargs", {a: kwargs[a] for a in (*PEER_ARMS, "bc") if a in kwargs})
 
     @property
     def online_steps(self) -> int:
@@ -187,8 +149,7 @@ class PeersBudget(Budget):
         return None if d is None else float("inf") if d == "inf" else self.ua2c.entropy_threshold
 
     def pretrain_name(self, arm: str) -> str:
-        """Name of the pre-trained checkpoint a UA2C arm starts from (shared by the arms of one configuration
-        and chunk length): ``pretrain_k<k>``, ``pretrain_k<k>_paper`` for the preset."""
+        """The pre-trained checkpoint a UA2C arm starts from: ``pretrain_k<k>`` (``_paper`` for the preset)."""
         suffix = "_paper" if UA2C_ARMS[arm].config == "paper" else ""
         return f"pretrain_k{self.chunk_length(arm)}{suffix}"
 
@@ -203,8 +164,7 @@ class PeersBudget(Budget):
         return self.ua2c.arm_kwargs(k)
 
     def finetune_overrides(self, arm: str) -> dict[str, Any]:
-        """Phase-2 attributes of a UA2C arm: its update cadence (:class:`UA2CArm`) and, for the budget's
-        configuration, the budget's ``finetune_kwargs``."""
+        """Phase-2 attributes of a UA2C arm: its update cadence and, but for the preset, ``finetune_kwargs``."""
         spec = UA2C_ARMS[arm]
         if spec.cadence == "own":
             return {} if spec.config == "paper" else dict(self.ua2c.finetune_kwargs)
@@ -215,12 +175,11 @@ class PeersBudget(Budget):
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> PeersBudget:
-        """:meth:`Budget.from_dict`; a budget recorded before the scenario split ran on Figure 2's scenarios."""
+        """:meth:`Budget.from_dict` (a budget recorded before the scenario split ran on Figure 2's scenarios)."""
         return super().from_dict({"scenarios": "figure2", **values})
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> PeersBudget:
-        """A copy with ``overrides`` (``--budget``): PeersBudget keys replaced, ``"ua2c"``'s Fig2Budget keys one by
-        one, ``"peer_kwargs"`` arm by arm; a bad key or value raises ``ValueError`` naming it."""
+        """A copy with ``overrides`` (``--budget``): keys replaced, those of ``"ua2c"`` and ``"peer_kwargs"`` one by one."""
         values, overrides = self.to_dict(), dict(overrides)
         for key in ("ua2c", "peer_kwargs"):
             if not isinstance(overrides.get(key, {}), Mapping):
@@ -234,8 +193,7 @@ class PeersBudget(Budget):
         return dataclasses.replace(self, ua2c=self.ua2c.replace(finetune_steps=online_steps))
 
 
-#: Default: the Figure-2 dataset and offline budget (200 episodes, 6,000 gradient steps), 20 evaluation
-#: episodes, and 5,000 online env steps for every arm (about two hours and fifty minutes for 5 seeds on 2 cores).
+#: Default: the Figure-2 dataset and offline budget, 20 evaluation episodes, 5,000 online env steps for every arm.
 FULL_PEERS_BUDGET = PeersBudget()
 
 #: ``--quick``: Figure 2's quick budget (4-s episodes, a few updates) and tiny peer networks.
@@ -245,20 +203,13 @@ QUICK_PEERS_BUDGET = PeersBudget(
 
 
 def unit_steps(budget: PeersBudget, arm: str) -> float:
-    """What one unit of ``arm`` costs in proportion to: its offline gradient steps and online env steps (a
-    reference row learns nothing online; the behaviour policy's unit is its evaluation alone: 1)."""
+    """What one unit of ``arm`` costs in proportion to: its offline and online steps (at least 1)."""
     return max(budget.offline_steps(arm) + (0 if arm in REFERENCE_ARMS else budget.online_steps), 1)
 
 
 def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, workers: int,
                    records: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
-    """CPU seconds of one unit of each arm, from the committed arm records (``records``: default, every
-    ``results/**/peers_raw`` record) scaled by :func:`unit_steps`; with the run's CPU and wall seconds.
-
-    :return: ``{"cpu", "wall", "workers", "per_unit": {arm: seconds}}``
-    """
-    from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
-
+    """CPU seconds of one unit of each arm from the ``records`` (default: the committed ones), and the run's."""
     records = recorded("**/peers_raw/seed*/*.json") if records is None else records
     rates = seconds_per_size((r["arm"], r["cpu_seconds"]["total"], max(r.get("offline_steps", 0) + r["online_steps"], 1))
                              for r in records if "cpu_seconds" in r)
@@ -269,7 +220,5 @@ def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, worke
 
 def format_estimate(estimate: Mapping[str, Any]) -> str:
     """The estimate as printed before a run: per arm (one unit) and in total."""
-    from experiments.common.estimate import format_minutes
-
     lines = [f"  {arm:22s} {s / 60:6.1f} CPU-min per unit" for arm, s in estimate["per_unit"].items()]
     return "\n".join([format_minutes("peers", estimate["cpu"], estimate["wall"], estimate["workers"]), *lines])

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -12,7 +11,7 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header
 from experiments.common.runner import make_executor, ray_session
 from experiments.peers.budget import (
     ARMS,
@@ -24,7 +23,7 @@ from experiments.peers.budget import (
     format_estimate,
 )
 from experiments.peers.report import aggregate, verdicts, write_report
-from experiments.peers.runner import PeersPaths, load_records, read_manifest, run_peers
+from experiments.peers.runner import PeersPaths, load_records, run_peers
 from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments peers"
@@ -54,21 +53,17 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
-def check_selection(seeds: Sequence[int], arms: Sequence[str], workers: int) -> tuple[list[int], list[str]]:
-    """Validated, de-duplicated seeds and arms (a ``ValueError`` names the bad parameter)."""
+def check_arms(arms: Sequence[str]) -> list[str]:
+    """The known arms of ``arms``, in :data:`ARMS`' order (a ``ValueError`` names an unknown one)."""
     unknown = [a for a in arms if a not in ARMS]
     if unknown:
         raise ValueError(f"--arms: unknown arm(s) {unknown}; choose from {list(ARMS)}")
-    check_int("--workers", workers)
-    return select_seeds(seeds, []), [a for a in ARMS if a in arms]
+    return [a for a in ARMS if a in arms]
 
 
-def needed_extras(arms: Sequence[str], ray_address: str | None, report_only: bool) -> list[str]:
-    """The optional modules a run needs (:func:`~experiments.common.cli.check_extras`): rliable for the
-    report, d3rlpy for its arms, ray for a cluster."""
-    units = [] if report_only else [*(["d3rlpy", "structlog"] if any(a in D3RLPY_ARMS for a in arms) else []),
-                                    *(["ray"] if ray_address is not None else [])]
-    return ["rliable", *units]
+def needed_extras(arms: Sequence[str], report_only: bool) -> list[str]:
+    """The optional modules a run needs: rliable for the report, d3rlpy for its arms."""
+    return ["rliable", *([] if report_only or not set(arms) & set(D3RLPY_ARMS) else ["d3rlpy", "structlog"])]
 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
@@ -80,8 +75,7 @@ def _budget(args: argparse.Namespace) -> PeersBudget:
 
 
 def scenario_text(records: dict[str, list[dict[str, Any]]]) -> str:
-    """Which evaluation scenarios the records used (:data:`~experiments.common.names.SCENARIO_BASES`), from
-    their seeds: scenario base = evaluation seed - run seed."""
+    """Which evaluation scenarios the records used, from their seeds (base = evaluation seed - run seed)."""
     names = {base: name for name, base in SCENARIO_BASES.items()}
     bases = sorted({r["eval_seeds"][0] - r["seed"] for rs in records.values() for r in rs})
     return ", ".join(f"{names.get(b, 'unknown')} scenarios (SUMO seeds 1000 · ({b} + seed) + i)" for b in bases)
@@ -96,8 +90,7 @@ def observation_text(records: dict[str, list[dict[str, Any]]]) -> str:
 
 
 def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict[str, list[str]]:
-    """Arms whose records another run made (their dataset lies outside ``work``; records are reused where
-    seeds, data and scenarios are the same): ``{that run's work directory: arms}``."""
+    """Arms whose records another run made (their dataset lies outside ``work``): ``{that run's work: arms}``."""
     reused: dict[str, set[str]] = {}
     work = work.resolve()
     for arm, rs in records.items():
@@ -110,8 +103,7 @@ def reused_records(records: dict[str, list[dict[str, Any]]], work: Path) -> dict
 
 def build_summary(paths: PeersPaths, budget: PeersBudget, workers: int, command: str, date: str,
                   reps: int = 2000, estimate: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``peers.json``: the header (command, date, budget, estimate of the units run here, unless ``estimate``
-    gives the one printed before the run; records reused from other runs, observation) and :func:`aggregate`."""
+    """``peers.json``: its header and :func:`~experiments.peers.report.aggregate`."""
     records = load_records(paths)
     summary = aggregate(records, reps)
     seeds = sorted({s for arm in summary["arms"].values() for s in arm["seeds"]})
@@ -143,22 +135,21 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
 def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]:
     if args.workers is None:  # --quick: tiny units, where starting a process costs more than the unit
         args.workers = 1 if args.quick else 2
-    seeds, arms = check_selection(args.seeds or ([0, 1] if args.quick else list(range(5))), args.arms, args.workers)
-    budget = _budget(args)
-    check_extras(needed_extras(arms, args.ray_address, args.report_only))
+    seeds = select_seeds(args.seeds or ([0, 1] if args.quick else list(range(5))), [])
+    arms, budget = check_arms(args.arms), _budget(args)
+    check_int("--workers", args.workers)
+    check_extras(needed_extras(arms, args.report_only))
     return seeds, arms, budget
 
 
 def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str], PeersBudget], command: str) -> int:
     seeds, arms, budget = checked
     paths = PeersPaths.under(args.out, args.raw, args.work)
-    previous = paths.out / "peers.json"
-    command, date = run_header(command, previous if args.report_only else None)
+    recorded = previous_report(paths.out / "peers.json", args.report_only)
+    command, date = run_header(command, recorded)
     estimate = None
     if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
-        recorded = json.loads(previous.read_text()) if previous.is_file() else {}
-        budget = read_manifest(paths) or (PeersBudget.from_dict(recorded["budget"]) if "budget" in recorded
-                                          else budget)
+        budget = paths.rebuilt_budget(recorded, budget)
         estimate = recorded.get("estimate")
     else:
         _run(args, seeds, arms, budget, paths)

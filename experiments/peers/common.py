@@ -1,13 +1,4 @@
-"""What every peer unit shares: the Figure-2 protocol inputs, zoo hyperparameters, offline
-transitions, the online learning curve, timing and the result record.
-
-A peer unit reads the same inputs as the UA2C arms of one Figure-2 seed: the seed's Minari dataset
-(its metadata defines the environment: ``env_id``, ``env_kwargs`` and whether observations carry
-the style context c_t), the online step budget, and the held-out evaluation scenarios
-(``eval_seeds`` and ``eval_episodes``, the arguments of :func:`envs.evaluation.evaluate`; the
-Figure-2 runner passes ``(EVAL_SEED_BASE + seed,)`` and ``Fig2Budget.eval_episodes``). It returns
-a JSON-serialisable record (:func:`unit_record`).
-"""
+"""What every peer unit shares: inputs, zoo hyperparameters, transitions, learning curve, timing and record."""
 
 from __future__ import annotations
 
@@ -17,15 +8,19 @@ import os
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
-from experiments.common.records import recorded_path
+from envs.collection import BehaviourConfig
+from envs.evaluation import evaluate, evaluate_behaviour, summarize
+from experiments.common.records import episode_rows, recorded_path
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset, load_dataset
+from sb3_ua2c.pipeline import env_settings, read_monitor
 
 #: Keys of a zoo entry that configure rl-zoo3 itself, not the algorithm.
 ZOO_ONLY_KEYS = frozenset({
@@ -35,38 +30,9 @@ ZOO_ONLY_KEYS = frozenset({
 
 
 @dataclass(frozen=True)
-class EvalProtocol:
-    """The held-out evaluation scenarios of a unit: episode ``i`` of seed ``e`` resets with
-    ``1000 * e + i`` (:func:`envs.evaluation.evaluate`).
-
-    :param seeds: evaluation seeds (Figure 2: ``(EVAL_SEED_BASE + seed,)``)
-    :param episodes: episodes per evaluation seed (Figure 2: ``Fig2Budget.eval_episodes``)
-    """
-
-    seeds: tuple[int, ...]
-    episodes: int
-
-    def __post_init__(self) -> None:
-        seeds = tuple(self.seeds) if isinstance(self.seeds, Sequence) and not isinstance(self.seeds, str) else None
-        if not seeds:
-            raise ValueError(f"eval_seeds must be a non-empty sequence of integers, got {self.seeds!r}")
-        for s in seeds:
-            check_int("eval_seeds", s, low=0)
-        check_int("eval_episodes", self.episodes)
-        object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
-
-
-@dataclass(frozen=True)
 class ArmInputs:
-    """What every arm unit of a seed gets (the arguments its unit function shares with the others).
-
-    :param out_dir: the unit's directory (models, logs, ``online.monitor.csv``)
-    :param dataset: the seed's dataset directory (or a loaded dataset); it defines the environment
-    :param seed: seed of the networks, the minibatches and the online env
-    :param online_steps: online environment steps
-    :param eval_seeds: evaluation seeds (see :class:`EvalProtocol`)
-    :param eval_episodes: episodes per evaluation seed
-    """
+    """What every arm unit of a seed gets: its directory, the seed's dataset (it defines the environment), seed,
+    online env steps and evaluation scenarios (:func:`envs.evaluation.evaluate`'s)."""
 
     out_dir: str | os.PathLike
     dataset: str | os.PathLike | OfflineDataset
@@ -75,13 +41,19 @@ class ArmInputs:
     eval_seeds: Sequence[int]
     eval_episodes: int
 
-    def __post_init__(self) -> None:
-        _ = self.protocol  # a bad evaluation protocol raises here, before any training
+    def __post_init__(self) -> None:  # a bad evaluation protocol raises here, before any training
+        seeds = self.eval_seeds
+        seeds = tuple(seeds) if isinstance(seeds, Sequence) and not isinstance(seeds, str) else None
+        if not seeds:
+            raise ValueError(f"eval_seeds must be a non-empty sequence of integers, got {self.eval_seeds!r}")
+        for s in seeds:
+            check_int("eval_seeds", s, low=0)
+        check_int("eval_episodes", self.eval_episodes)
+        object.__setattr__(self, "eval_seeds", tuple(int(s) for s in seeds))
 
-    @property
-    def protocol(self) -> EvalProtocol:
-        """The evaluation scenarios (a ``ValueError`` names ``eval_seeds`` or ``eval_episodes``)."""
-        return EvalProtocol(self.eval_seeds, self.eval_episodes)
+    def load_dataset(self) -> OfflineDataset:
+        """The seed's dataset, loaded unless it is already."""
+        return self.dataset if isinstance(self.dataset, OfflineDataset) else load_dataset(self.dataset)
 
 
 def repo_zoo_config(algo: str) -> Path:
@@ -90,19 +62,7 @@ def repo_zoo_config(algo: str) -> Path:
 
 
 def zoo_hyperparams(algo: str, env_id: str = "MixedTraffic-v0", conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file.
-
-    rl-zoo3's own keys (``n_timesteps``, ``env_wrapper``, ``policy``, ...) are dropped: the unit
-    sets the budget and builds the environment from the dataset. ``policy_kwargs`` written as a
-    Python expression (``"dict(net_arch=[256, 256])"``) is read without ``eval``: only ``dict(...)``
-    calls and literals are accepted.
-
-    :param algo: ``"sac"`` or ``"tqc"`` (the file name without ``.yml``)
-    :param env_id: the entry to read
-    :param conf_file: the YAML file (default: ``zoo_configs/<algo>.yml`` of the source checkout)
-    """
-    import yaml
-
+    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default ``zoo_configs/``)."""
     path = Path(conf_file) if conf_file is not None else repo_zoo_config(algo)
     if not path.is_file():
         raise FileNotFoundError(f"no zoo config {path}: pass conf_file= (e.g. zoo_configs/{algo}.yml of a source checkout)")
@@ -132,17 +92,8 @@ def literal_call(expression: str) -> Any:
         raise ValueError(f"cannot read {expression!r}: only literals and dict(...) calls are accepted") from exc
 
 
-def read_dataset(dataset: str | os.PathLike | OfflineDataset) -> OfflineDataset:
-    return dataset if isinstance(dataset, OfflineDataset) else load_dataset(dataset)
-
-
 def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
-    """One row per step of ``episodes``: the transitions an off-policy buffer holds.
-
-    :return: ``observations`` and ``next_observations`` ``(N, *obs_shape)``, ``actions``
-        ``(N, *act_shape)`` in the environment's units, ``rewards`` ``(N,)`` and ``terminations``
-        ``(N,)`` (only a termination stops the bootstrap; a truncated step keeps its next observation)
-    """
+    """One row per step of ``episodes``, as an off-policy buffer holds them (only a termination ends a bootstrap)."""
     if not episodes:
         raise ValueError("episodes must not be empty")
     return {
@@ -155,13 +106,7 @@ def episode_transitions(episodes: Sequence[Episode]) -> dict[str, np.ndarray]:
 
 
 def learning_curve(monitor_file: str | os.PathLike) -> list[dict[str, Any]]:
-    """The online training episodes of a ``Monitor`` log: return against env steps.
-
-    :return: per episode ``end_step`` (env steps so far, this episode included), ``reward``,
-        ``length`` and ``collision``
-    """
-    from sb3_ua2c.pipeline import read_monitor
-
+    """The online training episodes of a ``Monitor`` log, each with the env step at which it ended."""
     steps, out = 0, []
     for e in read_monitor(monitor_file):
         steps += int(e["l"])
@@ -188,64 +133,45 @@ class PhaseClock:
                 "cpu_seconds": {**self.cpu, "total": sum(self.cpu.values())}}
 
 
-def evaluation_record(policy: Any, settings: Mapping[str, Any], protocol: EvalProtocol) -> dict[str, Any]:
-    """``policy`` (SB3 ``predict``) on the protocol's scenarios: per-episode metrics and their means."""
-    from envs.evaluation import evaluate
-
-    return episodes_record(evaluate(policy, n_episodes=protocol.episodes, seeds=protocol.seeds,
-                                    env_settings_=dict(settings)))
+def evaluation_record(policy: Any, settings: Mapping[str, Any], inputs: ArmInputs, **kwargs: Any) -> dict[str, Any]:
+    """``policy`` (or a checkpoint acting with ``kwargs``) on the inputs' evaluation scenarios."""
+    return episodes_record(evaluate(policy, n_episodes=inputs.eval_episodes, seeds=inputs.eval_seeds,
+                                    env_settings_=dict(settings), **kwargs))
 
 
 def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
     """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as a record: per episode and their means."""
-    from envs.evaluation import summarize
-
-    rows = [{**asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
-    return {"summary": summarize(list(episodes)), "episodes": rows}
+    return {"summary": summarize(list(episodes)), "episodes": episode_rows(episodes)}
 
 
 def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
-    """One unit, the reference row of the data: the dataset's behaviour policy (its ``behaviour_config``,
-    :func:`envs.evaluation.evaluate_behaviour`) on the protocol's scenarios. Nothing is trained; the record
-    has no online phase, and its one evaluation stands as the offline and the final one.
-
-    :param inputs: the unit's inputs (``out_dir`` and ``online_steps`` are not used)
-    """
-    from envs.collection import BehaviourConfig
-    from envs.evaluation import evaluate_behaviour
-    from sb3_ua2c.pipeline import env_settings
-
-    protocol, seed = inputs.protocol, inputs.seed
-    ds = read_dataset(inputs.dataset)
+    """One unit, the reference row of the data: the dataset's behaviour policy on the evaluation scenarios."""
+    ds = inputs.load_dataset()
     config = ds.metadata.get("behaviour_config")
     if config is None:
         raise ValueError(f"dataset {ds.path} records no behaviour_config: it was not collected by envs.collection")
     clock = PhaseClock()
     with clock.phase("evaluate"):
-        evaluation = episodes_record(evaluate_behaviour(BehaviourConfig.from_dict(dict(config)), protocol.episodes,
-                                                        protocol.seeds, env_settings(ds)))
+        evaluation = episodes_record(evaluate_behaviour(BehaviourConfig.from_dict(dict(config)), inputs.eval_episodes,
+                                                        inputs.eval_seeds, env_settings(ds)))
     notes = "the dataset's behaviour policy (its behaviour_config) on the evaluation scenarios; nothing trained"
-    return unit_record("behaviour", seed, ds, protocol, 0, {"behaviour_config": dict(config)}, evaluation, [], clock,
+    return unit_record("behaviour", inputs, ds, 0, {"behaviour_config": dict(config)}, evaluation, [], clock,
                        offline_evaluation=evaluation, notes=notes)
 
 
-
-def unit_record(arm: str, seed: int, dataset: OfflineDataset, protocol: EvalProtocol, online_steps: int,
+def unit_record(arm: str, inputs: ArmInputs, dataset: OfflineDataset, online_steps: int,
                 hyperparams: Mapping[str, Any], evaluation: Mapping[str, Any], curve: list[dict[str, Any]],
                 clock: PhaseClock, offline_steps: int = 0, offline_evaluation: Mapping[str, Any] | None = None,
                 notes: str = "") -> dict[str, Any]:
-    """The JSON record every peer unit returns (``evaluation`` / ``offline_evaluation`` from
-    :func:`evaluation_record`, ``curve`` from :func:`learning_curve`)."""
-    from sb3_ua2c.pipeline import env_settings
-
+    """The JSON record every peer unit returns."""
     record = {
         "arm": arm,
-        "seed": seed,
+        "seed": inputs.seed,
         "dataset": {"path": recorded_path(dataset.path), "episodes": len(dataset), "transitions": dataset.total_steps,
                     "seed": dataset.metadata.get("seed")},
         "env": env_settings(dataset),
-        "eval_seeds": list(protocol.seeds),
-        "eval_episodes": protocol.episodes,
+        "eval_seeds": list(inputs.eval_seeds),
+        "eval_episodes": inputs.eval_episodes,
         "online_steps": online_steps,
         "offline_steps": offline_steps,
         "hyperparams": dict(hyperparams),

@@ -1,15 +1,5 @@
-"""Peer arms built on d3rlpy: IQL, Cal-QL and ReBRAC, offline on the seed's dataset, then online; and
-behaviour cloning (BC), offline only, as a reference row.
-
-d3rlpy 2.8.1 pins ``gymnasium==1.0.0``; the code paths used here work on ours (``tests/harness/test_peers.py``),
-so it is installed without its pins (:data:`~experiments.common.cli.D3RLPY_INSTALL`); ``gym`` without
-``gym-notices`` keeps it from printing a notice on every import of Stable-Baselines3.
-
-The online phase continues with ``fit_online``, one update per env step, with ``offline_ratio`` of each
-minibatch from the offline data (as UA2C and the offline-mix SAC keep theirs). Actions are scaled to [-1, 1]
-by ``MinMaxActionScaler``. Logs and models go under ``<out_dir>/d3rlpy/{offline,online}``. A truncated
-episode keeps its final observation (its last step bootstraps); a terminated one ends with a terminal
-transition. Online, d3rlpy drops the last transition of each truncated episode (its own buffer's rule)."""
+"""Peer arms built on d3rlpy (``docs/peers.md``): IQL, Cal-QL and ReBRAC offline then online, RLPD online only,
+and behaviour cloning (BC) offline only, as a reference row."""
 
 from __future__ import annotations
 
@@ -19,19 +9,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.monitor import Monitor
 
+from envs.collection import make_traffic_env
 from experiments.common.cli import D3RLPY_INSTALL
-from experiments.peers.common import (
-    ArmInputs,
-    PhaseClock,
-    evaluation_record,
-    learning_curve,
-    read_dataset,
-    unit_record,
-)
+from experiments.peers import common
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode, OfflineDataset
+from sb3_ua2c.pipeline import env_settings
 
 ALGOS = ("iql", "calql", "rebrac", "rlpd", "bc")
 #: algorithms fitted offline only (no ``fit_online``): their final evaluation is the offline one
@@ -57,12 +44,7 @@ def import_d3rlpy() -> Any:
 
 
 class D3rlpyPolicy:
-    """A d3rlpy algorithm behind SB3's ``predict`` (what :func:`envs.evaluation.evaluate` calls).
-
-    :param algo: a built d3rlpy Q-learning algorithm (IQL, Cal-QL, ...)
-    :param observation_space: the environment's observation space
-    :param action_space: the environment's ``Box`` action space
-    """
+    """A built d3rlpy algorithm behind SB3's ``predict`` (what :func:`envs.evaluation.evaluate` calls)."""
 
     def __init__(self, algo: Any, observation_space: spaces.Space, action_space: spaces.Box) -> None:
         self.algo = algo
@@ -71,11 +53,7 @@ class D3rlpyPolicy:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:
-        """The greedy action (``deterministic``) or one drawn from the policy; ``state`` is ignored.
-
-        :param observation: ``obs_shape`` or ``(n, *obs_shape)``
-        :return: the action(s) in the environment's units and ``None``
-        """
+        """The greedy action (``deterministic``) or one drawn from the policy, for one or ``n`` observations."""
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.shape == self.observation_space.shape
         batch = obs[None] if single else obs  # (n, *obs_shape)
@@ -89,12 +67,7 @@ class D3rlpyPolicy:
 
 
 class BestOfNPolicy(D3rlpyPolicy):
-    """UA2C's way of acting for a d3rlpy peer: draw ``n`` actions from its policy and execute the one its
-    critic values most (``predict_value``), whatever ``deterministic`` says.
-
-    :param n: actions drawn per decision
-    (the other parameters are :class:`D3rlpyPolicy`'s)
-    """
+    """UA2C's way of acting for a d3rlpy peer: the best of ``n`` actions drawn from its policy, under its critic."""
 
     def __init__(self, algo: Any, observation_space: spaces.Space, action_space: spaces.Box, n: int) -> None:
         super().__init__(algo, observation_space, action_space)
@@ -109,12 +82,8 @@ class BestOfNPolicy(D3rlpyPolicy):
 
 
 def d3rlpy_episodes(episodes: Sequence[Episode]) -> list[Any]:
-    """Our episodes as d3rlpy ``Episode`` objects that keep every transition.
-
-    d3rlpy takes the last transition of a non-terminated episode to have no next observation and
-    drops it; a truncated episode is therefore given its final observation ``o_T`` as an extra row
-    (with a zero action and reward that are never sampled as a transition).
-    """
+    """Our episodes as d3rlpy ``Episode`` objects, a truncated one with its final observation as an extra row
+    (d3rlpy drops the last transition of an episode not terminated)."""
     from d3rlpy.dataset import Episode as D3Episode
 
     out = []
@@ -142,21 +111,7 @@ def _mixed_buffer(d3rlpy: Any, online: Any, offline: Any, offline_ratio: float) 
 
 
 def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
-    """The settings an algorithm is published with, where d3rlpy's defaults are not them.
-
-    RLPD (Ball et al., 2023) on d3rlpy's SAC: layer-norm critics 256 × 256, learning rates 3e-4,
-    initial temperature 1, τ = 0.005; with symmetric sampling and several updates per env step set by
-    the unit (:data:`RLPD_DIFFERENCES`).
-
-    Cal-QL: d3rlpy's reproduction script (``reproductions/finetuning/cal_ql_finetune.py``): learning
-    rates 3e-4 and ``alpha_threshold`` 0.8 (d3rlpy's defaults: 1e-4 for the actor, 10); its 1M offline
-    steps are the budget's here.
-
-    ReBRAC: d3rlpy's reproduction script (``reproductions/offline/rebrac.py``) with the betas it uses
-    for a dataset outside its table: actor and critic 3 × 256 (the critic with layer norm), learning
-    rates 1e-3, target smoothing 0.2 / 0.5, the actor updated every second step, β_actor = β_critic =
-    0.01, standardised observations (its batch of 1,024 is the budget's ``batch_size`` here).
-    """
+    """The settings an algorithm is published with where d3rlpy's defaults are not them (``docs/peers.md``)."""
     vector = d3rlpy.models.VectorEncoderFactory
     if algo == "rlpd":
         return {
@@ -180,8 +135,7 @@ def published_settings(d3rlpy: Any, algo: str) -> dict[str, Any]:
 
 
 def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: int, config_kwargs: Mapping[str, Any]) -> Any:
-    """The d3rlpy config of ``algo``: its defaults, its :func:`published_settings`, ``batch_size``, the
-    action scaler, then ``config_kwargs``."""
+    """The d3rlpy config of ``algo``: its :func:`published_settings`, ``batch_size``, then ``config_kwargs``."""
     configs = {"iql": d3rlpy.algos.IQLConfig, "calql": d3rlpy.algos.CalQLConfig, "rebrac": d3rlpy.algos.ReBRACConfig,
                "rlpd": d3rlpy.algos.SACConfig, "bc": d3rlpy.algos.BCConfig}
     if algo not in configs:
@@ -196,7 +150,7 @@ def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: in
 
 
 def run_d3rlpy(
-    inputs: ArmInputs,
+    inputs: common.ArmInputs,
     algo: str = "iql",
     offline_steps: int = 6000,
     offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
@@ -205,28 +159,8 @@ def run_d3rlpy(
     best_of_n: int = 0,
     config_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """One unit: d3rlpy IQL, Cal-QL or ReBRAC fitted offline on the seed's dataset, evaluated, fine-tuned
-    online for ``online_steps`` env steps, evaluated again (see the module docstring). BC
-    (:data:`OFFLINE_ONLY`) stops after the offline evaluation: its record has no online phase. With
-    ``offline_steps=0`` (RLPD) there is no offline phase and no offline evaluation.
-
-    :param inputs: the unit's directory (d3rlpy logs and models, ``online.monitor.csv``), dataset, seed (of
-        d3rlpy and the online env), online steps and evaluation scenarios (:class:`~experiments.peers.common.ArmInputs`)
-    :param algo: one of :data:`ALGOS`
-    :param offline_steps: offline gradient steps (the UA2C arms' ``pretrain_steps``; 0: none)
-    :param offline_ratio: fraction of each online minibatch drawn from the offline data
-    :param batch_size: minibatch size (the SAC zoo entry's 256)
-    :param updates_per_step: gradient steps per online env step (the update-to-data ratio)
-    :param best_of_n: also evaluate the final policy acting by the best of ``best_of_n`` sampled actions
-        under its critic (:class:`BestOfNPolicy`), into the record's ``evaluation_best_of_n`` (0: not)
-    :param config_kwargs: further arguments of the algorithm's d3rlpy config (d3rlpy's defaults and
-        :func:`published_settings` otherwise)
-    :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
-    """
-    import torch as th
-
-    from sb3_ua2c.pipeline import env_settings
-
+    """One unit: d3rlpy ``algo`` fitted offline on the seed's dataset and evaluated, then (unless
+    :data:`OFFLINE_ONLY`) fine-tuned online and evaluated again, also by :class:`BestOfNPolicy` with ``best_of_n``."""
     seed, online_steps = inputs.seed, inputs.online_steps
     for name, value in (("online_steps", online_steps), ("batch_size", batch_size),
                         ("updates_per_step", updates_per_step)):
@@ -237,8 +171,7 @@ def run_d3rlpy(
         raise ValueError(f"offline_ratio must be a number in [0, 1], got {offline_ratio!r}")
     if algo in OFFLINE_ONLY and offline_steps == 0:
         raise ValueError(f"offline_steps must be >= 1 for {algo!r}, which has no online phase")
-    protocol = inputs.protocol
-    ds = read_dataset(inputs.dataset)
+    ds = inputs.load_dataset()
     d3rlpy = import_d3rlpy()
     th.set_num_threads(1)
     d3rlpy.seed(seed)
@@ -248,29 +181,29 @@ def run_d3rlpy(
     learner = make_config(d3rlpy, algo, ds.action_space, batch_size, config_kwargs or {}).create(device="cpu:0")
     offline = d3rlpy.dataset.create_infinite_replay_buffer(episodes=d3rlpy_episodes(ds.episodes))
     policy = D3rlpyPolicy(learner, ds.observation_space, ds.action_space)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     offline_evaluation = None
     if offline_steps:
         with clock.phase("offline"):
             learner.fit(offline, n_steps=offline_steps, n_steps_per_epoch=offline_steps, experiment_name="offline",
                         with_timestamp=False, logger_adapter=logs, show_progress=False)
         with clock.phase("evaluate_offline"):
-            offline_evaluation = evaluation_record(policy, settings, protocol)
+            offline_evaluation = common.evaluation_record(policy, settings, inputs)
     hyper = {"algo": algo, "d3rlpy": d3rlpy.__version__, "config": learner.config.serialize_to_dict()}
     if algo in OFFLINE_ONLY:
         notes = f"d3rlpy {algo}: {offline_steps} offline gradient steps, no online phase (a reference row)"
-        return unit_record(algo, seed, ds, protocol, 0, hyper, offline_evaluation, [], clock,
-                           offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+        return common.unit_record(algo, inputs, ds, 0, hyper, offline_evaluation, [], clock,
+                                  offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
     with clock.phase("online"):
         _fit_online(d3rlpy, learner, ds, settings, offline, seed, out, logs, online_steps, offline_ratio,
                     updates_per_step)
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(policy, settings, protocol)
+        evaluation = common.evaluation_record(policy, settings, inputs)
     extra = {}
     if best_of_n:
         with clock.phase("evaluate_best_of_n"):
             best = BestOfNPolicy(learner, ds.observation_space, ds.action_space, best_of_n)
-            extra["evaluation_best_of_n"] = {"n": best_of_n, **evaluation_record(best, settings, protocol)}
+            extra["evaluation_best_of_n"] = {"n": best_of_n, **common.evaluation_record(best, settings, inputs)}
     hyper.update(offline_ratio=float(offline_ratio), updates_per_step=updates_per_step)
     settings_text = "the settings of d3rlpy's reproduction" if published_settings(d3rlpy, algo) else "d3rlpy's defaults"
     if algo == "rlpd":
@@ -278,18 +211,14 @@ def run_d3rlpy(
     else:
         notes = (f"d3rlpy {algo}: {offline_steps} offline gradient steps, then fit_online with {updates_per_step} "
                  f"update(s) per env step and {offline_ratio:g} of each batch from the offline data; {settings_text}")
-    record = unit_record(algo, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                         clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
+    record = common.unit_record(algo, inputs, ds, online_steps, hyper, evaluation, common.learning_curve(out / "online"),
+                                clock, offline_steps=offline_steps, offline_evaluation=offline_evaluation, notes=notes)
     return {**record, **extra}
 
 
 def _fit_online(d3rlpy: Any, learner: Any, ds: OfflineDataset, settings: Mapping[str, Any], offline: Any, seed: int,
                 out: Path, logs: Any, online_steps: int, offline_ratio: float, updates_per_step: int) -> None:
     """``fit_online`` on the dataset's environment, ``offline_ratio`` of each batch from ``offline``."""
-    from stable_baselines3.common.monitor import Monitor
-
-    from envs.collection import make_traffic_env
-
     env = make_traffic_env(**settings)
     try:
         ds.check_compatible(env)

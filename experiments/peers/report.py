@@ -1,12 +1,4 @@
-"""Aggregation and report of the head-to-head: ``peers.json``, ``peers.md`` and the PNGs.
-
-Statistics are run-level (:mod:`experiments.common.stats`): every run (seed) is reduced to one
-score per metric, the mean over its evaluation episodes. Per arm: the IQM and mean of every metric
-over runs with 95 % stratified bootstrap CIs, the offline-only score of the arms with an offline
-phase, the online learning curve and its area per run, and the wall / CPU seconds. Per (UA2C arm,
-peer): the probability of improvement over runs, per metric, and the mean paired per-seed
-difference of the reward with its interval (the arms of a seed share its data and scenarios).
-"""
+"""Aggregation and report of the head-to-head: ``peers.json``, ``peers.md`` and the PNGs."""
 
 from __future__ import annotations
 
@@ -17,18 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.stats import (
-    LOWER_IS_BETTER,
-    interval,
-    iqm_with_ci,
-    learning_curve_area,
-    mean_with_ci,
-    paired_difference,
-    probability_of_improvement,
-    run_scores,
-    score_matrix,
-    verdict,
-)
+from experiments.common import records, stats
+from experiments.common.records import figure, section, table
 from experiments.peers.budget import ARM_LABELS, ARMS, UA2C_ARMS
 from sb3_ua2c.execution import format_length_shares, length_shares
 
@@ -37,9 +19,7 @@ METRICS = ("reward", "collision", "merge_success", "cumulative_jerk", "jerk_per_
 #: Metrics of the probability of improvement.
 POI_METRICS = ("reward", "collision", "merge_success", "jerk_per_step")
 CURVE_BINS = 20
-#: Figure 2's claims (a)-(c) read from the UA2C arms of a run: claim -> (arm X, arm Y, metric, evaluation,
-#: higher is better). (a), (b): the offline chunk policy (whole chunks) against the one-step baseline;
-#: (c): adaptive execution (the defaults, ``ua2c``) against fixed execution after the online phase.
+#: Figure 2's claims (a)-(c) among the UA2C arms: claim -> (arm X, arm Y, metric, evaluation, higher is better).
 FIGURE2_CLAIMS = {
     "(a) offline reward, chunks (k = 5) vs one-step": ("ua2c_fixed", "ua2c_onestep", "reward", "offline_evaluation", True),
     "(b) offline cum. jerk, chunks vs one-step": ("ua2c_fixed", "ua2c_onestep", "cumulative_jerk", "offline_evaluation",
@@ -49,12 +29,7 @@ FIGURE2_CLAIMS = {
 
 
 def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins: int = CURVE_BINS) -> np.ndarray:
-    """One seed's online returns on a grid of env steps: bin ``i`` covers steps
-    ``(i, i + 1] · online_steps / bins`` and holds the mean return of the episodes ending there; an empty
-    bin repeats the previous one (NaN before the first episode).
-
-    :return: ``(bins,)``
-    """
+    """``(bins,)``: one seed's mean online return per bin of env steps (an empty bin repeats the previous one)."""
     width = online_steps / bins
     out = np.full(bins, np.nan)
     ends = np.array([e["end_step"] for e in episodes], dtype=float)
@@ -69,8 +44,7 @@ def binned_curve(episodes: Sequence[Mapping[str, Any]], online_steps: int, bins:
 
 
 def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[str, list[float]]:
-    """Mean over seeds of binned curves ``(n_seeds, bins)`` with a 95 % percentile bootstrap band over seeds
-    (NaN where no seed has an episode yet)."""
+    """Mean over seeds of binned curves ``(n_seeds, bins)`` with a 95 % percentile bootstrap band over seeds."""
     n = per_seed.shape[0]
     rng = np.random.default_rng(seed)
     with np.errstate(all="ignore"), warnings.catch_warnings():  # all-NaN columns before the first episode
@@ -82,9 +56,7 @@ def curve_band(per_seed: np.ndarray, reps: int = 2000, seed: int = 0) -> dict[st
 
 
 def arm_length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "evaluation") -> list[float] | None:
-    """The ``L_t`` histogram of an arm's evaluation plans, pooled over its runs: the share of plans with
-    ``L_t = 1 .. k`` (``k`` = the arm's ``chunk_size``, 1 for a peer); ``None`` when a record keeps no lengths
-    (records made before 2026-12-04) or has no such evaluation."""
+    """The share of an arm's evaluation plans with ``L_t = 1 .. k`` (``None`` where a record keeps none)."""
     if not all(r.get(evaluation) for r in records):
         return None
     episodes = [e for r in records for e in r[evaluation]["episodes"]]
@@ -105,22 +77,23 @@ def lengths_table(summary: Mapping[str, Any]) -> list[str]:
     def cell(shares: list[float] | None) -> str:
         return "–" if shares is None else format_length_shares(shares)
 
-    return ["| arm | offline: L_t = 1..k, % of plans | online |", "|---|---|---|",
-            *(f"| {label} | {cell(shares.get('offline'))} | {cell(shares.get('online'))} |" for label, shares in rows)]
+    return table(["arm", "offline: L_t = 1..k, % of plans", "online"],
+                 ([label, cell(shares.get("offline")), cell(shares.get("online"))] for label, shares in rows))
 
 
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
-    scores = {m: score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
-    metrics = iqm_with_ci(scores, reps=reps)
-    means = mean_with_ci(scores, reps=reps)
+    scores = {m: stats.score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
+    metrics = stats.iqm_with_ci(scores, reps=reps)
+    means = stats.mean_with_ci(scores, reps=reps)
     offline = None
     if all(r.get("offline_evaluation") for r in records):
-        offline = {m: iqm_with_ci({"x": score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
+        offline = {m: stats.iqm_with_ci({"x": stats.score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
                    for m in METRICS}
     ordered = sorted(records, key=lambda r: r["seed"])
-    areas = [learning_curve_area([e["end_step"] for e in r["online_episodes"]], [e["reward"] for e in r["online_episodes"]])
+    areas = [stats.learning_curve_area([e["end_step"] for e in r["online_episodes"]],
+                                       [e["reward"] for e in r["online_episodes"]])
              if r["online_episodes"] else float("nan") for r in ordered]
     online_steps = int(records[0]["online_steps"])
     curve = None  # an offline-only reference row, or an evaluation variant of another arm, has no curve
@@ -136,7 +109,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         runs = {key: np.array([[np.mean([float(e[key]) for e in r["online_episodes"]])] for r in ordered])
                 for key in ("collision", "reward")}  # key -> (n_runs, 1)
         training = {"episodes_per_run": float(np.mean([len(r["online_episodes"]) for r in records])),
-                    **mean_with_ci(runs, reps=reps)}
+                    **stats.mean_with_ci(runs, reps=reps)}
     return {
         "label": ARM_LABELS.get(first["arm"], first["arm"]),
         "seeds": seeds,
@@ -146,7 +119,7 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         "metrics": metrics,
         "means": means,
         "per_seed": {m: scores[m][:, 0].tolist() for m in METRICS},
-        "curve_area": {"per_seed": areas, **(mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
+        "curve_area": {"per_seed": areas, **(stats.mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
                                              if np.all(np.isfinite(areas)) else {})},
         "offline_metrics": offline,
         "length_shares": {"offline": arm_length_shares(records, "offline_evaluation"),
@@ -162,34 +135,30 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
 
 def pair_summary(records: Mapping[str, Sequence[Mapping[str, Any]]], ours: str, peer: str,
                  reps: int = 2000) -> dict[str, Any]:
-    """Probability that a run of ``ours`` improves on a run of ``peer``, per metric (lower-is-better
-    metrics negated), and, over the seeds both ran, the paired per-seed reward difference."""
-    out: dict[str, Any] = {m: probability_of_improvement(score_matrix(records[ours], m), score_matrix(records[peer], m),
-                                                         higher_is_better=m not in LOWER_IS_BETTER, reps=reps)
-                           for m in POI_METRICS}
+    """``P(ours > peer)`` per metric and, over the seeds both ran, the paired per-seed reward difference."""
+    out: dict[str, Any] = {m: stats.probability_of_improvement(
+        stats.score_matrix(records[ours], m), stats.score_matrix(records[peer], m),
+        higher_is_better=m not in stats.LOWER_IS_BETTER, reps=reps) for m in POI_METRICS}
     scores = shared_seed_scores(records, ours, peer, "reward")
     if scores is not None:
-        out["reward_paired"] = paired_difference(*scores)
+        out["reward_paired"] = stats.paired_difference(*scores)
     return out
 
 
 def shared_seed_scores(records: Mapping[str, Sequence[Mapping[str, Any]]], x: str, y: str, metric: str,
                        evaluation: str = "evaluation") -> tuple[np.ndarray, np.ndarray] | None:
-    """One score per run of arms ``x`` and ``y`` on the seeds both ran (``(n_shared,)`` each, seed by seed),
-    or ``None`` when they share fewer than 2 seeds or a record lacks ``evaluation``."""
+    """The scores of arms ``x`` and ``y`` on the 2 or more seeds both ran, else ``None``."""
     shared = sorted({r["seed"] for r in records.get(x, ())} & {r["seed"] for r in records.get(y, ())})
     if len(shared) < 2:
         return None
     xs, ys = ([r for r in records[a] if r["seed"] in shared] for a in (x, y))
     if not all(r.get(evaluation) for r in (*xs, *ys)):
         return None
-    return run_scores(xs, metric, evaluation), run_scores(ys, metric, evaluation)
+    return stats.run_scores(xs, metric, evaluation), stats.run_scores(ys, metric, evaluation)
 
 
 def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
-    """Figure 2's claims (:data:`FIGURE2_CLAIMS`) within this run: for each claim whose two arms ran on
-    2 or more shared seeds, the paired per-seed difference (positive: X does better; for jerk, X is
-    smoother) with its interval, and the two arms' means over those seeds."""
+    """Per claim of :data:`FIGURE2_CLAIMS` whose arms share 2 or more seeds, their means and paired difference."""
     out = {}
     for claim, (x, y, metric, evaluation, higher) in FIGURE2_CLAIMS.items():
         scores = shared_seed_scores(records, x, y, metric, evaluation)
@@ -197,7 +166,7 @@ def figure2_claims(records: Mapping[str, Sequence[Mapping[str, Any]]]) -> dict[s
             continue
         sx, sy = scores  # (n_shared,) each
         out[claim] = {"x": x, "y": y, "metric": metric, "evaluation": evaluation, "x_mean": float(sx.mean()),
-                      "y_mean": float(sy.mean()), **paired_difference(sx, sy, higher_is_better=higher)}
+                      "y_mean": float(sy.mean()), **stats.paired_difference(sx, sy, higher_is_better=higher)}
     return out
 
 
@@ -206,16 +175,13 @@ def figure2_lines(summary: Mapping[str, Any]) -> list[str]:
     claims = summary.get("figure2") or {}
     if not claims:
         return ["The run lacks the UA2C arms these claims compare (fixed, one-step, adaptive)."]
-    lines = ["| claim | X | Y | paired difference, X better when > 0 [95 % CI] | X ahead in |", "|---|---|---|---|---|"]
-    for claim, c in claims.items():
-        lines.append(f"| {claim} | {c['x_mean']:.2f} | {c['y_mean']:.2f} | {interval(c)} | {c['x_better_runs']} of "
-                     f"{c['runs']} |")
-    return lines
+    return table(["claim", "X", "Y", "paired difference, X better when > 0 [95 % CI]", "X ahead in"],
+                 ([claim, f"{c['x_mean']:.2f}", f"{c['y_mean']:.2f}", stats.interval(c),
+                   f"{c['x_better_runs']} of {c['runs']}"] for claim, c in claims.items()))
 
 
 def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 2000) -> dict[str, Any]:
-    """``peers.json`` without its header: per arm (:func:`arm_summary`), per (UA2C arm, peer) pair and
-    Figure 2's claims among the UA2C arms (:func:`figure2_claims`)."""
+    """``peers.json`` without its header: per arm, per (UA2C arm, peer) pair and Figure 2's claims."""
     arms = [a for a in ARMS if records.get(a)] + sorted(set(records) - set(ARMS))
     if not arms:
         raise ValueError("no arm records to aggregate: run the units first")
@@ -229,19 +195,18 @@ def aggregate(records: Mapping[str, Sequence[Mapping[str, Any]]], reps: int = 20
 
 
 def verdicts(summary: Mapping[str, Any]) -> list[str]:
-    """Plain sentences: for every (UA2C arm, peer), the paired per-seed reward difference with its
-    interval (the verdict follows the interval, not the sign), then the probability of improvement."""
+    """Per (UA2C arm, peer), the verdict of the paired reward difference and the probability of improvement."""
     lines = []
     for pair in summary["pairs"].values():
         o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
         poi = pair["reward"]
-        head = verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
-        lines.append(f"{head}; P({o} > {p}) = {interval(poi, 'probability', sign='')}")
+        head = stats.verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
+        lines.append(f"{head}; P({o} > {p}) = {stats.interval(poi, 'probability', sign='')}")
     return lines
 
 
 def headline(summary: Mapping[str, Any]) -> str:
-    """The best UA2C arm against the best peer by IQM reward (who leads, by how much), then their means."""
+    """The best UA2C arm against the best peer by IQM reward, then their means."""
     arms = summary["arms"]
     reward = {a: arms[a]["metrics"]["reward"]["iqm"] for a in arms}
     ours = [a for a in arms if a in UA2C_ARMS]
@@ -250,7 +215,7 @@ def headline(summary: Mapping[str, Any]) -> str:
         return "Only one side was run: no head-to-head verdict."
     o, p = max(ours, key=reward.get), max(peers, key=reward.get)
     pair = summary["pairs"][f"{o}_vs_{p}"]
-    paired = (verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
+    paired = (stats.verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
               else "no shared seeds")
     return (f"Best UA2C arm by IQM reward over runs, {ARM_LABELS.get(o, o)} ({reward[o]:.2f}); best peer, "
             f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}). Paired per seed: {paired}; P(UA2C > peer) = "
@@ -267,105 +232,86 @@ def _mean(arm: Mapping[str, Any], metric: str) -> float:
 def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
     if stat is None:
         return "–"
-    return interval(stat, key, digits, sign="")
+    return stats.interval(stat, key, digits, sign="")
+
+
+def _digits(metric: str) -> int:
+    return 1 if metric == "cumulative_jerk" else 2
 
 
 def results_table(summary: Mapping[str, Any]) -> list[str]:
-    """The per-arm table (IQM [95 % CI]) in Markdown."""
-    lines = ["| arm | reward | collision | merge success | cum. jerk | jerk/step | offline reward | wall / CPU min per seed |",
-             "|---|---|---|---|---|---|---|---|"]
-    for arm in summary["arms"].values():
-        m = arm["metrics"]
-        offline = arm["offline_metrics"]["reward"] if arm["offline_metrics"] else None
-        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {_cell(m['collision'])} | {_cell(m['merge_success'])} "
-                     f"| {_cell(m['cumulative_jerk'], 1)} | {_cell(m['jerk_per_step'])} | {_cell(offline)} "
-                     f"| {arm['wall_seconds']['mean_per_seed'] / 60:.1f} / {arm['cpu_seconds']['mean_per_seed'] / 60:.1f} |")
-    return lines
+    """The per-arm IQMs [95 % CI] of :data:`METRICS`, the offline reward and the minutes per seed."""
+    return table(["arm", "reward", "collision", "merge success", "cum. jerk", "jerk/step", "offline reward",
+                  "wall / CPU min per seed"],
+                 ([arm["label"], *(_cell(arm["metrics"][m], _digits(m)) for m in METRICS),
+                   _cell(arm["offline_metrics"]["reward"] if arm["offline_metrics"] else None),
+                   f"{arm['wall_seconds']['mean_per_seed'] / 60:.1f} / {arm['cpu_seconds']['mean_per_seed'] / 60:.1f}"]
+                  for arm in summary["arms"].values()))
 
 
 def means_table(summary: Mapping[str, Any]) -> list[str]:
-    """The per-arm means [95 % CI] in Markdown: collision and merge success as rates."""
-    lines = ["| arm | reward | collision rate | merge rate | cum. jerk | jerk/step | online curve area |",
-             "|---|---|---|---|---|---|---|"]
-    for arm in summary["arms"].values():
-        m, area = arm["means"], arm.get("curve_area", {})
-        lines.append(f"| {arm['label']} | {_cell(m['reward'], key='mean')} | {_cell(m['collision'], key='mean')} "
-                     f"| {_cell(m['merge_success'], key='mean')} | {_cell(m['cumulative_jerk'], 1, 'mean')} "
-                     f"| {_cell(m['jerk_per_step'], key='mean')} | {_cell(area, key='mean') if 'mean' in area else '–'} |")
-    return lines
+    """The per-arm means [95 % CI] of :data:`METRICS` (0/1 metrics as rates) and the online curve area."""
+    def area(arm: Mapping[str, Any]) -> str:
+        stat = arm.get("curve_area", {})
+        return _cell(stat, key="mean") if "mean" in stat else "–"
+
+    return table(["arm", "reward", "collision rate", "merge rate", "cum. jerk", "jerk/step", "online curve area"],
+                 ([arm["label"], *(_cell(arm["means"][m], _digits(m), "mean") for m in METRICS), area(arm)]
+                  for arm in summary["arms"].values()))
 
 
 def training_table(summary: Mapping[str, Any]) -> list[str]:
-    """What each arm did while it learned online: per run, the collision rate and the mean reward of its
-    online training episodes, then their mean over runs [95 % CI] (Markdown)."""
+    """Per arm, the collision rate and mean reward of its online training episodes, means over runs [95 % CI]."""
     rows = [(arm["label"], arm.get("training_episodes")) for arm in summary["arms"].values()]
-    lines = ["| arm | training episodes per run | collision rate | reward per episode |", "|---|---|---|---|"]
-    lines += [f"| {label} | {t['episodes_per_run']:.0f} | {_cell(t['collision'], key='mean')} "
-              f"| {_cell(t['reward'], 1, 'mean')} |" for label, t in rows if t]
-    return lines
+    return table(["arm", "training episodes per run", "collision rate", "reward per episode"],
+                 ([label, f"{t['episodes_per_run']:.0f}", _cell(t["collision"], key="mean"),
+                   _cell(t["reward"], 1, "mean")] for label, t in rows if t))
 
 
 def readme_table(summary: Mapping[str, Any]) -> list[str]:
     """The short table for the README: IQM and mean reward, collision and merge rates per arm."""
-    lines = ["| arm | reward (IQM [95 % CI]) | mean reward | collision rate | merge rate |", "|---|---|---|---|---|"]
-    for arm in summary["arms"].values():
-        m, mean = arm["metrics"], arm["means"]
-        lines.append(f"| {arm['label']} | {_cell(m['reward'])} | {mean['reward']['mean']:.2f} | "
-                     f"{mean['collision']['mean']:.2f} | {mean['merge_success']['mean']:.2f} |")
-    return lines
+    return table(["arm", "reward (IQM [95 % CI])", "mean reward", "collision rate", "merge rate"],
+                 ([arm["label"], _cell(arm["metrics"]["reward"]),
+                   *(f"{arm['means'][m]['mean']:.2f}" for m in ("reward", "collision", "merge_success"))]
+                  for arm in summary["arms"].values()))
 
 
 def pairs_table(summary: Mapping[str, Any]) -> list[str]:
-    lines = ["| UA2C arm | peer | " + " | ".join(f"P(better) {m}" for m in POI_METRICS) + " |",
-             "|---|---|" + "---|" * len(POI_METRICS)]
-    for pair in summary["pairs"].values():
-        cells = [interval(pair[m], "probability", sign="") for m in POI_METRICS]
-        lines.append(f"| {ARM_LABELS.get(pair['ua2c'])} | {ARM_LABELS.get(pair['peer'], pair['peer'])} | "
-                     + " | ".join(cells) + " |")
-    return lines
+    return table(["UA2C arm", "peer", *(f"P(better) {m}" for m in POI_METRICS)],
+                 ([ARM_LABELS.get(pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"]),
+                   *(stats.interval(pair[m], "probability", sign="") for m in POI_METRICS)]
+                  for pair in summary["pairs"].values()))
 
 
 def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
-    """``peers_curves.png`` (online return against env steps, mean over seeds with a 95 % band) and
-    ``peers_iqm.png`` (IQM bars with 95 % CIs: reward, collision, jerk per step)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
+    """``peers_curves.png`` (the online learning curves) and ``peers_iqm.png`` (IQM bars with 95 % CIs)."""
     arms = summary["arms"]
-    fig = Figure(figsize=(10, 4.5), dpi=120)  # no pyplot: the caller's backend stays untouched
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    for name, arm in arms.items():
-        c = arm["curve"]
-        if c is None:
-            continue
-        (line,) = ax.plot(c["env_steps"], c["mean"], label=arm["label"], ls="-" if name in UA2C_ARMS else "--")
-        ax.fill_between(c["env_steps"], c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.15)
-    ax.set_xlabel("online env steps")
-    ax.set_ylabel("training episode return")
-    ax.set_title("Online learning curves (mean over seeds, 95 % bootstrap band)", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the curves, not over them
-    fig.tight_layout()
-    curves = out / "peers_curves.png"
-    fig.savefig(curves)
-
+    curves, bars = out / "peers_curves.png", out / "peers_iqm.png"
+    with figure(curves, (10, 4.5)) as fig:
+        ax = fig.add_subplot()
+        for name, arm in arms.items():
+            c = arm["curve"]
+            if c is None:
+                continue
+            (line,) = ax.plot(c["env_steps"], c["mean"], label=arm["label"], ls="-" if name in UA2C_ARMS else "--")
+            ax.fill_between(c["env_steps"], c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.15)
+        ax.set_xlabel("online env steps")
+        ax.set_ylabel("training episode return")
+        ax.set_title("Online learning curves (mean over seeds, 95 % bootstrap band)", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the curves, not over them
     panels = (("reward", "return"), ("collision", "collision rate"), ("jerk_per_step", "jerk per step [m/s³]"))
-    fig = Figure(figsize=(11, 4.2), dpi=120)
-    FigureCanvasAgg(fig)
     names = list(arms)
-    for j, (metric, ylabel) in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), j + 1)
-        stats = [arms[n]["metrics"][metric] for n in names]
-        iqms = np.array([s["iqm"] for s in stats])
-        err = np.array([[s["iqm"] - s["ci_low"] for s in stats], [s["ci_high"] - s["iqm"] for s in stats]])
-        colors = ["#1f77b4" if n in UA2C_ARMS else "#9e9e9e" for n in names]
-        ax.bar(range(len(names)), iqms, yerr=np.clip(err, 0, None), capsize=4, color=colors)
-        ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
-        ax.set_title(f"IQM {metric} (95 % CI)", fontsize=9)
-        ax.set_ylabel(ylabel)
-    fig.tight_layout()
-    bars = out / "peers_iqm.png"
-    fig.savefig(bars)
+    with figure(bars, (11, 4.2)) as fig:
+        for j, (metric, ylabel) in enumerate(panels):
+            ax = fig.add_subplot(1, len(panels), j + 1)
+            cis = [arms[n]["metrics"][metric] for n in names]
+            iqms = np.array([s["iqm"] for s in cis])
+            err = np.array([[s["iqm"] - s["ci_low"] for s in cis], [s["ci_high"] - s["iqm"] for s in cis]])
+            colors = ["#1f77b4" if n in UA2C_ARMS else "#9e9e9e" for n in names]
+            ax.bar(range(len(names)), iqms, yerr=np.clip(err, 0, None), capsize=4, color=colors)
+            ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+            ax.set_title(f"IQM {metric} (95 % CI)", fontsize=9)
+            ax.set_ylabel(ylabel)
     return [curves, bars]
 
 
@@ -374,8 +320,7 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
     obs = summary["observation"]
     calql = summary["budget"]["calql_offline_steps"]
     return [
-        "## Protocol",
-        "",
+        *section("Protocol"),
         f"- Online budget: **{b['finetune_steps']} env steps for every arm**; offline: {b['pretrain_steps']} gradient "
         f"steps for UA2C and the d3rlpy arms except RLPD" + (f" (Cal-QL: {calql})" if calql else "")
         + f", on the seed's Figure-2 "
@@ -442,59 +387,28 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         f"{est['workers']} worker(s).",
         *(f"Records reused from the run in `{run}` (the same seeds, data and scenarios): {', '.join(arms)}."
           for run, arms in summary.get("reused", {}).items()),
-        "",
         *_protocol_lines(summary),
-        "",
-        "## Verdict (final evaluation reward, paired per seed)",
-        "",
-        f"**{headline(summary)}**",
-        "",
-        *(f"- {v}" for v in verdicts(summary)),
-        "",
-        "## Results (IQM over runs [95 % CI]; one score per run = the mean over its evaluation episodes)",
-        "",
-        *results_table(summary),
-        "",
-        "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with an "
-        "offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared offline "
-        "checkpoint.",
-        "",
-        "For the 0/1 metrics (collision, merge success) a run's score is its rate; the IQM over runs trims the "
-        "quarter of runs at each end, so the means over runs are in the next table.",
-        "",
-        "## Means over runs [95 % CI], and the area under each run's online learning curve",
-        "",
-        *means_table(summary),
-        "",
-        "## While learning: the online training episodes (means over runs [95 % CI])",
-        "",
-        *training_table(summary),
-        "",
-        "## Executed lengths L_t (evaluation plans, pooled over runs)",
-        "",
-        *lengths_table(summary),
-        "",
-        "## Figure 2's claims among the UA2C arms of this run (paired per seed)",
-        "",
-        *figure2_lines(summary),
-        "",
-        "X and Y are the means over the shared seeds. (a), (b): the offline checkpoints, the chunk policy "
-        "executing whole chunks against the one-step baseline; (b) is a cost, so a positive difference means the "
-        "chunk policy is smoother. (c): after the online phase, δ = 0 against δ = inf from the same checkpoint.",
-        "",
-        "## Probability of improvement of each UA2C arm over each peer (over runs)",
-        "",
-        *pairs_table(summary),
-        "",
-        "Collision and jerk are costs: P(better) is the probability of a LOWER value.",
-        "",
-        "![online learning curves](peers_curves.png)",
-        "",
-        "![IQM bars](peers_iqm.png)",
-        "",
-        "## Short table (for the README)",
-        "",
-        *readme_table(summary),
+        *section("Verdict (final evaluation reward, paired per seed)", f"**{headline(summary)}**", "",
+                 *(f"- {v}" for v in verdicts(summary))),
+        *section("Results (IQM over runs [95 % CI]; one score per run = the mean over its evaluation episodes)",
+                 *results_table(summary), "",
+                 "Offline reward: the checkpoint after the offline phase, evaluated on the same scenarios (arms with "
+                 "an offline phase; UA2C acting by its own rule). Times are per seed; a UA2C arm counts its shared "
+                 "offline checkpoint.", "",
+                 "For the 0/1 metrics (collision, merge success) a run's score is its rate; the IQM over runs trims "
+                 "the quarter of runs at each end, so the means over runs are in the next table."),
+        *section("Means over runs [95 % CI], and the area under each run's online learning curve", *means_table(summary)),
+        *section("While learning: the online training episodes (means over runs [95 % CI])", *training_table(summary)),
+        *section("Executed lengths L_t (evaluation plans, pooled over runs)", *lengths_table(summary)),
+        *section("Figure 2's claims among the UA2C arms of this run (paired per seed)", *figure2_lines(summary), "",
+                 "X and Y are the means over the shared seeds. (a), (b): the offline checkpoints, the chunk policy "
+                 "executing whole chunks against the one-step baseline; (b) is a cost, so a positive difference "
+                 "means the chunk policy is smoother. (c): after the online phase, δ = 0 against δ = inf from the "
+                 "same checkpoint."),
+        *section("Probability of improvement of each UA2C arm over each peer (over runs)", *pairs_table(summary), "",
+                 "Collision and jerk are costs: P(better) is the probability of a LOWER value.", "",
+                 "![online learning curves](peers_curves.png)", "", "![IQM bars](peers_iqm.png)"),
+        *section("Short table (for the README)", *readme_table(summary)),
         "",
     ]
     return "\n".join(lines)
@@ -502,6 +416,4 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
     """Write ``peers.json``, ``peers.md`` and the PNGs into ``out``; return their paths."""
-    from experiments.common import records
-
     return records.write_report(out, "peers", summary, format_markdown(summary), lambda d: write_plots(summary, d))

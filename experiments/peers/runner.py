@@ -1,94 +1,37 @@
-"""Units and stages of a head-to-head run, through :mod:`experiments.common.runner`.
-
-Three stages, each a list of units run with one executor (local processes or a Ray cluster):
-
-1. ``seed<s>/dataset``: the seed's Figure-2 dataset (``<work>/seed<s>/dataset``);
-2. ``seed<s>/pretrain_k<k>[_paper]``: the UA2C checkpoints the UA2C arms start from (one per chunk
-   length and configuration, shared by the arms that start from it);
-3. ``seed<s>/<arm>``: one unit per arm and seed, its record in ``<raw>/seed<s>/<arm>.json``.
-
-Every unit has a result file and is skipped when it exists: an interrupted run resumes, and deleting
-one arm's record (or ``--rerun``) runs that unit alone again. A run directory records its budget
-(``<work>/peers_budget.json``) and refuses to resume under another one.
-"""
+"""The three stages of a head-to-head run: datasets, the UA2C arms' checkpoints, and one unit per arm and seed."""
 
 from __future__ import annotations
 
 import json
-import math
-import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from experiments.common import records
 from experiments.common.names import DATASET_SEED_BASE, SCENARIO_BASES
-from experiments.common.records import check_budget_record
 from experiments.common.runner import Executor, Unit, UnitResult, run_units
-from experiments.peers.budget import (
-    D3RLPY_ARMS,
-    ONLINE_SB3_ARMS,
-    UA2C_ARMS,
-    PeersBudget,
-    estimate_units,
-)
-
-MANIFEST = "peers_budget.json"
+from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
+from experiments.peers.budget import D3RLPY_ARMS, ONLINE_SB3_ARMS, UA2C_ARMS, PeersBudget, estimate_units
+from experiments.peers.common import ArmInputs, run_behaviour
+from experiments.peers.ua2c_arms import build_checkpoint, build_dataset, run_ua2c_arm
 
 
-@dataclass(frozen=True)
-class PeersPaths:
-    """Where a run keeps its files: the report in ``out``, one JSON record per (arm, seed) in ``raw``
-    (small, worth keeping with the report), datasets, checkpoints and models in ``work``."""
+class PeersPaths(records.RunPaths):
+    """:class:`~experiments.common.records.RunPaths` of a head-to-head: one JSON record per (arm, seed) in ``raw``."""
 
-    out: Path
-    raw: Path
-    work: Path
-
-    @classmethod
-    def under(cls, out: str | os.PathLike, raw: str | os.PathLike | None = None,
-              work: str | os.PathLike | None = None) -> PeersPaths:
-        """Default layout: ``<out>/peers_raw`` and ``<out>/peers_work`` unless given (absolute paths:
-        units on a Ray cluster read and write them)."""
-        out = Path(out).resolve()
-        return cls(out, Path(raw).resolve() if raw else out / "peers_raw",
-                   Path(work).resolve() if work else out / "peers_work")
+    NAME = "peers"
+    BUDGET = PeersBudget
 
     def record(self, seed: int, arm: str) -> Path:
         return self.raw / f"seed{seed}" / f"{arm}.json"
 
-    def seed_work(self, seed: int) -> Path:
-        return self.work / f"seed{seed}"
-
-
-def check_manifest(paths: PeersPaths, budget: PeersBudget) -> None:
-    """Record the budget on the first call; later calls must pass the same one (a stored unit of another
-    budget would be silently reused; :func:`~experiments.common.records.check_budget_record`)."""
-    check_budget_record(paths.work / MANIFEST, budget.to_dict(), f"the run in {paths.work}",
-                        read=lambda stored: _manifest_budget(stored).to_dict())
-
-
-def _manifest_budget(values: dict[str, Any]) -> PeersBudget:
-    """The budget of a manifest (JSON: ``"inf"`` for an infinite δ)."""
-    delta = values["ua2c"].get("delta_sweep")
-    values["ua2c"]["delta_sweep"] = [math.inf if d == "inf" else d for d in delta or []]
-    return PeersBudget.from_dict(values)
-
-
-def read_manifest(paths: PeersPaths) -> PeersBudget | None:
-    path = paths.work / MANIFEST
-    return _manifest_budget(json.loads(path.read_text())) if path.is_file() else None
-
 
 def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
-    """The budget's evaluation scenarios of ``seed`` (``PeersBudget.scenarios``): ``eval_seeds`` and
-    ``eval_episodes`` of every unit."""
+    """The ``eval_seeds`` and ``eval_episodes`` of every unit of ``seed``."""
     return {"eval_seeds": (SCENARIO_BASES[budget.scenarios] + seed,), "eval_episodes": budget.ua2c.eval_episodes}
 
 
 def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
-    from experiments.peers.ua2c_arms import build_dataset
-
     b = budget.ua2c
     return [Unit(f"seed{s}/dataset", build_dataset,
                  {"path": str(paths.seed_work(s) / "dataset"), "n_episodes": b.dataset_episodes,
@@ -97,8 +40,6 @@ def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) 
 
 
 def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
-    from experiments.peers.ua2c_arms import build_checkpoint
-
     ua2c_arms = {budget.pretrain_name(a): a for a in arms if a in UA2C_ARMS}  # one arm per checkpoint
     b = budget.ua2c
     return [Unit(f"seed{s}/{name}", build_checkpoint,
@@ -109,10 +50,6 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
-    from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online
-    from experiments.peers.common import ArmInputs, run_behaviour
-    from experiments.peers.ua2c_arms import run_ua2c_arm
-
     inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
                        seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
     fn: Callable[..., Any]
@@ -139,11 +76,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
 
 def run_peers(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths, executor: Executor,
               printer: Callable[[str], Any] | None = print) -> list[UnitResult]:
-    """Run (or resume) the three stages; return the results of the arm units (in the order run).
-
-    Arm units are submitted most expensive first, so the cores stay busy to the end.
-    """
-    check_manifest(paths, budget)
+    """Run (or resume) the three stages, the arm units most expensive first; return the arm units' results."""
+    paths.check_budget(budget)
     for s in seeds:
         paths.seed_work(s).mkdir(parents=True, exist_ok=True)
     run_units(dataset_units(seeds, budget, paths), executor, printer)

@@ -1,11 +1,5 @@
-"""Peer arms built on Stable-Baselines3: SAC and TQC online from scratch, and SAC with the offline
-dataset in its replay buffer (RLPD's symmetric sampling).
-
-Hyperparameters come from ``zoo_configs/{sac,tqc}.yml`` (:func:`~experiments.peers.common.zoo_hyperparams`),
-overridable key by key, and are stated in the unit's record. The environment is the dataset's
-(same observation, with or without the style context c_t, and the same ``Box`` action space); the
-zoo file's ``env_wrapper`` is not applied, so every arm sees the observation of the data.
-"""
+"""Peer arms built on Stable-Baselines3 with the hyperparameters of ``zoo_configs/<algo>.yml``: SAC, TQC and
+CrossQ online from scratch, and SAC with the offline dataset in its replay buffer."""
 
 from __future__ import annotations
 
@@ -18,23 +12,17 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from sb3_contrib import TQC, CrossQ
+from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from envs.collection import make_traffic_env
+from experiments.peers import common
 from experiments.peers.budget import ONLINE_SB3_ARMS
-from experiments.peers.common import (
-    ArmInputs,
-    PhaseClock,
-    episode_transitions,
-    evaluation_record,
-    learning_curve,
-    read_dataset,
-    unit_record,
-    zoo_hyperparams,
-)
 from sb3_ua2c.checks import check_int
-from sb3_ua2c.offline import OfflineDataset
+from sb3_ua2c.pipeline import env_settings
 
 #: Differences of the offline-mix arm from RLPD (Ball et al. 2023), stated in its record.
 RLPD_DIFFERENCES = (
@@ -52,15 +40,8 @@ def scale_actions(actions: np.ndarray, action_space: spaces.Box) -> np.ndarray:
 
 
 class OfflineMixReplayBuffer(ReplayBuffer):
-    """SB3 replay buffer whose minibatches draw ``offline_ratio`` of their rows from fixed offline
-    transitions and the rest from the online transitions added as usual (RLPD's symmetric
-    sampling: half of each batch offline). While the online part is empty, the whole batch is offline.
-
-    Paper: Ball et al., "Efficient Online Reinforcement Learning with Offline Data" (RLPD), ICML 2023.
-
-    :param offline_ratio: fraction of each batch drawn from the offline transitions, in [0, 1]
-    (the other parameters are :class:`~stable_baselines3.common.buffers.ReplayBuffer`'s)
-    """
+    """SB3 replay buffer drawing ``offline_ratio`` of each minibatch (all while there are no online rows) from
+    fixed offline transitions: RLPD's symmetric sampling (Ball et al., ICML 2023)."""
 
     def __init__(
         self,
@@ -81,8 +62,7 @@ class OfflineMixReplayBuffer(ReplayBuffer):
         self.offline: ReplayBuffer | None = None
 
     def add_offline(self, transitions: Mapping[str, np.ndarray]) -> None:
-        """Store offline transitions (:func:`~experiments.peers.common.episode_transitions`; actions in the
-        environment's units, scaled here to [-1, 1] as SB3 stores them for SAC and TQC)."""
+        """Store offline transitions (:func:`~experiments.peers.common.episode_transitions`, actions scaled to [-1, 1])."""
         n = len(transitions["rewards"])
         if n == 0:
             raise ValueError("offline transitions must not be empty")
@@ -108,93 +88,58 @@ class OfflineMixReplayBuffer(ReplayBuffer):
             None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)))
 
 
-def _algorithm(algo: str) -> type:
-    if algo == "sac":
-        from stable_baselines3 import SAC
-
-        return SAC
-    if algo == "tqc":
-        from sb3_contrib import TQC
-
-        return TQC
-    if algo == "crossq":
-        from sb3_contrib import CrossQ
-
-        return CrossQ
-    raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
+#: The algorithm of each online SB3 arm
+ALGORITHMS = {"sac": SAC, "tqc": TQC, "crossq": CrossQ}
 
 
-def _train_and_evaluate(arm: str, algo: str, inputs: ArmInputs, ds: OfflineDataset, params: dict[str, Any],
-                        offline_ratio: float | None, notes: str) -> dict[str, Any]:
-    from envs.collection import make_traffic_env
-    from sb3_ua2c.pipeline import env_settings
-
+def _train_and_evaluate(arm: str, algo: str, inputs: common.ArmInputs, hyperparams: Mapping[str, Any] | None,
+                        conf_file: str | os.PathLike | None, offline_ratio: float | None, notes: str) -> dict[str, Any]:
+    check_int("online_steps", inputs.online_steps)
+    ds = inputs.load_dataset()
+    params = {**common.zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file),
+              **(hyperparams or {})}
     th.set_num_threads(1)
-    seed, online_steps, protocol = inputs.seed, inputs.online_steps, inputs.protocol
     out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     settings = env_settings(ds)
-    clock = PhaseClock()
+    clock = common.PhaseClock()
     env = Monitor(make_traffic_env(**settings), str(out / "online"), info_keywords=("collision",))
     try:
         ds.check_compatible(env)
         kwargs = copy.deepcopy(params)  # SB3 adds keys to policy_kwargs: keep the record as given
         if offline_ratio is not None:
             kwargs.update(replay_buffer_class=OfflineMixReplayBuffer, replay_buffer_kwargs={"offline_ratio": offline_ratio})
-        model = _algorithm(algo)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)  # same as default: quiet
+        if algo not in ALGORITHMS:
+            raise ValueError(f"algo must be one of {list(ONLINE_SB3_ARMS)}, got {algo!r}")
+        model = ALGORITHMS[algo]("MlpPolicy", env, seed=inputs.seed, device="cpu", verbose=0, **kwargs)
         if offline_ratio is not None:
-            model.replay_buffer.add_offline(episode_transitions(ds.episodes))
+            model.replay_buffer.add_offline(common.episode_transitions(ds.episodes))
         with clock.phase("online"):
-            model.learn(online_steps)
+            model.learn(inputs.online_steps)
         model.save(out / "model.zip")
     finally:
         env.close()
     with clock.phase("evaluate"):
-        evaluation = evaluation_record(model, settings, protocol)
+        evaluation = common.evaluation_record(model, settings, inputs)
     hyper = {"algo": algo, **params}
     if offline_ratio is not None:
         hyper["offline_ratio"] = offline_ratio
-    return unit_record(arm, seed, ds, protocol, online_steps, hyper, evaluation, learning_curve(out / "online"),
-                       clock, notes=notes)
+    return common.unit_record(arm, inputs, ds, inputs.online_steps, hyper, evaluation,
+                              common.learning_curve(out / "online"), clock, notes=notes)
 
 
-def run_sb3_online(inputs: ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
+def run_sb3_online(inputs: common.ArmInputs, algo: str = "sac", hyperparams: Mapping[str, Any] | None = None,
                    conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """One unit: SB3 SAC, sb3-contrib TQC or sb3-contrib CrossQ trained online from scratch for ``online_steps`` env
-    steps on the dataset's environment, then evaluated on the held-out scenarios.
-
-    The dataset only defines the environment (and is recorded); its transitions are not used.
-
-    :param inputs: the unit's directory (``model.zip``, ``online.monitor.csv``), dataset, seed, online steps
-        and evaluation scenarios (:class:`~experiments.peers.common.ArmInputs`)
-    :param algo: ``"sac"``, ``"tqc"`` or ``"crossq"``
-    :param hyperparams: constructor arguments that replace the zoo file's, key by key
-    :param conf_file: zoo YAML file (default ``zoo_configs/<algo>.yml``)
-    :return: the unit's record (:func:`~experiments.peers.common.unit_record`)
-    """
-    check_int("online_steps", inputs.online_steps)
-    ds = read_dataset(inputs.dataset)
-    params = {**zoo_hyperparams(algo, ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
+    """One unit: SB3 SAC, sb3-contrib TQC or CrossQ trained online from scratch, then evaluated."""
     notes = f"{algo.upper()} online from scratch, hyperparameters from zoo_configs/{algo}.yml"
-    return _train_and_evaluate(algo, algo, inputs, ds, params, None, notes)
+    return _train_and_evaluate(algo, algo, inputs, hyperparams, conf_file, None, notes)
 
 
 def run_sb3_offline_mix(
-    inputs: ArmInputs,
+    inputs: common.ArmInputs,
     offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
     hyperparams: Mapping[str, Any] | None = None,
     conf_file: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
-    """One unit: SB3 SAC with the seed's offline transitions in its replay buffer, ``offline_ratio``
-    of every minibatch drawn from them (:class:`OfflineMixReplayBuffer`), trained online for
-    ``online_steps`` env steps, then evaluated on the held-out scenarios. What differs from RLPD is
-    in :data:`RLPD_DIFFERENCES` (also in the record's ``notes``).
-
-    Parameters as :func:`run_sb3_online` (the algorithm is SAC), plus:
-
-    :param offline_ratio: fraction of each batch drawn from the offline data (RLPD: 0.5)
-    """
-    check_int("online_steps", inputs.online_steps)
-    ds = read_dataset(inputs.dataset)
-    params = {**zoo_hyperparams("sac", ds.metadata.get("env_id", "MixedTraffic-v0"), conf_file), **(hyperparams or {})}
-    return _train_and_evaluate("sac_offline_mix", "sac", inputs, ds, params, offline_ratio, RLPD_DIFFERENCES)
+    """One unit: :func:`run_sb3_online` of SAC with the offline transitions in its buffer (:data:`RLPD_DIFFERENCES`)."""
+    return _train_and_evaluate("sac_offline_mix", "sac", inputs, hyperparams, conf_file, offline_ratio, RLPD_DIFFERENCES)

@@ -1,11 +1,4 @@
-"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``.
-
-Each tuned method has three configurations in :data:`GRID`, fixed before any run: its published settings,
-then two moves of the knob that matters most for it. Configuration ``i`` of every method runs in
-``<out>/c<i>`` on the validation seeds and scenarios at the head-to-head's default budget. Per method the
-configuration with the highest mean final reward over its runs is chosen (a tie keeps the earlier one);
-once every method is chosen, ``<out>/selected.json`` holds the ``--budget`` of the test run
-(``python -m experiments peers --budget @results/peers_tuning/selected.json ...``)."""
+"""The same small tuning budget for every method of the head-to-head: ``python -m experiments peers-tuning``."""
 
 from __future__ import annotations
 
@@ -20,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common.cli import check_extras, harness_main
+from experiments.common.cli import check_extras, harness_main, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import run_header
+from experiments.common.records import previous_report, run_header, table
 from experiments.common.runner import make_executor
 from experiments.common.stats import run_scores
 from experiments.peers.budget import (
@@ -33,21 +26,16 @@ from experiments.peers.budget import (
     PeersBudget,
     estimate_units,
 )
-from experiments.peers.cli import check_selection, needed_extras
+from experiments.peers.cli import needed_extras
 from experiments.peers.runner import PeersPaths, load_records, run_peers
+from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments peers-tuning"
 
 
 @dataclass(frozen=True)
 class Setting:
-    """One configuration of one method.
-
-    :param label: what it sets, for the report
-    :param kwargs: the method's hyperparameters: UA2C's constructor arguments (on top of the budget's
-        ``algo_kwargs``, for every UA2C arm), a peer's ``peer_kwargs``
-    :param budget: :class:`~experiments.peers.budget.PeersBudget` keys (RLPD's updates per env step)
-    """
+    """One configuration of one method: its label, hyperparameters and :class:`PeersBudget` keys."""
 
     label: str
     kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -112,8 +100,7 @@ def config_paths(out: str | Path, index: int) -> PeersPaths:
 
 
 def collect(out: str | Path, arms: Sequence[str], seeds: Sequence[int]) -> dict[str, Any]:
-    """Per method, each configuration's final reward and collision rate per run, and the choice (``None`` while a
-    configuration lacks a seed's record)."""
+    """Per method, each configuration's rewards and collision rates per run, and the choice once all ran."""
     methods: dict[str, Any] = {}
     records = [load_records(config_paths(out, i), seeds) for i in range(N_CONFIGS)]
     for arm in arms:
@@ -154,16 +141,16 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
         "episodes). With this few runs the choice is a rule applied the same way to every method, not a finding: "
         "differences between configurations are mostly within the spread between runs.",
         "",
-        "| method | configuration | final reward per run | mean | collision rate per run | chosen |",
-        "|---|---|---|---|---|---|",
     ]
-    for arm, m in summary["methods"].items():
-        for row, mean in zip(m["configs"], m["mean_reward"], strict=True):
-            chosen = "**yes**" if m["chosen"] == row["config"] else ("pending" if m["chosen"] is None else "")
-            lines.append(f"| {ARM_LABELS[arm]} | {row['config']}: {row['label']} | "
-                         f"{', '.join(f'{r:.1f}' for r in row['reward']) or '—'} | "
-                         f"{'—' if mean is None else f'{mean:.1f}'} | "
-                         f"{', '.join(f'{c:.2f}' for c in row['collision']) or '—'} | {chosen} |")
+
+    def cells(arm: str, m: Mapping[str, Any], row: Mapping[str, Any], mean: float | None) -> list[str]:
+        chosen = "**yes**" if m["chosen"] == row["config"] else ("pending" if m["chosen"] is None else "")
+        return [ARM_LABELS[arm], f"{row['config']}: {row['label']}", ", ".join(f"{r:.1f}" for r in row["reward"]) or "—",
+                "—" if mean is None else f"{mean:.1f}", ", ".join(f"{c:.2f}" for c in row["collision"]) or "—", chosen]
+
+    lines += table(["method", "configuration", "final reward per run", "mean", "collision rate per run", "chosen"],
+                   (cells(arm, m, row, mean) for arm, m in summary["methods"].items()
+                    for row, mean in zip(m["configs"], m["mean_reward"], strict=True)))
     if not every_method_chosen(summary["methods"]):
         lines += ["", "Pending: `selected.json`, the test run's `--budget`, is written once every method is chosen.", ""]
     else:
@@ -202,8 +189,9 @@ def _run(args: argparse.Namespace, base: PeersBudget) -> None:
 
 
 def _check(args: argparse.Namespace) -> PeersBudget:
-    check_selection(args.seeds, [], args.workers)  # the head-to-head's checks of --seeds and --workers
-    check_extras(needed_extras(args.arms, args.ray_address, args.report_only))
+    select_seeds(args.seeds, [])  # the head-to-head's check of --seeds
+    check_int("--workers", args.workers)
+    check_extras(needed_extras(args.arms, args.report_only))
     unknown = [a for a in args.arms if a not in GRID]
     if unknown:
         raise ValueError(f"--arms: {unknown} are not tuned; choose from {list(TUNED_ARMS)}")
@@ -216,7 +204,7 @@ def _check(args: argparse.Namespace) -> PeersBudget:
 
 def _run_and_report(args: argparse.Namespace, base: PeersBudget, command: str) -> int:
     out = Path(args.out)
-    command, date = run_header(command, out / "tuning.json" if args.report_only else None)
+    command, date = run_header(command, previous_report(out / "tuning.json", args.report_only))
     if not args.report_only:
         _run(args, base)
     methods = collect(out, args.arms, args.seeds)

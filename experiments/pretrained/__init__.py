@@ -1,2 +1,1 @@
-"""The pretrained Phase-1 checkpoint of ``MixedTraffic-v0`` shipped in ``rl-trained-agents/``
-(rl-baselines3-zoo's trained-agents layout): ``python -m experiments make-checkpoint``."""
+"""The pretrained checkpoint of ``rl-trained-agents/``: ``python -m experiments make-checkpoint``."""

@@ -1,26 +1,13 @@
 """Build the pretrained Phase-1 UA2C checkpoint of ``MixedTraffic-v0`` in rl-zoo's trained-agents layout.
 
-``python -m experiments make-checkpoint --out rl-trained-agents`` (from the repository root)
-
-1. reads the ``MixedTraffic-v0`` entry of ``zoo_configs/ua2c.yml`` through rl-zoo3's own
-   ``ExperimentManager`` and writes ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0/{config,args}.yml``
-   as ``ua2c-zoo train --algo ua2c --env MixedTraffic-v0 --gym-packages envs --conf-file
-   zoo_configs/ua2c.yml -f <out> --seed <seed>`` writes them;
-2. collects the offline dataset with the driving-style context c_t, as ``python -m envs main`` does
-   (``python -m envs collect --style-classifier default``);
-3. pre-trains UA2C on it (``python -m envs pretrain``) with the zoo config's constructor
-   arguments, so ``-i`` and ``enjoy`` accept the checkpoint;
-4. saves the weights without the optimizers' moment estimates as ``<out>/ua2c/MixedTraffic-v0_1/MixedTraffic-v0.zip``;
-5. evaluates it with ``envs.evaluation.evaluate`` on held-out scenarios and writes ``README.md``.
-
-The dataset is written to a temporary directory (or ``--work``) and not kept in ``<out>``.
-"""
+``python -m experiments make-checkpoint --out rl-trained-agents``, from the repository root (``docs/zoo.md``)."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
 import datetime
+import inspect
 import json
 import os
 import shutil
@@ -32,9 +19,21 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import rl_zoo3
+import rl_zoo3.train as zoo_train
+import stable_baselines3
 import torch
 
 from envs.cli import MAIN_BUDGET
+from envs.collection import TRAFFIC_DEFAULTS
+from envs.evaluation import evaluate, summarize
+from envs.wrappers import DrivingStyleContext
+from sb3_ua2c import UA2C
+from sb3_ua2c.defaults import defaults
+from sb3_ua2c.offline import load_dataset
+from sb3_ua2c.pipeline import env_settings, save_atomic
+from sb3_ua2c.version import __version__
+from sb3_ua2c.zoo import ZOO_KEYS, register
 
 ALGO = "ua2c"
 ENV_ID = "MixedTraffic-v0"
@@ -72,19 +71,7 @@ def _argv(argv: Sequence[str]) -> Iterator[None]:
 
 
 def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, dict[str, Any]]:
-    """
-    Run rl-zoo3's ``train`` up to the point where it saves ``config.yml`` and ``args.yml``.
-
-    rl-zoo3's ``ExperimentManager`` reads the hyperparameters and writes both files with its own
-    ``_save_config``; no environment is built and nothing is trained.
-
-    :return: the params folder (``<log_folder>/ua2c/MixedTraffic-v0_<n>/MixedTraffic-v0``) and the
-        hyperparameters as saved in ``config.yml``
-    """
-    import rl_zoo3.train as zoo_train
-
-    from sb3_ua2c.zoo import register
-
+    """Run rl-zoo3's ``train`` up to where it saves ``config.yml`` and ``args.yml``; return where, and what."""
     register()
     captured: dict[str, Any] = {}
     base = zoo_train.ExperimentManager
@@ -107,15 +94,8 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
 
 
 def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
-    """
-    ``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments
-    (every key but rl-zoo3's own, ``sb3_ua2c.zoo.ZOO_KEYS``; ``policy_kwargs`` evaluated as rl-zoo3
-    does) without ``policy`` (pre-training uses ``MlpPolicy``) and without ``discrete_action_dims``,
-    which must equal the one ``pretrain`` adds itself (``TRAFFIC_DEFAULTS``; JSON keys would be strings).
-    """
-    from envs.collection import TRAFFIC_DEFAULTS
-    from sb3_ua2c.zoo import ZOO_KEYS
-
+    """``python -m envs pretrain --hyperparams`` of the zoo config: its constructor arguments but those
+    ``pretrain`` sets itself, which must agree."""
     kwargs = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
     if isinstance(kwargs.get("policy_kwargs"), str):
         kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"nn": torch.nn})  # as rl-zoo3 does
@@ -128,18 +108,9 @@ def pretrain_arguments(hyperparams: dict[str, Any]) -> dict[str, Any]:
 
 
 def style_classifier_of(env_wrapper: Any) -> str | None:
-    """
-    ``--style-classifier`` that gives the observation of the zoo config's ``env_wrapper`` entry.
-
-    ``collect`` / ``pretrain`` build the env with ``DrivingStyleContext``'s default ``update_every``,
-    so the entry must use it too.
-    """
+    """The ``--style-classifier`` that gives the observation of the zoo config's ``env_wrapper``."""
     if env_wrapper is None:
         return None
-    import inspect
-
-    from envs.wrappers import DrivingStyleContext
-
     entries = env_wrapper if isinstance(env_wrapper, list) else [env_wrapper]
     if len(entries) != 1:
         raise ValueError(f"expected one env_wrapper (DrivingStyleContext) in the zoo config, got {env_wrapper!r}")
@@ -157,9 +128,6 @@ def style_classifier_of(env_wrapper: Any) -> str | None:
 
 def drop_optimizer_moments(src: Path, dst: Path) -> Path:
     """Save ``src`` again without the optimizers' per-parameter state (Adam moments): the weights only."""
-    from sb3_ua2c import UA2C
-    from sb3_ua2c.pipeline import save_atomic
-
     model = UA2C.load(src, device="cpu")
     for optimizer in (model.actor.optimizer, model.critic.optimizer):
         optimizer.state.clear()
@@ -261,19 +229,15 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="rl-trained-agents", help="trained-agents folder (rl-zoo's -f)")
     parser.add_argument("--conf-file", default="zoo_configs/ua2c.yml")
-    parser.add_argument("--episodes", type=int, default=None, help="default: main's 200")
-    parser.add_argument("--steps", type=int, default=None, help="gradient steps (default: main's 3000)")
+    parser.add_argument("--episodes", type=int, default=EPISODES, help="default: main's 200")
+    parser.add_argument("--steps", type=int, default=PRETRAIN_STEPS, help="gradient steps (default: main's 3000)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--eval-episodes", type=int, default=None, help="default: main's 10")
+    parser.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="default: main's 10")
     parser.add_argument("--work", default=None, help="keep the dataset and the full checkpoint here")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing <out>/ua2c/MixedTraffic-v0_1")
     args = parser.parse_args(argv)
 
     torch.set_num_threads(1)
-    episodes = EPISODES if args.episodes is None else args.episodes
-    steps = PRETRAIN_STEPS if args.steps is None else args.steps
-    eval_episodes = EVAL_EPISODES if args.eval_episodes is None else args.eval_episodes
-
     out = Path(args.out)
     log_folder = os.path.relpath(out) if out.is_absolute() else str(out)
     dest = experiment_dir(out)
@@ -288,75 +252,65 @@ def main(argv: Sequence[str] | None = None, prog: str = SCRIPT) -> int:
     params_path, hyperparams = write_zoo_config(log_folder, args.conf_file, args.seed)
     if params_path.resolve() != (dest / ENV_ID).resolve():
         raise RuntimeError(f"rl-zoo3 wrote to {params_path}, expected {dest / ENV_ID}")
-    zoo_command = "ua2c-zoo train " + " ".join(zoo_train_argv("rl-trained-agents", args.conf_file, args.seed))
     (params_path / "command.txt").write_text(f"{SCRIPT} --out {out.name}\n")
-    style = style_classifier_of(hyperparams.get("env_wrapper"))
-    algo_kwargs = pretrain_arguments(hyperparams)
-
     with contextlib.ExitStack() as stack:
         work = Path(args.work) if args.work else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        dataset_dir, full_ckpt = work / "dataset", work / "pretrained.zip"
-        collect_argv = [
-            "collect", "--episodes", str(episodes), "--seed", str(args.seed), "--out", str(dataset_dir),
-            "--overwrite", "--no-progress", "--threads", "1"] + (["--style-classifier", style] if style else [])
-        pretrain_argv = ["pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(steps),
-                         "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
-                         "--no-progress", "--threads", "1"]
-        collect_seconds = run_cli(collect_argv)
-        pretrain_seconds = run_cli(pretrain_argv)
-
-        from envs.evaluation import evaluate, summarize
-        from sb3_ua2c.offline import load_dataset
-        from sb3_ua2c.pipeline import env_settings
-
-        dataset = load_dataset(dataset_dir)
-        shipped = drop_optimizer_moments(full_ckpt, checkpoint_path(out))
-        full_size = full_ckpt.stat().st_size
-        eval_seed = args.seed + 100
-        reset_seeds = {1000 * eval_seed + i for i in range(eval_episodes)}  # envs.evaluation.evaluate's resets
-        if reset_seeds & {episode.seed for episode in dataset.episodes}:
-            raise RuntimeError("the evaluation scenarios overlap the dataset's")
-        t0 = time.time()
-        results = evaluate(shipped, n_episodes=eval_episodes, seeds=(eval_seed,), env_settings_=env_settings(dataset))
-        print(f"evaluation: {time.time() - t0:.0f} s", flush=True)
-
-        import rl_zoo3
-        import stable_baselines3
-
-        from sb3_ua2c.defaults import defaults
-        from sb3_ua2c.version import __version__
-
-        algo_kwargs = {**defaults(), **algo_kwargs}  # what the checkpoint was trained with
-
-        def shown(cmd: list[str]) -> str:
-            text = "python -m envs " + " ".join(_quote(a) for a in cmd)
-            return text.replace(str(dataset_dir), "DATA/dataset").replace(str(full_ckpt), "DATA/pretrained.zip")
-
-        info = {
-            "out_name": out.name,
-            "zoo_command": zoo_command,
-            "collect_command": shown(collect_argv),
-            "pretrain_command": shown(pretrain_argv),
-            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-            "versions": f"{__version__} / {stable_baselines3.__version__} / {rl_zoo3.__version__} / {torch.__version__}",
-            "n_episodes": len(dataset),
-            "total_steps": dataset.total_steps,
-            "mean_return": dataset.metadata["mean_return"],
-            "steps": steps,
-            "batch_size": algo_kwargs.get("batch_size"),
-            "seed": args.seed,
-            "collect_seconds": collect_seconds,
-            "pretrain_seconds": pretrain_seconds,
-            "size": shipped.stat().st_size,
-            "full_size": full_size,
-            "eval_seed": eval_seed,
-            "entropy_threshold": algo_kwargs.get("entropy_threshold"),
-            "summary": summarize(results),
-            "episodes": results,
-        }
+        info = build(args, out, work, hyperparams)
         (dest / "README.md").write_text(readme(info))
     check_no_machine_paths(dest, [str(Path.cwd()), str(Path.home()), tempfile.gettempdir() + "/"])
     print(json.dumps(info["summary"], indent=1))
-    print(f"checkpoint: {shipped} ({info['size']} bytes)")
+    print(f"checkpoint: {checkpoint_path(out)} ({info['size']} bytes)")
     return 0
 
+
+def build(args: argparse.Namespace, out: Path, work: Path, hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """Collect, pre-train, save and evaluate the checkpoint (the dataset in ``work``); return what the README shows."""
+    style = style_classifier_of(hyperparams.get("env_wrapper"))
+    algo_kwargs = pretrain_arguments(hyperparams)
+    dataset_dir, full_ckpt = work / "dataset", work / "pretrained.zip"
+    collect_argv = [
+        "collect", "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(dataset_dir),
+        "--overwrite", "--no-progress", "--threads", "1"] + (["--style-classifier", style] if style else [])
+    pretrain_argv = ["pretrain", "--dataset", str(dataset_dir), "--out", str(full_ckpt), "--steps", str(args.steps),
+                     "--seed", str(args.seed), "--hyperparams", json.dumps(algo_kwargs, sort_keys=True),
+                     "--no-progress", "--threads", "1"]
+    collect_seconds = run_cli(collect_argv)
+    pretrain_seconds = run_cli(pretrain_argv)
+    dataset = load_dataset(dataset_dir)
+    shipped = drop_optimizer_moments(full_ckpt, checkpoint_path(out))
+    eval_seed = args.seed + 100
+    reset_seeds = {1000 * eval_seed + i for i in range(args.eval_episodes)}  # envs.evaluation.evaluate's resets
+    if reset_seeds & {episode.seed for episode in dataset.episodes}:
+        raise RuntimeError("the evaluation scenarios overlap the dataset's")
+    t0 = time.time()
+    results = evaluate(shipped, n_episodes=args.eval_episodes, seeds=(eval_seed,), env_settings_=env_settings(dataset))
+    print(f"evaluation: {time.time() - t0:.0f} s", flush=True)
+
+    trained_with = {**defaults(), **algo_kwargs}  # the zoo entry's values over the library's defaults
+
+    def shown(cmd: list[str]) -> str:
+        text = "python -m envs " + " ".join(_quote(a) for a in cmd)
+        return text.replace(str(dataset_dir), "DATA/dataset").replace(str(full_ckpt), "DATA/pretrained.zip")
+
+    return {
+        "out_name": out.name,
+        "zoo_command": "ua2c-zoo train " + " ".join(zoo_train_argv("rl-trained-agents", args.conf_file, args.seed)),
+        "collect_command": shown(collect_argv),
+        "pretrain_command": shown(pretrain_argv),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "versions": f"{__version__} / {stable_baselines3.__version__} / {rl_zoo3.__version__} / {torch.__version__}",
+        "n_episodes": len(dataset),
+        "total_steps": dataset.total_steps,
+        "mean_return": dataset.metadata["mean_return"],
+        "steps": args.steps,
+        "batch_size": trained_with["batch_size"],
+        "seed": args.seed,
+        "collect_seconds": collect_seconds,
+        "pretrain_seconds": pretrain_seconds,
+        "size": shipped.stat().st_size,
+        "full_size": full_ckpt.stat().st_size,
+        "eval_seed": eval_seed,
+        "entropy_threshold": trained_with["entropy_threshold"],
+        "summary": summarize(results),
+        "episodes": results,
+    }

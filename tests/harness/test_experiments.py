@@ -22,7 +22,7 @@ from experiments.common.stats import (
 )
 from experiments.fig2 import budget as fig2_budget
 from experiments.fig2 import cli as fig2_cli
-from experiments.fig2 import manifest, units
+from experiments.fig2 import units
 from experiments.fig2.aggregation import aggregate, online_curve, online_phase_stats
 from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, estimate_seconds
 from experiments.fig2.report import format_markdown
@@ -120,7 +120,7 @@ def test_budget_validation_names_the_key() -> None:
     for bad in (1, "yes", np.bool_(True)):  # written to JSON: Python bools only
         with pytest.raises(ValueError, match="Fig2Budget.sampled_eval must be a bool"):
             Fig2Budget(sampled_eval=bad)
-    assert "sampled_eval" not in manifest.UNIT_FIELDS  # it only adds evaluation units
+    assert "sampled_eval" not in fig2_budget.UNIT_FIELDS  # it only adds evaluation units
     for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.flow_sweep"):
             Fig2Budget(flow_sweep=(bad,))
@@ -161,7 +161,7 @@ def test_finetune_kwargs_reach_every_fine_tuned_arm_on_top_of_the_cadence() -> N
         Fig2Budget(finetune_kwargs={"gradient_steps": 4})
     with pytest.raises(ValueError, match="finetune_kwargs must be a mapping"):
         Fig2Budget(finetune_kwargs=[("smooth_weight", 1.0)])
-    assert "finetune_kwargs" in manifest.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
+    assert "finetune_kwargs" in fig2_budget.UNIT_FIELDS  # a resumed run refuses other Phase-2 overrides
 
 
 def test_quick_budget_arms_act_with_the_n_elite_their_labels_say() -> None:
@@ -341,7 +341,7 @@ def test_aggregate_pools_online_phases_by_hand(tmp_path: Path) -> None:
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.online_replicates"):
             QUICK_BUDGET.replace(online_replicates=bad)
-    assert "online_replicates" not in manifest.UNIT_FIELDS  # more phases only add units
+    assert "online_replicates" not in fig2_budget.UNIT_FIELDS  # more phases only add units
     assert names.replicate_name("fixed", 0) == "fixed" and names.replicate_name("fixed", 2) == "fixed_r2"
 
 
@@ -615,7 +615,7 @@ def test_a_seed_in_use_is_refused(quick_run: Path, tmp_path: Path, capsys) -> No
         with units.seed_lock(work, ".lock-style"):
             assert (work / ".lock-style").read_text() == str(os.getpid())
     with pytest.raises(ValueError, match="part must be one of \\['main', 'style', 'all'\\], got 'both'"):
-        units.run_fig2_seed(3, QUICK_BUDGET, manifest.RunPaths.under(tmp_path), part="both")
+        units.run_fig2_seed(3, QUICK_BUDGET, fig2_budget.RunPaths.under(tmp_path), part="both")
 
 
 def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path, monkeypatch) -> None:
@@ -626,9 +626,9 @@ def test_online_seed_offset_reseeds_phase_2_only(quick_run: Path, tmp_path: Path
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="Fig2Budget.online_seed_offset"):
             QUICK_BUDGET.replace(online_seed_offset=bad)
-    assert "online_seed_offset" in manifest.UNIT_FIELDS  # a resumed run refuses another offset
+    assert "online_seed_offset" in fig2_budget.UNIT_FIELDS  # a resumed run refuses another offset
     # the pre-trained units of seed 1 are reused; the fine-tuned arms are trained again
-    paths = manifest.RunPaths.under(tmp_path)
+    paths = fig2_budget.RunPaths.under(tmp_path)
     shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
     shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))  # the offline evaluations
     for arm in ("adaptive", "fixed", "adaptive_style"):
@@ -652,7 +652,7 @@ def test_online_replicates_train_both_arms_again_from_the_same_checkpoint(
 
     from sb3_ua2c import pipeline
 
-    paths = manifest.RunPaths.under(tmp_path)
+    paths = fig2_budget.RunPaths.under(tmp_path)
     shutil.copytree(quick_run / "fig2_work" / "seed1", paths.seed_work(1))
     shutil.copytree(quick_run / "fig2_raw" / "seed1", paths.seed_raw(1))
     for path in [*paths.seed_work(1).glob("*_r1.zip"), *paths.seed_raw(1).glob("*_r1*.json")]:
@@ -695,7 +695,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
     assert QUICK_BUDGET.arm_kwargs(1) == {"batch_size": 32, "chunk_size": 1, "entropy_threshold": 0.0}
     assert Fig2Budget.from_dict(budget.to_dict()) == budget
     assert Fig2Budget.from_dict({k: v for k, v in Fig2Budget().to_dict().items() if k != "onestep_kwargs"}) == Fig2Budget()
-    assert "onestep_kwargs" in manifest.UNIT_FIELDS  # a resumed run refuses another one-step size
+    assert "onestep_kwargs" in fig2_budget.UNIT_FIELDS  # a resumed run refuses another one-step size
     with pytest.raises(ValueError, match=r"onestep_kwargs must not set \['chunk_size'\]"):
         Fig2Budget(onestep_kwargs={"chunk_size": 1})
     with pytest.raises(ValueError, match="onestep_kwargs must be a mapping"):
@@ -703,7 +703,7 @@ def test_onestep_kwargs_reach_the_one_step_arm_only(quick_run: Path, tmp_path: P
     with pytest.raises(ValueError, match="elite_sweep holds 16, more than the 8 candidates"):
         Fig2Budget(onestep_kwargs={"n_candidates": 8})  # the default elite sweep reaches 16
     # the runner passes them to the k = 1 unit alone
-    paths = manifest.RunPaths.under(tmp_path)
+    paths = fig2_budget.RunPaths.under(tmp_path)
     paths.seed_work(1).mkdir(parents=True)
     shutil.copytree(quick_run / "fig2_work" / "seed1" / "dataset", paths.seed_work(1) / "dataset")
     calls = {}
@@ -849,7 +849,7 @@ def test_run_all_submits_every_main_part_before_the_style_parts(tmp_path: Path, 
 
     monkeypatch.setattr(units, "run_fig2_seed_unit", fake_seed_unit)
     lines: list[str] = []
-    executed = units.run_all([3, 1], QUICK_BUDGET, manifest.RunPaths.under(tmp_path), workers=1, printer=lines.append)
+    executed = units.run_all([3, 1], QUICK_BUDGET, fig2_budget.RunPaths.under(tmp_path), workers=1, printer=lines.append)
     assert calls == [(3, "main"), (1, "main"), (3, "style"), (1, "style")]
     assert executed == ["seed3/main/unit", "seed1/main/unit", "seed3/style/unit", "seed1/style/unit"]
     assert lines[0].startswith("seed 3 (main): 1 unit(s) run in ")

@@ -45,7 +45,8 @@ def test_pool_replicates_pools_every_online_phase_of_every_report(tmp_path, caps
                                  (0, "fixed_r1"): 100.0, (1, "adaptive"): 120.0, (1, "fixed"): 100.0})
     b = _report(tmp_path / "b", {(0, "adaptive"): 100.0, (0, "fixed"): 100.0, (1, "adaptive"): 130.0,
                                  (1, "fixed"): 100.0})
-    assert pool_replicates.arm_rewards(a) == {(0, 0): (110.0, 100.0), (0, 1): (90.0, 100.0), (1, 0): (120.0, 100.0)}
+    assert compare_runs.c_runs(a) == {(0, "adaptive"): (110.0, 100.0), (0, "adaptive_r1"): (90.0, 100.0),
+                                      (1, "adaptive"): (120.0, 100.0)}
     pool_replicates.main([str(a), str(b)], prog="pool-replicates")
     rows = capsys.readouterr().out.splitlines()
     # pooled: 5 runs, adaptive 110.0 against fixed 100.0, (c) +10 %; per run +10, -10, +20, 0, +30 %

@@ -62,7 +62,7 @@ def _no_unit_may_run(*args, **kwargs):
      'pip install "sb3-ua2c[peers]" && pip install --no-deps d3rlpy==2.8.1'),
     ("experiments.ogbench.cli", "experiments.ogbench.runner:run_benchmark", "ogbench", [],
      'pip install "sb3-ua2c[ogbench]"'),
-    ("experiments.execution.cli", "experiments.common.runner:run_units", "ogbench", ["--env", "ogbench"],
+    ("experiments.execution.cli", "experiments.execution.cli:run_units", "ogbench", ["--env", "ogbench"],
      'pip install "sb3-ua2c[ogbench]"'),
     ("experiments.fig2.cli", "experiments.fig2.cli:run_all", "ray", ["--ray-address", "auto"],
      'pip install "sb3-ua2c[peers]"'),

@@ -11,7 +11,7 @@ from gymnasium import spaces
 
 from envs.collection import collect_dataset
 from envs.evaluation import evaluate
-from experiments.peers import EvalProtocol, run_d3rlpy, run_sb3_offline_mix, run_sb3_online, zoo_hyperparams
+from experiments.peers import run_d3rlpy, run_sb3_offline_mix, run_sb3_online, zoo_hyperparams
 from experiments.peers.common import ArmInputs, episode_transitions, literal_call, recorded_path
 from experiments.peers.sb3_arms import OfflineMixReplayBuffer, scale_actions
 from sb3_ua2c.offline import Episode
@@ -175,16 +175,16 @@ def test_evaluate_serves_any_policy_with_predict(make_env):
         evaluate(42, env_settings_={"env_kwargs": {"time_limit": 2.0}})
 
 
-def test_eval_protocol_rejects_bad_input():
-    assert EvalProtocol([3, 4], 2).seeds == (3, 4)
-    with pytest.raises(ValueError, match="eval_seeds"):
-        EvalProtocol((), 2)
-    with pytest.raises(ValueError, match="eval_episodes"):
-        EvalProtocol((1,), 0)
+def test_arm_inputs_reject_a_bad_evaluation_protocol():
     # an arm unit's inputs refuse a bad protocol when they are made, before any training
-    assert ArmInputs("out", "data", seed=1, online_steps=5, eval_seeds=[7], eval_episodes=2).protocol.seeds == (7,)
+    def inputs(seeds, episodes):
+        return ArmInputs("out", "data", seed=1, online_steps=5, eval_seeds=seeds, eval_episodes=episodes)
+
+    assert inputs([3, 4], 2).eval_seeds == (3, 4)
+    with pytest.raises(ValueError, match="eval_seeds"):
+        inputs((), 2)
     with pytest.raises(ValueError, match="eval_episodes"):
-        ArmInputs("out", "data", seed=1, online_steps=5, eval_seeds=[7], eval_episodes=0)
+        inputs((1,), 0)
 
 
 @pytest.fixture(scope="module")

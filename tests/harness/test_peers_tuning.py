@@ -12,7 +12,7 @@ from extras import require
 
 from experiments.peers import cli, tuning
 from experiments.peers.budget import FULL_PEERS_BUDGET, QUICK_PEERS_BUDGET, PeersBudget
-from experiments.peers.runner import MANIFEST, PeersPaths, arm_unit, check_manifest
+from experiments.peers.runner import PeersPaths, arm_unit
 
 
 def test_configuration_zero_is_every_method_at_its_published_settings():
@@ -63,10 +63,10 @@ def test_a_run_recorded_before_peer_kwargs_existed_resumes(tmp_path):
     values = FULL_PEERS_BUDGET.to_dict()
     del values["peer_kwargs"]
     paths.work.mkdir(parents=True)
-    (paths.work / MANIFEST).write_text(json.dumps(values, default=str).replace("Infinity", '"inf"'))
-    check_manifest(paths, FULL_PEERS_BUDGET)  # the same budget: no error
+    paths.manifest.write_text(json.dumps(values, default=str).replace("Infinity", '"inf"'))
+    paths.check_budget(FULL_PEERS_BUDGET)  # the same budget: no error
     with pytest.raises(ValueError, match=r"differs in \['peer_kwargs'\]"):
-        check_manifest(paths, FULL_PEERS_BUDGET.with_overrides({"peer_kwargs": {"sac": {"learning_rate": 1e-3}}}))
+        paths.check_budget(FULL_PEERS_BUDGET.with_overrides({"peer_kwargs": {"sac": {"learning_rate": 1e-3}}}))
 
 
 def _write(out: Path, config: int, arm: str, seed: int, rewards: list[float], collisions: list[bool]) -> None:
