@@ -23,7 +23,9 @@ from sb3_ua2c.critics import ChunkCritics, MLPChunkCritics, critic_defaults
 from sb3_ua2c.defaults import defaults as resolved_defaults
 
 REPO = Path(__file__).resolve().parents[2]
-SHIPPED = REPO / "rl-trained-agents" / "ua2c" / "MixedTraffic-v0_1" / "MixedTraffic-v0.zip"
+#: the Phase-1 checkpoint shipped in rl-trained-agents until 2026-12-07 (flat critic arguments, the
+#: execution rule as separate fields): the earlier layout, kept as a test fixture
+EARLIER = REPO / "tests" / "data" / "earlier_layout_checkpoint.zip"
 #: UA2C's arguments that make up the execution rule, by the field of ExecutionRule they fill
 RULE_ARGUMENTS = {
     "execution_rule": "rule",
@@ -201,17 +203,28 @@ def test_a_policy_saved_with_the_rule_as_five_arguments_loads_and_acts_the_same(
     np.testing.assert_array_equal(rollout_actions(loaded), rollout_actions(model.policy))
 
 
-def test_the_shipped_checkpoint_of_the_earlier_layout_loads():
-    with zipfile.ZipFile(SHIPPED) as ckpt:
+def test_a_checkpoint_of_the_earlier_layout_loads():
+    with zipfile.ZipFile(EARLIER) as ckpt:
         saved = json.loads(ckpt.read("data"))
     assert "execution" not in saved and saved["entropy_threshold"] == 0.0  # the earlier layout
-    model = UA2C.load(SHIPPED, device="cpu")
+    model = UA2C.load(EARLIER, device="cpu")
     assert model.execution == model.policy.execution == ExecutionRule()
     # its flat critic arguments: critic_kwargs of the Transformer; the same networks when given as now
     assert saved["policy_kwargs"] == {"critic_embed_dim": 64, "critic_n_layers": 1, "net_arch": [256, 256, 256]}
     assert model.policy.critic_kwargs == {"embed_dim": 64, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
     now = {"net_arch": [256, 256, 256], "critic_kwargs": {"embed_dim": 64, "n_layers": 1}}
-    assert UA2C.load(SHIPPED, device="cpu", policy_kwargs=now).policy.critic_kwargs == model.policy.critic_kwargs
+    assert UA2C.load(EARLIER, device="cpu", policy_kwargs=now).policy.critic_kwargs == model.policy.critic_kwargs
     with pytest.raises(ValueError, match="policy kwargs"):
-        UA2C.load(SHIPPED, device="cpu", policy_kwargs={**now, "critic_kwargs": {"embed_dim": 32}})
+        UA2C.load(EARLIER, device="cpu", policy_kwargs={**now, "critic_kwargs": {"embed_dim": 32}})
     assert (model.chunk_size, model.history_len) == (saved["chunk_size"], saved["history_len"])
+
+
+def test_the_shipped_checkpoint_carries_the_defaults():
+    shipped = REPO / "rl-trained-agents" / "ua2c" / "MixedTraffic-v0_1" / "MixedTraffic-v0.zip"
+    with zipfile.ZipFile(shipped) as ckpt:
+        saved = json.loads(ckpt.read("data"))
+    assert "execution" in saved and "entropy_threshold" not in saved  # this release's layout
+    model = UA2C.load(shipped, device="cpu")
+    expected = resolved_defaults()
+    assert (model.flow_steps, model.policy.net_arch, model.policy.n_elite) == (
+        expected["flow_steps"], expected["policy_kwargs"]["net_arch"], expected["policy_kwargs"]["n_elite"])
