@@ -478,11 +478,11 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert set(summary["sampled"]) == set(names.PAPER)
     assert (quick_run / "fig2_b_offline_jerk_sampled.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "seed0/evaluate/chunk_elite2" in units and "seed0/evaluate/onestep_flow2_elite2" in units
-    # (N, m): the arms act with UA2C's m (the quick budget leaves n_elite out); the checkpoints' N = 10 with
-    # m = 1 and 2, then N = 2 with UA2C's m, 1 and 2
-    m0 = DEFAULT_ELITE
-    assert summary["acting_default"] == {"flow_steps": library_default("flow_steps"), "n_elite": m0}
-    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(10, 1), (10, 2), (2, m0), (2, 1), (2, 2)]
+    # (N, m): the arms act with UA2C's m (the quick budget leaves n_elite out); the checkpoints' N (the
+    # library's) with m = 1 and 2, then N = 2 with UA2C's m, 1 and 2
+    m0, n0 = DEFAULT_ELITE, library_default("flow_steps")
+    assert summary["acting_default"] == {"flow_steps": n0, "n_elite": m0}
+    assert [(r["flow_steps"], r["n_elite"]) for r in summary["acting_sweep"]] == [(n0, 1), (n0, 2), (2, m0), (2, 1), (2, 2)]
     assert "Acting rule" in (quick_run / "fig2.md").read_text()
     md = (quick_run / "fig2.md").read_text()
     assert "+6.70%" in md and "-18.37%" in md and "+13.17%" in md
