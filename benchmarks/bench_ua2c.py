@@ -18,6 +18,7 @@ import argparse
 import ast
 import json
 import platform
+import shlex
 import statistics
 import sys
 import time
@@ -215,7 +216,7 @@ def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str],
         record |= {"seeds": seeds, "steps": steps, "eval_episodes": eval_episodes, "env": ENV_ID,
                    "ua2c_kwargs": ua2c_kwargs,
                    "ua2c_mean_executed_length": [None if np.isnan(v) else v for v in lengths],
-                   "command": " ".join(["python", *sys.argv]), "torch": th.__version__,
+                   "command": shlex.join(["python", *sys.argv]), "torch": th.__version__,
                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(record, indent=1) + "\n")

@@ -26,6 +26,8 @@ REPO = Path(__file__).resolve().parents[2]
 #: the Phase-1 checkpoint shipped in rl-trained-agents until 2026-12-07 (flat critic arguments, the
 #: execution rule as separate fields): the earlier layout, kept as a test fixture
 EARLIER = REPO / "tests" / "data" / "earlier_layout_checkpoint.zip"
+#: the Phase-1 checkpoint shipped in rl-trained-agents now
+SHIPPED = REPO / "rl-trained-agents" / "ua2c" / "MixedTraffic-v0_1" / "MixedTraffic-v0.zip"
 #: UA2C's arguments that make up the execution rule, by the field of ExecutionRule they fill
 RULE_ARGUMENTS = {
     "execution_rule": "rule",
@@ -220,11 +222,10 @@ def test_a_checkpoint_of_the_earlier_layout_loads():
 
 
 def test_the_shipped_checkpoint_carries_the_defaults():
-    shipped = REPO / "rl-trained-agents" / "ua2c" / "MixedTraffic-v0_1" / "MixedTraffic-v0.zip"
-    with zipfile.ZipFile(shipped) as ckpt:
+    with zipfile.ZipFile(SHIPPED) as ckpt:
         saved = json.loads(ckpt.read("data"))
     assert "execution" in saved and "entropy_threshold" not in saved  # this release's layout
-    model = UA2C.load(shipped, device="cpu")
+    model = UA2C.load(SHIPPED, device="cpu")
     expected = resolved_defaults()
     assert (model.flow_steps, model.policy.net_arch, model.policy.n_elite) == (
         expected["flow_steps"], expected["policy_kwargs"]["net_arch"], expected["policy_kwargs"]["n_elite"])
