@@ -44,15 +44,12 @@ def recorded_path(path: str | os.PathLike) -> str:
         return str(path)
 
 
-def previous_report(path: Path, report_only: bool) -> dict[str, Any]:
-    """The report a ``--report-only`` rebuild replaces (its parsed JSON at ``path``), else ``{}``."""
-    return json.loads(path.read_text()) if report_only and path.is_file() else {}
-
-
-def run_header(command: str, previous: Mapping[str, Any]) -> tuple[str, str]:
-    """The command and date a report records: now, or those of the ``previous`` report it rebuilds."""
+def run_header(command: str, report: Path, report_only: bool) -> tuple[str, str, dict[str, Any]]:
+    """The command and date a report records (now's, or with ``report_only`` those of the report at ``report`` that
+    the rebuild replaces) and that previous report's parsed JSON (``{}`` if none)."""
+    previous = json.loads(report.read_text()) if report_only and report.is_file() else {}
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    return previous.get("command") or command, previous.get("date") or date
+    return previous.get("command") or command, previous.get("date") or date, previous
 
 
 def command_line(prog: str, argv: Sequence[str]) -> str:

@@ -12,7 +12,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -74,11 +74,9 @@ def _call_unit_safely(unit: Unit) -> tuple[bool, Any, float, float]:
 
 def _call_unit_on_one_cpu(unit: Unit) -> tuple[bool, Any, float, float]:
     """:func:`_call_unit_safely` with torch on one thread: a unit owns one CPU (oversubscribed, torch's threads spin)."""
-    try:
+    with suppress(ImportError):  # a unit that does not use torch
         import torch
-    except ImportError:  # a unit that does not use torch
-        pass
-    else:
+
         torch.set_num_threads(1)
     return _call_unit_safely(unit)
 
@@ -180,9 +178,8 @@ def list_schedule_seconds(durations: Sequence[float], workers: int) -> float:
     return max(free)
 
 
-def run_units(
-    units: Sequence[Unit], executor: Executor | None = None, printer: Callable[[str], Any] | None = print
-) -> list[UnitResult]:
+def run_units(units: Sequence[Unit], executor: Executor | None = None,
+              printer: Callable[[str], Any] | None = print) -> list[UnitResult]:
     """Run ``units`` (but the stored ones) on ``executor``; their results in order, or :class:`UnitsFailedError`."""
     names = [unit.name for unit in units]
     if len(set(names)) != len(names):

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -29,20 +30,27 @@ def _check_confidence(confidence: float) -> None:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
 
 
+@contextmanager
+def numpy_global_seed(seed: int) -> Iterator[None]:
+    """Seed NumPy's legacy global generator inside the block (rliable and OGBench's oracles draw from it), then
+    restore it."""
+    state = np.random.get_state()  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
 def _interval_estimates(scores: Mapping[str, Any], func: Any, confidence: float, reps: int, seed: int) -> tuple:
     """rliable's ``get_interval_estimates`` (percentile method) with NumPy's global generator seeded."""
     check_int("reps", reps)
     _check_confidence(confidence)
     library, _ = _rliable()
-    state = np.random.get_state()  # noqa: NPY002  (rliable draws from the legacy global generator)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        with warnings.catch_warnings():  # arch deprecates the RandomState that rliable hands it
-            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
-            return library.get_interval_estimates(dict(scores), func, reps=reps, confidence_interval_size=confidence,
-                                                  random_state=np.random.RandomState(seed))  # noqa: NPY002
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
+    with numpy_global_seed(seed), warnings.catch_warnings():  # arch deprecates the RandomState rliable hands it
+        warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+        return library.get_interval_estimates(dict(scores), func, reps=reps, confidence_interval_size=confidence,
+                                              random_state=np.random.RandomState(seed))  # noqa: NPY002
 
 
 def run_scores(records: Sequence[Mapping[str, Any]], metric: str, evaluation: str = "evaluation") -> np.ndarray:
@@ -194,21 +202,16 @@ def compare(new: Sequence[float], base: Sequence[float], confidence: float = 0.9
     if new_a.shape != base_a.shape or new_a.ndim != 1 or new_a.size == 0:
         raise ValueError(f"new and base must be equal-length 1-D sequences, got {new_a.shape} and {base_a.shape}")
     per_seed = [relative_change_pct(float(n), float(b)) for n, b in zip(new_a, base_a, strict=True)]
-    finite = [p for p in per_seed if math.isfinite(p)]
-    mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
-    out = {
-        "change_pct": relative_change_pct(float(new_a.mean()), float(base_a.mean())),
-        "per_seed_pct": per_seed,
-        "per_seed_mean_pct": mean,
-        "per_seed_ci95_pct": half,
-    }
+    summary = t_summary(per_seed, confidence)
+    out = {"change_pct": relative_change_pct(float(new_a.mean()), float(base_a.mean())), "per_seed_pct": per_seed,
+           "per_seed_mean_pct": summary["mean"], "per_seed_ci95_pct": summary["ci95"]}
     if new_a.size >= 2 and np.all(np.isfinite(new_a)) and np.all(np.isfinite(base_a)):
         out["paired"] = paired_difference(new_a, base_a, confidence=confidence)  # new − base, in the metric's units
     return out
 
 
-def t_summary(values: Sequence[float]) -> dict[str, Any]:
+def t_summary(values: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
     """``{"mean", "ci95", "per_seed"}``: :func:`t_confidence_interval` of the finite ``values`` (NaN without any)."""
     finite = [v for v in values if math.isfinite(v)]
-    mean, half = t_confidence_interval(finite) if finite else (math.nan, math.nan)
+    mean, half = t_confidence_interval(finite, confidence) if finite else (math.nan, math.nan)
     return {"mean": mean, "ci95": half, "per_seed": list(values)}

@@ -11,7 +11,7 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import previous_report, run_header
+from experiments.common.records import run_header
 from experiments.common.runner import Unit, make_executor, run_units
 from experiments.execution import report, unit
 from experiments.execution.controls import RULES
@@ -130,7 +130,7 @@ def _run(args: argparse.Namespace, command: str, seeds: list[int], setup: dict[s
         run_units(units, make_executor(args.workers, args.ray_address, serial=args.quick and args.workers == 1))
     records = [json.loads(u.result_file.read_text()) for u in units]
     name, metric = setup["name"], setup["metric"]
-    command, date = run_header(command, previous_report(out / f"{name}.json", args.report_only))
+    command, date, _ = run_header(command, out / f"{name}.json", args.report_only)
     summary = report.summarize(records, metric)
     online = report.online_protocol(records, metric)
     header = [f"Command: `{command}`", f"Date: {date}",

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from experiments.common.cli import harness_main, harness_parent, select_seeds
 from experiments.common.names import PAPER
-from experiments.common.records import previous_report, run_header
+from experiments.common.records import run_header
 from experiments.fig2.aggregation import aggregate, load_raw
 from experiments.fig2.budget import (
     FULL_BUDGET,
@@ -87,8 +87,7 @@ def _run_units(args: argparse.Namespace, seeds: list[int], budget: Fig2Budget, p
 def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], command: str) -> int:
     seeds, budget = checked
     paths = RunPaths.under(args.out, args.raw, args.work)
-    recorded = previous_report(paths.out / "fig2.json", args.report_only)
-    command, date = run_header(command, recorded)  # a rebuilt report keeps the command and date of the run
+    command, date, recorded = run_header(command, paths.out / "fig2.json", args.report_only)
     est = None if args.report_only else _run_units(args, seeds, budget, paths)
     default_elite = None
     if args.report_only:

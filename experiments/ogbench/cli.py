@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from experiments.common.cli import check_extras, harness_main, harness_parent
-from experiments.common.records import previous_report, run_header
+from experiments.common.records import run_header
 from experiments.common.runner import make_executor
 from experiments.ogbench import report, runner
 from experiments.ogbench.runner import DEFAULT_TASK
@@ -77,7 +77,7 @@ def _run(args: argparse.Namespace, _: None, command: str) -> int:
             warnings.simplefilter("ignore", UserWarning)
             records = runner.run_benchmark(args.task, arms, seeds, budget, work, executor)
     # the quick run's statistics mean nothing: fewer bootstrap replications keep it fast
-    command, date = run_header(command, previous_report(out / "ogbench.json", args.report_only))
+    command, date, _ = run_header(command, out / "ogbench.json", args.report_only)
     summary = report.write_report(records, out, command=command, estimate=est, reps=200 if args.quick else 2000,
                                   date=date, plots=plots)
     for arm, s in summary["arms"].items():

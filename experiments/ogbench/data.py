@@ -6,13 +6,13 @@ from __future__ import annotations
 import os
 import time
 from collections import defaultdict
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from experiments.common.stats import numpy_global_seed
 from sb3_ua2c.checks import check_int
 from sb3_ua2c.offline import Episode
 
@@ -45,31 +45,16 @@ class TaskName:
             raise TypeError(f"task must be an OGBench dataset name (str), got {type(dataset_name).__name__}")
         parts = dataset_name.split("-")
         if "singletask" not in parts or parts.index("singletask") < 2 or not parts[-1].startswith("v"):
-            raise ValueError(
-                f"task must be an OGBench single-task dataset name like "
-                f"'cube-single-play-singletask-task2-v0', got {dataset_name!r}"
-            )
+            raise ValueError("task must be an OGBench single-task dataset name like "
+                             f"'cube-single-play-singletask-task2-v0', got {dataset_name!r}")
         pos = parts.index("singletask")
         dataset_type = parts[pos - 1]
         if parts[0] not in GENERATED.get(dataset_type, ()):
-            raise ValueError(
-                f"task {dataset_name!r}: only these datasets can be generated here: "
-                + ", ".join(f"'{kind}' of {domains}" for kind, domains in GENERATED.items())
-            )
+            raise ValueError(f"task {dataset_name!r}: only these datasets can be generated here: "
+                             + ", ".join(f"'{kind}' of {domains}" for kind, domains in GENERATED.items()))
         env_name = "-".join(parts[: pos - 1] + parts[-1:])
         dataset_file = "-".join(parts[:pos] + parts[-1:]) + ".npz"
         return cls(dataset_name, env_name, dataset_type, dataset_file)
-
-
-@contextmanager
-def _numpy_global_seed(seed: int):
-    """Seed NumPy's global generator inside the block (the oracles use it), restore it afterwards."""
-    state = np.random.get_state()  # noqa: NPY002  (the oracles draw from the global generator)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        yield
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
 
 
 def _make_oracles(env: Any, env_name: str, noise: float, noise_smoothing: float) -> dict[str, Any]:
@@ -174,10 +159,8 @@ def _collect_navigate_episode(env: Any, noise: float, seed: int | None) -> dict[
 
 def _save_npz(path: Path, rows: dict[str, list]) -> None:
     """Write OGBench's npz layout (dtypes as ``generate_manipspace.py``) through a temporary file."""
-    arrays = {}
-    for key, values in rows.items():
-        dtype = bool if key == "terminals" else np.int64 if key == "button_states" else np.float32
-        arrays[key] = np.asarray(values, dtype=dtype)
+    arrays = {key: np.asarray(values, dtype=bool if key == "terminals" else np.int64 if key == "button_states"
+                              else np.float32) for key, values in rows.items()}
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")  # units may generate the same file at once
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)
@@ -215,7 +198,7 @@ def generate_play_dataset(task: str, path: str | os.PathLike, n_episodes: int,
     try:
         oracles = {} if navigate else _make_oracles(env, name.env_name, noise, noise_smoothing)
         splits: list[dict[str, list]] = [defaultdict(list), defaultdict(list)]
-        with _numpy_global_seed(seed):
+        with numpy_global_seed(seed):
             for i in range(n_episodes + n_episodes // 10):
                 while True:
                     first = seed if i == 0 else None
@@ -273,15 +256,10 @@ def to_episodes(dataset: dict[str, np.ndarray]) -> list[Episode]:
     cuts = np.flatnonzero(solved | ends)  # last index of every segment
     episodes, start = [], 0
     for stop in cuts + 1:
-        sl = slice(start, stop)
-        n = stop - start
-        terminated = np.zeros(n, dtype=bool)
-        truncated = np.zeros(n, dtype=bool)
-        terminated[-1] = solved[stop - 1]
-        truncated[-1] = not solved[stop - 1]
+        sl, last = slice(start, stop), np.arange(start, stop) == stop - 1  # last: (n,), the segment's end
         episodes.append(Episode(
             observations=np.concatenate([dataset["observations"][sl], dataset["next_observations"][stop - 1:stop]]),
             actions=np.asarray(dataset["actions"][sl]), rewards=np.asarray(dataset["rewards"][sl], dtype=np.float64),
-            terminations=terminated, truncations=truncated))
+            terminations=last & solved[stop - 1], truncations=last & ~solved[stop - 1]))
         start = stop
     return episodes

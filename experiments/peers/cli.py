@@ -11,7 +11,7 @@ from typing import Any
 
 from experiments.common.cli import check_extras, harness_main, harness_parent, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import previous_report, run_header
+from experiments.common.records import run_header
 from experiments.common.runner import make_executor, ray_session
 from experiments.peers.budget import (
     ARMS,
@@ -67,10 +67,8 @@ def needed_extras(arms: Sequence[str], report_only: bool) -> list[str]:
 
 
 def _budget(args: argparse.Namespace) -> PeersBudget:
-    budget = QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
-    if args.budget:
-        budget = budget.with_overrides(args.budget)
-    budget = dataclasses.replace(budget, scenarios=args.scenarios)
+    budget = dataclasses.replace((QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET).with_overrides(args.budget),
+                                 scenarios=args.scenarios)
     return budget if args.online_steps is None else budget.with_online_steps(args.online_steps)
 
 
@@ -145,8 +143,7 @@ def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]
 def _run_and_report(args: argparse.Namespace, checked: tuple[list[int], list[str], PeersBudget], command: str) -> int:
     seeds, arms, budget = checked
     paths = PeersPaths.under(args.out, args.raw, args.work)
-    recorded = previous_report(paths.out / "peers.json", args.report_only)
-    command, date = run_header(command, recorded)
+    command, date, recorded = run_header(command, paths.out / "peers.json", args.report_only)
     estimate = None
     if args.report_only:  # the budget and estimate of the run: its manifest, else its report's
         budget = paths.rebuilt_budget(recorded, budget)

@@ -15,7 +15,7 @@ import numpy as np
 
 from experiments.common.cli import check_extras, harness_main, select_seeds
 from experiments.common.names import SCENARIO_BASES
-from experiments.common.records import previous_report, run_header, table
+from experiments.common.records import run_header, table
 from experiments.common.runner import make_executor
 from experiments.common.stats import run_scores
 from experiments.peers.budget import (
@@ -108,8 +108,7 @@ def collect(out: str | Path, arms: Sequence[str], seeds: Sequence[int]) -> dict[
         for i, setting in enumerate(GRID[arm]):
             runs = sorted(records[i].get(arm, []), key=lambda r: r["seed"])
             rows.append({"config": i, "label": setting.label, "seeds": [r["seed"] for r in runs],
-                         "reward": run_scores(runs, "reward").tolist() if runs else [],
-                         "collision": run_scores(runs, "collision").tolist() if runs else []})
+                         **{m: run_scores(runs, m).tolist() if runs else [] for m in ("reward", "collision")}})
         complete = all(row["seeds"] == sorted(seeds) for row in rows)
         means = [float(np.mean(row["reward"])) if row["reward"] else None for row in rows]
         chosen = int(np.argmax(means)) if complete else None  # argmax keeps the first of equal means
@@ -189,7 +188,7 @@ def _run(args: argparse.Namespace, base: PeersBudget) -> None:
 
 
 def _check(args: argparse.Namespace) -> PeersBudget:
-    select_seeds(args.seeds, [])  # the head-to-head's check of --seeds
+    args.seeds = select_seeds(args.seeds, [])  # the head-to-head's check of --seeds, without repeats
     check_int("--workers", args.workers)
     check_extras(needed_extras(args.arms, args.report_only))
     unknown = [a for a in args.arms if a not in GRID]
@@ -198,13 +197,13 @@ def _check(args: argparse.Namespace) -> PeersBudget:
     bad = [c for c in args.configs if not 0 <= c < N_CONFIGS]
     if bad:
         raise ValueError(f"--configs must be in [0, {N_CONFIGS}), got {bad}")
-    args.seeds, args.arms = list(dict.fromkeys(args.seeds)), [a for a in TUNED_ARMS if a in args.arms]
+    args.arms = [a for a in TUNED_ARMS if a in args.arms]
     return QUICK_PEERS_BUDGET if args.quick else FULL_PEERS_BUDGET
 
 
 def _run_and_report(args: argparse.Namespace, base: PeersBudget, command: str) -> int:
     out = Path(args.out)
-    command, date = run_header(command, previous_report(out / "tuning.json", args.report_only))
+    command, date, _ = run_header(command, out / "tuning.json", args.report_only)
     if not args.report_only:
         _run(args, base)
     methods = collect(out, args.arms, args.seeds)
