@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -43,9 +43,8 @@ def load_raw(paths: RunPaths, seeds: Sequence[int]) -> dict[str, dict[int, dict[
     return out
 
 
-def online_curve(
-    episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int, n_bins: int = 10
-) -> dict[str, list[float]]:
+def online_curve(episodes_per_seed: Sequence[Sequence[Mapping[str, Any]]], total_steps: int,
+                 n_bins: int = 10) -> dict[str, list[float]]:
     """One arm's learning curve: the mean return of the episodes ending in each window of online steps."""
     edges = np.linspace(0, total_steps, n_bins + 1)
     per_seed = []
@@ -92,16 +91,13 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     comparisons = _comparisons(methods, online_phases)
     result: dict[str, Any] = {
         **{paper_key: comparisons[key]["change_pct"] for paper_key, key in names.CLAIM_COMPARISONS.items()},
-        "comparisons": comparisons,
-        "paper": dict(names.PAPER),
+        "comparisons": comparisons, "paper": dict(names.PAPER), "methods": methods, "seeds": seeds,
         "relative_change_definition": "100 * (method - baseline) / |baseline|, on the means over seeds",
-        "methods": methods,
-        "seeds": seeds,
-        "budget": budget.to_dict(),
-        "online_phases": online_phases,
+        "budget": budget.to_dict(), "online_phases": online_phases,
         **_style_summary(raw, seeds),
-        "delta_sweep": _delta_sweep(methods, budget),
-        "k_sweep": _k_sweep(methods, budget),
+        "delta_sweep": _sweep(methods, "delta", budget.delta_sweep, lambda d: f"delta_{names.delta_name(d)}",
+                              ("reward", "mean_executed_length", "cumulative_jerk")),
+        "k_sweep": _sweep(methods, "k", budget.k_sweep, "k{}".format, ("reward", "cumulative_jerk", "collision")),
         **_acting_sweep(methods, budget, default_elite),
     }
     training = _training_episodes(raw, seeds, budget)
@@ -187,22 +183,12 @@ def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -
     }
 
 
-def _delta_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
-    """The fine-tuned adaptive checkpoint executed with each threshold δ of the sweep."""
-    rows = []
-    for d in budget.delta_sweep:
-        name = f"delta_{names.delta_name(d)}"
-        if name in methods:
-            keys = ("reward", "mean_executed_length", "cumulative_jerk")
-            rows.append({"delta": d, "method": name, **{k: methods[name][k] for k in keys}})
-    return rows
-
-
-def _k_sweep(methods: Mapping[str, Any], budget: Fig2Budget) -> list[dict[str, Any]]:
-    """The chunk policies pre-trained with each chunk length k of the sweep."""
-    keys = ("reward", "cumulative_jerk", "collision")
-    return [{"k": k, "method": f"k{k}", **{key: methods[f"k{k}"][key] for key in keys}}
-            for k in budget.k_sweep if f"k{k}" in methods]
+def _sweep(methods: Mapping[str, Any], field: str, values: Iterable[Any], method: Callable[[Any], str],
+           keys: Sequence[str]) -> list[dict[str, Any]]:
+    """The rows of a sweep over ``field`` (δ of the adaptive checkpoint, k of the chunk policies): the ``keys`` of
+    each value's method that was evaluated."""
+    return [{field: v, "method": method(v), **{k: methods[method(v)][k] for k in keys}}
+            for v in values if method(v) in methods]
 
 
 def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
@@ -227,31 +213,30 @@ def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int
     """Per logged arm (first online phase), its :func:`online_phase_stats` over seeds and its learning curve."""
     out: dict[str, Any] = {}
     for arm in names.ONLINE_ARMS:
-        if f"online/{arm}" not in raw or not all(s in raw[f"online/{arm}"] for s in seeds):
+        logs = raw.get(f"online/{arm}", {})
+        if not all(s in logs for s in seeds):
             continue
-        logs = raw[f"online/{arm}"]
         rows = [online_phase_stats(logs[s]["episodes"]) for s in seeds]
         out[arm] = {key: t_summary([r[key] for r in rows]) for key in ("reward", "reward_last", "collision", "episodes")}
         out[arm]["curve"] = online_curve([logs[s]["episodes"] for s in seeds], budget.finetune_steps)
     return out
 
 
-def _online_phases(
-    raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int], phases: Sequence[int]
-) -> dict[str, Any]:
+def _online_phases(raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int],
+                   phases: Sequence[int]) -> dict[str, Any]:
     """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards."""
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
-        return [v for r in phases for v in methods[names.replicate_name(arm, r) + suffix]["reward"]["per_seed"]]
+        return [v for r in phases for v in _per_seed(methods, names.replicate_name(arm, r) + suffix, "reward")]
 
     out: dict[str, Any] = {"phases": list(phases), "runs": len(phases) * len(seeds), "per_phase": []}
     for r in phases:
-        units = {arm: names.replicate_name(arm, r) for arm in ("adaptive", "fixed")}
-        row: dict[str, Any] = {"phase": r, **{arm: methods[n]["reward"] for arm, n in units.items()}}
-        row["change"] = compare(methods[units["adaptive"]]["reward"]["per_seed"], methods[units["fixed"]]["reward"]["per_seed"])
-        if all(names.sampled_name(n) in methods for n in units.values()):
-            row["change_sampled"] = compare(methods[names.sampled_name(units["adaptive"])]["reward"]["per_seed"],
-                                            methods[names.sampled_name(units["fixed"])]["reward"]["per_seed"])
+        adaptive, fixed = names.replicate_name("adaptive", r), names.replicate_name("fixed", r)
+        row: dict[str, Any] = {"phase": r, "adaptive": methods[adaptive]["reward"], "fixed": methods[fixed]["reward"],
+                               "change": _compare(methods, adaptive, fixed, "reward")}
+        sampled = names.sampled_name(adaptive), names.sampled_name(fixed)
+        if all(n in methods for n in sampled):
+            row["change_sampled"] = _compare(methods, *sampled, "reward")
         out["per_phase"].append(row)
     for arm in ("adaptive", "fixed"):
         for suffix in ("", "_sampled"):

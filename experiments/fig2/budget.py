@@ -68,17 +68,15 @@ class Fig2Budget(Budget):
     }
 
     def validate(self) -> None:
-        n_candidates = min(
-            kwargs.get("n_candidates", library_default("n_candidates")) for kwargs in (self.algo_kwargs, self.onestep_kwargs)
-        )
+        n_candidates = min(kwargs.get("n_candidates", library_default("n_candidates"))
+                           for kwargs in (self.algo_kwargs, self.onestep_kwargs))
         if any(m > n_candidates for m in self.elite_sweep):
             raise ValueError(f"Fig2Budget.elite_sweep holds {max(self.elite_sweep)}, more than the {n_candidates} candidates")
         elites = {k: _policy_elite(self, k) for k in (1, self.chunk_size)}
         if elites[1] != elites[self.chunk_size]:  # (a) and (b) compare both arms acting by one rule
-            raise ValueError(
-                f"Fig2Budget.onestep_kwargs: the one-step baseline acts with n_elite={elites[1]} and the "
-                f"chunk policy with n_elite={elites[self.chunk_size]}; (a) and (b) need the same acting rule"
-            )
+            raise ValueError(f"Fig2Budget.onestep_kwargs: the one-step baseline acts with n_elite={elites[1]} and "
+                             f"the chunk policy with n_elite={elites[self.chunk_size]}; (a) and (b) need the same "
+                             "acting rule")
         for name in ("k_sweep", "elite_sweep", "flow_sweep"):
             object.__setattr__(self, name, tuple(sorted({int(v) for v in getattr(self, name)})))
         object.__setattr__(self, "delta_sweep", tuple(sorted({float(d) for d in self.delta_sweep})))
@@ -153,11 +151,9 @@ STYLE_STAGES = ("style", "style_ablation")
 
 def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
     """The size of each stage of one seed, what its recorded seconds scale with."""
-    n_evals = (
-        len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
-        + 2 * len(budget.acting_variants()) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
-        + 2 * (budget.online_replicates - 1) * (1 + int(budget.sampled_eval))  # both arms of each further phase
-    )
+    n_evals = (len(MAIN_METHODS) + 2 + len(budget.delta_sweep) + len(budget.k_sweep) + int(budget.style_ablation)
+               + 2 * len(budget.acting_variants()) + len(SAMPLED_METHODS) * int(budget.sampled_eval)
+               + 2 * (budget.online_replicates - 1) * (1 + int(budget.sampled_eval)))  # both arms of further phases
     return {
         "datasets": budget.dataset_episodes,
         "pretrain": budget.pretrain_steps * len(budget.pretrain_ks),
@@ -168,16 +164,14 @@ def stage_sizes(budget: Fig2Budget) -> dict[str, float]:
     }
 
 
-def estimate_seconds(budget: Fig2Budget, n_seeds: int, reports: Sequence[Mapping[str, Any]] | None = None,
-                     ) -> dict[str, float]:
+def estimate_seconds(budget: Fig2Budget, n_seeds: int,
+                     reports: Sequence[Mapping[str, Any]] | None = None) -> dict[str, float]:
     """CPU seconds per stage of a run and ``"total"``, from the ``reports`` (default: the committed ones)."""
     reports = recorded("**/fig2.json") if reports is None else reports
-    rates = seconds_per_size(
-        (stage, seconds, size * len(report["seeds"]))
-        for report in reports if report.get("seconds", {}).get("measured")
-        for stage, size in stage_sizes(Fig2Budget.from_dict(report["budget"])).items()
-        if (seconds := report["seconds"]["measured"].get(stage)) is not None
-    )
+    rates = seconds_per_size((stage, seconds, size * len(report["seeds"]))
+                             for report in reports if report.get("seconds", {}).get("measured")
+                             for stage, size in stage_sizes(Fig2Budget.from_dict(report["budget"])).items()
+                             if (seconds := report["seconds"]["measured"].get(stage)) is not None)
     out = estimate(rates, {stage: n_seeds * size for stage, size in stage_sizes(budget).items()})
     return {**out, "total": sum(out.values())}
 

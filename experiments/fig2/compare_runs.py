@@ -40,22 +40,19 @@ def c_runs(report: Path, suffix: str = "") -> dict[tuple[int, str], tuple[float,
 
 def compare(a: Path, b: Path) -> list[dict]:
     """One row per :data:`ROWS` entry both reports hold, plus (c) of each report."""
-    rows = []
+    pairs = []  # (label, runs of B (or adaptive), the same runs of A (or fixed))
     for label, methods in ROWS:
         ra = {k: v for m in methods for k, v in run_rewards(a, m).items()}
         rb = {k: v for m in methods for k, v in run_rewards(b, m).items()}
         shared = sorted(set(ra) & set(rb))
-        if len(shared) >= 2:
-            x, y = [rb[k] for k in shared], [ra[k] for k in shared]
-            rows.append({"label": label, "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
+        pairs.append((label, [rb[k] for k in shared], [ra[k] for k in shared]))
     for name, report in (("A", a), ("B", b)):
         for suffix in ("", "_sampled"):
-            runs = list(c_runs(report, suffix).values())
-            if len(runs) >= 2:
-                x, y = [adaptive for adaptive, _ in runs], [fixed for _, fixed in runs]
-                rows.append({"label": f"{name}: (c) adaptive − fixed{', sampled' if suffix else ''}",
-                             "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)})
-    return rows
+            runs = c_runs(report, suffix).values()
+            pairs.append((f"{name}: (c) adaptive − fixed{', sampled' if suffix else ''}", [ad for ad, _ in runs],
+                          [fx for _, fx in runs]))
+    return [{"label": label, "a": sum(y) / len(y), "b": sum(x) / len(x), **paired_difference(x, y)}
+            for label, x, y in pairs if len(x) >= 2]
 
 
 def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:

@@ -18,10 +18,8 @@ def describe(name: str, pairs: list[tuple[float, float]]) -> str:
     adaptive, fixed = np.array(pairs).T
     per_run = [relative_change_pct(a, f) for a, f in pairs]
     mean, half = t_confidence_interval(per_run)
-    return (
-        f"| {name} | {len(pairs)} | {adaptive.mean():.1f} | {fixed.mean():.1f} | "
-        f"{relative_change_pct(adaptive.mean(), fixed.mean()):+.2f} % | {mean:+.1f} ± {half:.1f} % |"
-    )
+    return (f"| {name} | {len(pairs)} | {adaptive.mean():.1f} | {fixed.mean():.1f} | "
+            f"{relative_change_pct(adaptive.mean(), fixed.mean()):+.2f} % | {mean:+.1f} ± {half:.1f} % |")
 
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> None:

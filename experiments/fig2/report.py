@@ -52,25 +52,22 @@ def _n_phases(summary: Mapping[str, Any]) -> int:
 
 
 def _header(summary: Mapping[str, Any], command: str, date: str) -> Lines:
-    n = len(summary["seeds"])
     return [
         "# Figure 2 reproduction on MixedTraffic-v0",
         "",
         f"Command: `{command}`  ",
         f"Date: {date}  ",
-        f"Seeds: {summary['seeds']} (means ± 95% Student-t intervals over {n} seed(s); "
+        f"Seeds: {summary['seeds']} (means ± 95% Student-t intervals over {len(summary['seeds'])} seed(s); "
         "a single seed has no interval)",
         "",
         "Relative change = 100 · (method − baseline) / |baseline|, applied to the means over seeds; "
         "the per-seed column is the mean ± 95% interval of the per-seed changes, and the paired difference is "
         "the mean per-run difference method − baseline in the metric's units with its 95% Student-t interval "
         "(the runs of a seed share its data and scenarios; an interval that contains 0 shows no difference). "
-        "Where a claim is short "
-        "of the paper, docs/research-log.md (\"What was tried\") says what was tried. "
+        "Where a claim is short of the paper, docs/research-log.md (\"What was tried\") says what was tried. "
         "Rows without a suffix act with fixed candidate noise (`predict(deterministic=True)`: the same "
         "history always gives the same plan); rows marked \"sampled\" evaluate the same checkpoints "
-        "drawing fresh candidate noise at every replanning, as the rollouts of Phase 2 do (seeded per "
-        "episode).",
+        "drawing fresh candidate noise at every replanning, as the rollouts of Phase 2 do (seeded per episode).",
         "",
     ]
 
@@ -122,15 +119,12 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
 
 def _methods_table(summary: Mapping[str, Any]) -> Lines:
     """Every metric of the main methods (and their "sampled" evaluations), mean ± interval over seeds."""
-    order = ["onestep", "chunk", "chunk_adaptive", "fixed", "adaptive", "fixed_adaptive", "adaptive_style"]
-    methods = [m for m in (*order, *map(names.sampled_name, names.SAMPLED_METHODS)) if m in summary["methods"]]
-    keys = ("reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed",
-            "mean_executed_length")
+    methods = [m for m in names.METHOD_LABELS if m in summary["methods"]]  # in the order of the labels
     lines = section("Methods", *table(
         ["method", "reward", "cum. jerk", "jerk per step", "collision rate", "merge success", "mean speed [m/s]",
          "mean L_t"],
-        ([names.METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2) for k in keys)]
-         for m in methods)))
+        ([names.METHOD_LABELS[m], *(_fmt(summary["methods"][m][k], 1 if k == "cumulative_jerk" else 2)
+                                    for k in names.METRICS)] for m in methods)))
     shares = [[names.METHOD_LABELS[m], format_length_shares(summary["methods"][m]["length_shares"])] for m in methods
               if "length_shares" in summary["methods"][m]]
     if shares:
