@@ -76,9 +76,7 @@ def online_protocol(records: Sequence[Mapping[str, Any]], metric: str = "reward"
 
 
 def _interval(p: Mapping[str, float] | None, digits: int = 1) -> str:
-    if p is None:
-        return "n/a"
-    return interval(p, digits=digits)
+    return "n/a" if p is None else interval(p, digits=digits)
 
 
 def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:

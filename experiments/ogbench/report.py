@@ -205,8 +205,7 @@ def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command:
                  plots: bool = True) -> dict[str, Any]:
     """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary."""
     summary = summarize(records, reps=reps)
-    summary["command"], summary["estimate"] = command, dict(estimate) if estimate else None
-    summary["date"] = date
+    summary.update(command=command, estimate=dict(estimate) if estimate else None, date=date)
     kept = [{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]
     records_module.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
                               (lambda d: write_plots(records, d)) if plots else None)

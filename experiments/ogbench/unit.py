@@ -70,9 +70,7 @@ class OGBenchBudget(Budget):
 
     def arm_kwargs(self, arm: Mapping[str, Any]) -> dict[str, Any]:
         """UA2C's arguments of an arm: ``algo_kwargs``, the arm's, and a buffer that holds Phase 2."""
-        kwargs = {**self.algo_kwargs, **arm}
-        kwargs.setdefault("buffer_size", max(self.finetune_steps, 1))
-        return kwargs
+        return {"buffer_size": max(self.finetune_steps, 1), **self.algo_kwargs, **arm}
 
     @property
     def cadence(self) -> dict[str, int]:

@@ -56,14 +56,10 @@ class ArmInputs:
         return self.dataset if isinstance(self.dataset, OfflineDataset) else load_dataset(self.dataset)
 
 
-def repo_zoo_config(algo: str) -> Path:
-    """``zoo_configs/<algo>.yml`` of the source checkout this package runs from."""
-    return Path(__file__).resolve().parents[2] / "zoo_configs" / f"{algo}.yml"
-
-
 def zoo_hyperparams(algo: str, env_id: str = "MixedTraffic-v0", conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
-    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default ``zoo_configs/``)."""
-    path = Path(conf_file) if conf_file is not None else repo_zoo_config(algo)
+    """The constructor arguments of ``algo`` for ``env_id`` in an rl-zoo3 YAML file (default: ``zoo_configs/<algo>.yml``
+    of the source checkout this package runs from)."""
+    path = Path(conf_file or Path(__file__).resolve().parents[2] / "zoo_configs" / f"{algo}.yml")
     if not path.is_file():
         raise FileNotFoundError(f"no zoo config {path}: pass conf_file= (e.g. zoo_configs/{algo}.yml of a source checkout)")
     entries = yaml.safe_load(path.read_text()) or {}
@@ -165,21 +161,14 @@ def unit_record(arm: str, inputs: ArmInputs, dataset: OfflineDataset, online_ste
                 notes: str = "") -> dict[str, Any]:
     """The JSON record every peer unit returns."""
     record = {
-        "arm": arm,
-        "seed": inputs.seed,
+        "arm": arm, "seed": inputs.seed, "env": env_settings(dataset),
         "dataset": {"path": recorded_path(dataset.path), "episodes": len(dataset), "transitions": dataset.total_steps,
                     "seed": dataset.metadata.get("seed")},
-        "env": env_settings(dataset),
-        "eval_seeds": list(inputs.eval_seeds),
-        "eval_episodes": inputs.eval_episodes,
-        "online_steps": online_steps,
-        "offline_steps": offline_steps,
-        "hyperparams": dict(hyperparams),
+        "eval_seeds": list(inputs.eval_seeds), "eval_episodes": inputs.eval_episodes,
+        "online_steps": online_steps, "offline_steps": offline_steps, "hyperparams": dict(hyperparams),
         "evaluation": dict(evaluation),
         "offline_evaluation": None if offline_evaluation is None else dict(offline_evaluation),
-        "online_episodes": curve,
-        **clock.as_dict(),
-        "notes": notes,
+        "online_episodes": curve, **clock.as_dict(), "notes": notes,
     }
     return json.loads(json.dumps(record, default=_plain))  # plain JSON types: the same record once stored
 

@@ -149,16 +149,11 @@ def make_config(d3rlpy: Any, algo: str, action_space: spaces.Box, batch_size: in
         raise ValueError(f"config_kwargs: {exc}") from exc
 
 
-def run_d3rlpy(
-    inputs: common.ArmInputs,
-    algo: str = "iql",
-    offline_steps: int = 6000,
-    offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
-    batch_size: int = 256,  # same as default: the SAC zoo entry's
-    updates_per_step: int = 1,
-    best_of_n: int = 0,
-    config_kwargs: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
+def run_d3rlpy(inputs: common.ArmInputs, algo: str = "iql", offline_steps: int = 6000,
+               offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
+               batch_size: int = 256,  # same as default: the SAC zoo entry's
+               updates_per_step: int = 1, best_of_n: int = 0,
+               config_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """One unit: d3rlpy ``algo`` fitted offline on the seed's dataset and evaluated, then (unless
     :data:`OFFLINE_ONLY`) fine-tuned online and evaluated again, also by :class:`BestOfNPolicy` with ``best_of_n``."""
     seed, online_steps = inputs.seed, inputs.online_steps

@@ -60,10 +60,8 @@ def arm_length_shares(records: Sequence[Mapping[str, Any]], evaluation: str = "e
     if not all(r.get(evaluation) for r in records):
         return None
     episodes = [e for r in records for e in r[evaluation]["episodes"]]
-    if not episodes or any("plan_lengths" not in e for e in episodes):
-        return None
-    lengths = [n for e in episodes for n in e["plan_lengths"]]
-    if not lengths:
+    lengths = [n for e in episodes for n in e.get("plan_lengths", ())]
+    if not lengths or any("plan_lengths" not in e for e in episodes):
         return None
     return length_shares(lengths, int(records[0].get("hyperparams", {}).get("chunk_size", max(lengths))))
 
@@ -85,12 +83,8 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
     """IQM and mean with CI of every metric, offline score, learning curve and times of one arm's records."""
     seeds = sorted(r["seed"] for r in records)
     scores = {m: stats.score_matrix(records, m) for m in METRICS}  # metric -> (n_runs, 1)
-    metrics = stats.iqm_with_ci(scores, reps=reps)
-    means = stats.mean_with_ci(scores, reps=reps)
-    offline = None
-    if all(r.get("offline_evaluation") for r in records):
-        offline = {m: stats.iqm_with_ci({"x": stats.score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
-                   for m in METRICS}
+    offline = ({m: stats.iqm_with_ci({"x": stats.score_matrix(records, m, "offline_evaluation")}, reps=reps)["x"]
+                for m in METRICS} if all(r.get("offline_evaluation") for r in records) else None)
     ordered = sorted(records, key=lambda r: r["seed"])
     areas = [stats.learning_curve_area([e["end_step"] for e in r["online_episodes"]],
                                        [e["reward"] for e in r["online_episodes"]])
@@ -111,25 +105,18 @@ def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[
         training = {"episodes_per_run": float(np.mean([len(r["online_episodes"]) for r in records])),
                     **stats.mean_with_ci(runs, reps=reps)}
     return {
-        "label": ARM_LABELS.get(first["arm"], first["arm"]),
-        "seeds": seeds,
-        "eval_episodes_per_seed": len(first["evaluation"]["episodes"]),
-        "online_steps": online_steps,
-        "offline_steps": int(first["offline_steps"]),
-        "metrics": metrics,
-        "means": means,
+        "label": ARM_LABELS.get(first["arm"], first["arm"]), "seeds": seeds, "online_steps": online_steps,
+        "eval_episodes_per_seed": len(first["evaluation"]["episodes"]), "offline_steps": int(first["offline_steps"]),
+        "metrics": stats.iqm_with_ci(scores, reps=reps), "means": stats.mean_with_ci(scores, reps=reps),
         "per_seed": {m: scores[m][:, 0].tolist() for m in METRICS},
         "curve_area": {"per_seed": areas, **(stats.mean_with_ci({"x": np.array(areas)[:, None]}, reps=reps)["x"]
                                              if np.all(np.isfinite(areas)) else {})},
-        "offline_metrics": offline,
+        "offline_metrics": offline, "curve": curve, "training_episodes": training,
         "length_shares": {"offline": arm_length_shares(records, "offline_evaluation"),
                           "online": arm_length_shares(records)},
-        "curve": curve,
-        "training_episodes": training,
         "wall_seconds": {"mean_per_seed": float(np.mean(wall)), "total": float(np.sum(wall))},
         "cpu_seconds": {"mean_per_seed": float(np.mean(cpu)), "total": float(np.sum(cpu))},
-        "hyperparams": first["hyperparams"],
-        "notes": first["notes"],
+        "hyperparams": first["hyperparams"], "notes": first["notes"],
     }
 
 
@@ -198,10 +185,9 @@ def verdicts(summary: Mapping[str, Any]) -> list[str]:
     """Per (UA2C arm, peer), the verdict of the paired reward difference and the probability of improvement."""
     lines = []
     for pair in summary["pairs"].values():
-        o, p = ARM_LABELS.get(pair["ua2c"], pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"])
-        poi = pair["reward"]
+        o, p = (summary["arms"][pair[side]]["label"] for side in ("ua2c", "peer"))
         head = stats.verdict(o, p, pair["reward_paired"]) if "reward_paired" in pair else f"{o} vs {p}: no shared seeds"
-        lines.append(f"{head}; P({o} > {p}) = {stats.interval(poi, 'probability', sign='')}")
+        lines.append(f"{head}; P({o} > {p}) = {stats.interval(pair['reward'], 'probability', sign='')}")
     return lines
 
 
@@ -214,25 +200,16 @@ def headline(summary: Mapping[str, Any]) -> str:
     if not ours or not peers:
         return "Only one side was run: no head-to-head verdict."
     o, p = max(ours, key=reward.get), max(peers, key=reward.get)
-    pair = summary["pairs"][f"{o}_vs_{p}"]
-    paired = (stats.verdict(ARM_LABELS.get(o, o), ARM_LABELS.get(p, p), pair["reward_paired"]) if "reward_paired" in pair
-              else "no shared seeds")
-    return (f"Best UA2C arm by IQM reward over runs, {ARM_LABELS.get(o, o)} ({reward[o]:.2f}); best peer, "
-            f"{ARM_LABELS.get(p, p)} ({reward[p]:.2f}). Paired per seed: {paired}; P(UA2C > peer) = "
-            f"{pair['reward']['probability']:.2f}. By the mean reward: "
-            f"{_mean(arms[o], 'reward'):.2f} vs {_mean(arms[p], 'reward'):.2f} "
-            f"({_mean(arms[o], 'reward') - _mean(arms[p], 'reward'):+.2f}); collision rate "
-            f"{_mean(arms[o], 'collision'):.2f} vs {_mean(arms[p], 'collision'):.2f}.")
-
-
-def _mean(arm: Mapping[str, Any], metric: str) -> float:
-    return arm["means"][metric]["mean"]
+    pair, lo, lp = summary["pairs"][f"{o}_vs_{p}"], arms[o]["label"], arms[p]["label"]
+    paired = stats.verdict(lo, lp, pair["reward_paired"]) if "reward_paired" in pair else "no shared seeds"
+    (ro, co), (rp, cp) = ([arms[a]["means"][m]["mean"] for m in ("reward", "collision")] for a in (o, p))
+    return (f"Best UA2C arm by IQM reward over runs, {lo} ({reward[o]:.2f}); best peer, {lp} ({reward[p]:.2f}). "
+            f"Paired per seed: {paired}; P(UA2C > peer) = {pair['reward']['probability']:.2f}. By the mean reward: "
+            f"{ro:.2f} vs {rp:.2f} ({ro - rp:+.2f}); collision rate {co:.2f} vs {cp:.2f}.")
 
 
 def _cell(stat: Mapping[str, float] | None, digits: int = 2, key: str = "iqm") -> str:
-    if stat is None:
-        return "–"
-    return stats.interval(stat, key, digits, sign="")
+    return "–" if stat is None else stats.interval(stat, key, digits, sign="")
 
 
 def _digits(metric: str) -> int:
@@ -251,12 +228,9 @@ def results_table(summary: Mapping[str, Any]) -> list[str]:
 
 def means_table(summary: Mapping[str, Any]) -> list[str]:
     """The per-arm means [95 % CI] of :data:`METRICS` (0/1 metrics as rates) and the online curve area."""
-    def area(arm: Mapping[str, Any]) -> str:
-        stat = arm.get("curve_area", {})
-        return _cell(stat, key="mean") if "mean" in stat else "–"
-
     return table(["arm", "reward", "collision rate", "merge rate", "cum. jerk", "jerk/step", "online curve area"],
-                 ([arm["label"], *(_cell(arm["means"][m], _digits(m), "mean") for m in METRICS), area(arm)]
+                 ([arm["label"], *(_cell(arm["means"][m], _digits(m), "mean") for m in METRICS),
+                   _cell(arm["curve_area"] if "mean" in arm.get("curve_area", {}) else None, key="mean")]
                   for arm in summary["arms"].values()))
 
 
@@ -278,7 +252,7 @@ def readme_table(summary: Mapping[str, Any]) -> list[str]:
 
 def pairs_table(summary: Mapping[str, Any]) -> list[str]:
     return table(["UA2C arm", "peer", *(f"P(better) {m}" for m in POI_METRICS)],
-                 ([ARM_LABELS.get(pair["ua2c"]), ARM_LABELS.get(pair["peer"], pair["peer"]),
+                 ([summary["arms"][pair["ua2c"]]["label"], summary["arms"][pair["peer"]]["label"],
                    *(stats.interval(pair[m], "probability", sign="") for m in POI_METRICS)]
                   for pair in summary["pairs"].values()))
 
@@ -316,28 +290,22 @@ def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
 
 
 def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
-    b = summary["budget"]["ua2c"]
-    obs = summary["observation"]
-    calql = summary["budget"]["calql_offline_steps"]
+    b, calql, sb3 = (summary["budget"][k] for k in ("ua2c", "calql_offline_steps", "sb3_hyperparams"))
     return [
         *section("Protocol"),
         f"- Online budget: **{b['finetune_steps']} env steps for every arm**; offline: {b['pretrain_steps']} gradient "
-        f"steps for UA2C and the d3rlpy arms except RLPD" + (f" (Cal-QL: {calql})" if calql else "")
-        + f", on the seed's Figure-2 "
-        f"dataset ({b['dataset_episodes']} episodes of the behaviour policy, the same data for every arm).",
+        "steps for UA2C and the d3rlpy arms except RLPD" + (f" (Cal-QL: {calql})" if calql else "") + ", on the seed's "
+        f"Figure-2 dataset ({b['dataset_episodes']} episodes of the behaviour policy, the same data for every arm).",
         f"- Evaluation: {b['eval_episodes']} episodes per seed on the {summary.get('scenarios', 'figure2 scenarios')} "
-        "(the same for every arm), deterministic actions. Statistics are run-level: each seed's score "
-        "is the mean over its evaluation "
-        "episodes; IQMs and means over runs carry 95 % stratified bootstrap CIs (rliable), P(UA2C > peer) is "
-        "rliable's probability of improvement over runs (0.5 = no difference), and the paired difference is the "
-        "mean per-seed difference with its Student-t interval.",
-        f"- Observation: {obs}. Action space: the same `Box` (acceleration, lane-change command with the env's "
-        "thresholds) for every arm.",
+        "(the same for every arm), deterministic actions. Statistics are run-level: each seed's score is the mean over "
+        "its evaluation episodes; IQMs and means over runs carry 95 % stratified bootstrap CIs (rliable), P(UA2C > "
+        "peer) is rliable's probability of improvement over runs (0.5 = no difference), and the paired difference is "
+        "the mean per-seed difference with its Student-t interval.",
+        f"- Observation: {summary['observation']}. Action space: the same `Box` (acceleration, lane-change command "
+        "with the env's thresholds) for every arm.",
         *_ua2c_protocol(summary),
-        "- SAC, TQC and CrossQ: online from scratch, hyperparameters from `zoo_configs/sac.yml` / "
-        "`zoo_configs/tqc.yml` / `zoo_configs/crossq.yml` "
-        "(the `MixedTraffic-v0` entries" + (f", overridden by {summary['budget']['sb3_hyperparams']}"
-                                            if summary["budget"]["sb3_hyperparams"] else "")
+        "- SAC, TQC and CrossQ: online from scratch, hyperparameters from `zoo_configs/sac.yml` / `zoo_configs/tqc.yml`"
+        " / `zoo_configs/crossq.yml` (the `MixedTraffic-v0` entries" + (f", overridden by {sb3}" if sb3 else "")
         + "; the zoo's style-context wrapper is not applied, so they see the dataset's observation).",
         f"- SAC + offline data: {summary['arms'].get('sac_offline_mix', {}).get('notes', 'not run')}.",
         "- IQL: d3rlpy 2.8.1 with its default hyperparameters; Cal-QL and ReBRAC with the settings of d3rlpy's "

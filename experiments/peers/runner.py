@@ -26,11 +26,6 @@ class PeersPaths(records.RunPaths):
         return self.raw / f"seed{seed}" / f"{arm}.json"
 
 
-def eval_protocol(seed: int, budget: PeersBudget) -> dict[str, Any]:
-    """The ``eval_seeds`` and ``eval_episodes`` of every unit of ``seed``."""
-    return {"eval_seeds": (SCENARIO_BASES[budget.scenarios] + seed,), "eval_episodes": budget.ua2c.eval_episodes}
-
-
 def dataset_units(seeds: Sequence[int], budget: PeersBudget, paths: PeersPaths) -> list[Unit]:
     b = budget.ua2c
     return [Unit(f"seed{s}/dataset", build_dataset,
@@ -51,7 +46,8 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
 def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
     """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
     inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
-                       seed=seed, online_steps=budget.online_steps, **eval_protocol(seed, budget))
+                       seed=seed, online_steps=budget.online_steps,
+                       eval_seeds=(SCENARIO_BASES[budget.scenarios] + seed,), eval_episodes=budget.ua2c.eval_episodes)
     fn: Callable[..., Any]
     if arm in UA2C_ARMS:
         record = pretrained[f"seed{seed}/{budget.pretrain_name(arm)}"]

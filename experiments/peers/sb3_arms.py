@@ -43,17 +43,10 @@ class OfflineMixReplayBuffer(ReplayBuffer):
     """SB3 replay buffer drawing ``offline_ratio`` of each minibatch (all while there are no online rows) from
     fixed offline transitions: RLPD's symmetric sampling (Ball et al., ICML 2023)."""
 
-    def __init__(
-        self,
-        buffer_size: int,
-        observation_space: spaces.Space,
-        action_space: spaces.Space,
-        device: th.device | str = "auto",  # same as default: SB3's ReplayBuffer signature
-        n_envs: int = 1,
-        optimize_memory_usage: bool = False,
-        handle_timeout_termination: bool = True,
-        offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
-    ) -> None:
+    def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Space,
+                 device: th.device | str = "auto",  # same as default: SB3's ReplayBuffer signature
+                 n_envs: int = 1, optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
+                 offline_ratio: float = 0.5) -> None:  # same as default: RLPD's symmetric sampling
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, optimize_memory_usage,
                          handle_timeout_termination)
         if isinstance(offline_ratio, bool) or not isinstance(offline_ratio, int | float) or not 0.0 <= offline_ratio <= 1.0:
@@ -135,11 +128,9 @@ def run_sb3_online(inputs: common.ArmInputs, algo: str = "sac", hyperparams: Map
     return _train_and_evaluate(algo, algo, inputs, hyperparams, conf_file, None, notes)
 
 
-def run_sb3_offline_mix(
-    inputs: common.ArmInputs,
-    offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
-    hyperparams: Mapping[str, Any] | None = None,
-    conf_file: str | os.PathLike | None = None,
-) -> dict[str, Any]:
+def run_sb3_offline_mix(inputs: common.ArmInputs,
+                        offline_ratio: float = 0.5,  # same as default: RLPD's symmetric sampling
+                        hyperparams: Mapping[str, Any] | None = None,
+                        conf_file: str | os.PathLike | None = None) -> dict[str, Any]:
     """One unit: :func:`run_sb3_online` of SAC with the offline transitions in its buffer (:data:`RLPD_DIFFERENCES`)."""
     return _train_and_evaluate("sac_offline_mix", "sac", inputs, hyperparams, conf_file, offline_ratio, RLPD_DIFFERENCES)

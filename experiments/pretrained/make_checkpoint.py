@@ -15,9 +15,10 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import rl_zoo3
 import rl_zoo3.train as zoo_train
@@ -60,23 +61,12 @@ def zoo_train_argv(log_folder: str, conf_file: str, seed: int) -> list[str]:
             "-f", log_folder, "--seed", str(seed)]
 
 
-@contextlib.contextmanager
-def _argv(argv: Sequence[str]) -> Iterator[None]:
-    saved = sys.argv
-    sys.argv = list(argv)
-    try:
-        yield
-    finally:
-        sys.argv = saved
-
-
 def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, dict[str, Any]]:
     """Run rl-zoo3's ``train`` up to where it saves ``config.yml`` and ``args.yml``; return where, and what."""
     register()
     captured: dict[str, Any] = {}
-    base = zoo_train.ExperimentManager
 
-    class ConfigOnly(base):  # type: ignore[misc, valid-type]
+    class ConfigOnly(zoo_train.ExperimentManager):  # type: ignore[misc, valid-type]
         def setup_experiment(self) -> tuple[None, dict[str, Any]]:
             _, saved = self.read_hyperparameters()
             self.create_log_folder()
@@ -84,12 +74,9 @@ def write_zoo_config(log_folder: str, conf_file: str, seed: int) -> tuple[Path, 
             captured.update(params_path=Path(self.params_path), hyperparams=dict(saved))
             return None, saved  # no model: rl-zoo3's train() stops here
 
-    zoo_train.ExperimentManager = ConfigOnly
-    try:
-        with _argv(["ua2c-zoo train", *zoo_train_argv(log_folder, conf_file, seed)]):
-            zoo_train.train()
-    finally:
-        zoo_train.ExperimentManager = base
+    with (mock.patch.object(zoo_train, "ExperimentManager", ConfigOnly),
+          mock.patch.object(sys, "argv", ["ua2c-zoo train", *zoo_train_argv(log_folder, conf_file, seed)])):
+        zoo_train.train()
     return captured["params_path"], captured["hyperparams"]
 
 
@@ -136,7 +123,7 @@ def drop_optimizer_moments(src: Path, dst: Path) -> Path:
 
 def run_cli(argv: list[str]) -> float:
     """Run ``python -m envs <argv>`` (the project's command line); return its wall time [s]."""
-    print("$ python -m envs " + " ".join(_quote(a) for a in argv), flush=True)
+    print(f"$ {_shell(argv)}", flush=True)
     t0 = time.time()
     code = subprocess.run([sys.executable, "-m", "envs", *argv]).returncode
     if code != 0:
@@ -144,8 +131,9 @@ def run_cli(argv: list[str]) -> float:
     return time.time() - t0
 
 
-def _quote(arg: str) -> str:
-    return f"'{arg}'" if any(c in arg for c in " {}\"[]") else arg
+def _shell(argv: Sequence[str]) -> str:
+    """``python -m envs <argv>`` as the README shows it (an argument with a space, brace, quote or bracket quoted)."""
+    return "python -m envs " + " ".join(f"'{a}'" if any(c in a for c in " {}\"[]") else a for a in argv)
 
 
 def check_no_machine_paths(folder: Path, forbidden: Sequence[str]) -> None:
@@ -160,18 +148,14 @@ def check_no_machine_paths(folder: Path, forbidden: Sequence[str]) -> None:
 
 def readme(info: dict[str, Any]) -> str:
     s = info["summary"]
-    rows = "\n".join(
-        f"| {name} | {value} |" for name, value in (
-            ("reward (mean)", f"{s['reward']:.2f}"), ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
-            ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"), ("collision rate", f"{s['collision']:.2f}"),
-            ("merge success rate", f"{s['merge_success']:.2f}"), ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
-            ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}"))
-    )
+    rows = "\n".join(f"| {name} | {value} |" for name, value in (
+        ("reward (mean)", f"{s['reward']:.2f}"), ("cumulative jerk [m/s³] (mean)", f"{s['cumulative_jerk']:.1f}"),
+        ("jerk per step [m/s³] (mean)", f"{s['jerk_per_step']:.3f}"), ("collision rate", f"{s['collision']:.2f}"),
+        ("merge success rate", f"{s['merge_success']:.2f}"), ("mean speed [m/s]", f"{s['mean_speed']:.2f}"),
+        ("mean executed chunk length L_t", f"{s['mean_executed_length']:.2f}")))
     episodes = "\n".join(
         f"| {r.seed} | {r.reward:.2f} | {r.length} | {r.cumulative_jerk:.1f} | {'yes' if r.collision else 'no'} "
-        f"| {'yes' if r.merge_success else 'no'} | {r.mean_executed_length:.2f} |"
-        for r in info["episodes"]
-    )
+        f"| {'yes' if r.merge_success else 'no'} | {r.mean_executed_length:.2f} |" for r in info["episodes"])
     return f"""# UA2C on MixedTraffic-v0, Phase 1 (offline pre-training)
 
 `MixedTraffic-v0.zip` is a UA2C checkpoint pre-trained offline (Phase 1, fixed chunks of k = 5) on
@@ -289,28 +273,16 @@ def build(args: argparse.Namespace, out: Path, work: Path, hyperparams: dict[str
     trained_with = {**defaults(), **algo_kwargs}  # the zoo entry's values over the library's defaults
 
     def shown(cmd: list[str]) -> str:
-        text = "python -m envs " + " ".join(_quote(a) for a in cmd)
-        return text.replace(str(dataset_dir), "DATA/dataset").replace(str(full_ckpt), "DATA/pretrained.zip")
+        return _shell(cmd).replace(str(dataset_dir), "DATA/dataset").replace(str(full_ckpt), "DATA/pretrained.zip")
 
     return {
-        "out_name": out.name,
+        "out_name": out.name, "collect_command": shown(collect_argv), "pretrain_command": shown(pretrain_argv),
         "zoo_command": "ua2c-zoo train " + " ".join(zoo_train_argv("rl-trained-agents", args.conf_file, args.seed)),
-        "collect_command": shown(collect_argv),
-        "pretrain_command": shown(pretrain_argv),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "versions": f"{__version__} / {stable_baselines3.__version__} / {rl_zoo3.__version__} / {torch.__version__}",
-        "n_episodes": len(dataset),
-        "total_steps": dataset.total_steps,
-        "mean_return": dataset.metadata["mean_return"],
-        "steps": args.steps,
-        "batch_size": trained_with["batch_size"],
-        "seed": args.seed,
-        "collect_seconds": collect_seconds,
-        "pretrain_seconds": pretrain_seconds,
-        "size": shipped.stat().st_size,
-        "full_size": full_ckpt.stat().st_size,
-        "eval_seed": eval_seed,
-        "entropy_threshold": trained_with["entropy_threshold"],
-        "summary": summarize(results),
-        "episodes": results,
+        "n_episodes": len(dataset), "total_steps": dataset.total_steps, "mean_return": dataset.metadata["mean_return"],
+        "steps": args.steps, "batch_size": trained_with["batch_size"], "seed": args.seed, "eval_seed": eval_seed,
+        "collect_seconds": collect_seconds, "pretrain_seconds": pretrain_seconds,
+        "size": shipped.stat().st_size, "full_size": full_ckpt.stat().st_size,
+        "entropy_threshold": trained_with["entropy_threshold"], "summary": summarize(results), "episodes": results,
     }
