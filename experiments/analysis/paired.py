@@ -87,8 +87,7 @@ def pair(x: SeedScores, y: SeedScores, higher_is_better: bool = True) -> dict[st
         if differ:
             raise ValueError(f"not paired: on seed(s) {differ} the two runs used different datasets or "
                              f"evaluation scenarios ({x.conditions[differ[0]]} vs {y.conditions[differ[0]]})")
-    sx = np.array([x.scores[s] for s in shared])  # (n_shared,)
-    sy = np.array([y.scores[s] for s in shared])  # (n_shared,)
+    sx, sy = (np.array([side.scores[s] for s in shared]) for side in (x, y))  # (n_shared,) each
     return {"seeds": shared, "x_mean": float(sx.mean()), "y_mean": float(sy.mean()),
             **paired_difference(sx, sy, higher_is_better=higher_is_better)}
 

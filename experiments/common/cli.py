@@ -89,12 +89,10 @@ def run_command(run: Callable[[], int]) -> int:
     """``run()``'s exit code, or its error's printed to stderr: 2 for a usage error, 1 when units failed."""
     try:
         return run()
-    except UnitsFailedError as exc:
+    except (UnitsFailedError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2 if all("SeedBusyError" in tb for tb in exc.failures.values()) else 1
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        failed = isinstance(exc, UnitsFailedError) and not all("SeedBusyError" in tb for tb in exc.failures.values())
+        return 1 if failed else 2
 
 
 def harness_main(parser: argparse.ArgumentParser, argv: Sequence[str] | None, prog: str,

@@ -40,9 +40,3 @@ def wall_seconds(units: Sequence[float], workers: int) -> float:
     """Wall seconds of ``units`` (CPU seconds each) run longest first on ``workers`` cores."""
     return list_schedule_seconds(sorted(units, reverse=True), workers) if units else 0.0
 
-
-def format_minutes(what: str, cpu: float, wall: float, workers: int) -> str:
-    """The line printed before a run."""
-    return (f"{what}: estimated {cpu / 60:.0f} CPU-min, ~{wall / 60:.0f} min wall on {workers} worker(s) "
-            "(from the unit times of the committed records; before resuming)")
-

@@ -5,17 +5,10 @@ from __future__ import annotations
 import math
 
 #: The paper's Fig. 2 figures (one seed), in percent.
-PAPER = {
-    "offline_reward_gain_pct": 6.70,
-    "offline_jerk_change_pct": -18.37,
-    "online_reward_gain_pct": 13.17,
-}
+PAPER = {"offline_reward_gain_pct": 6.70, "offline_jerk_change_pct": -18.37, "online_reward_gain_pct": 13.17}
 #: The comparison behind each of the paper's numbers (``comparisons`` key of ``fig2.json``).
-CLAIM_COMPARISONS = {
-    "offline_reward_gain_pct": "offline_reward",
-    "offline_jerk_change_pct": "offline_jerk",
-    "online_reward_gain_pct": "online_reward",
-}
+CLAIM_COMPARISONS = {"offline_reward_gain_pct": "offline_reward", "offline_jerk_change_pct": "offline_jerk",
+                     "online_reward_gain_pct": "online_reward"}
 #: Metrics of :class:`envs.evaluation.EpisodeMetrics` aggregated per method.
 METRICS = (
     "reward", "cumulative_jerk", "jerk_per_step", "collision", "merge_success", "mean_speed", "mean_executed_length")

@@ -184,7 +184,7 @@ def run_units(units: Sequence[Unit], executor: Executor | None = None,
     names = [unit.name for unit in units]
     if len(set(names)) != len(names):
         raise ValueError(f"unit names must be unique, got duplicates {sorted({n for n in names if names.count(n) > 1})}")
-    executor = executor or SerialExecutor()
+    executor, printer = executor or SerialExecutor(), printer or (lambda _: None)
     results: list[UnitResult | None] = [None] * len(units)
     todo = []
     for i, unit in enumerate(units):
@@ -202,16 +202,14 @@ def run_units(units: Sequence[Unit], executor: Executor | None = None,
         progress = f"[{finished[0]}/{len(todo)}]"
         if not ok:
             failures[unit.name] = value
-            if printer:
-                printer(f"{progress} unit {unit.name} FAILED")
+            printer(f"{progress} unit {unit.name} FAILED")
             return
         if unit.result_file is not None:
             write_json(unit.result_file, value)
         results[todo[j]] = UnitResult(unit.name, value, skipped=False, wall_seconds=wall, cpu_seconds=cpu)
-        if printer:
-            printer(f"{progress} unit {unit.name}: {wall:.1f} s wall, {cpu:.1f} s CPU")
+        printer(f"{progress} unit {unit.name}: {wall:.1f} s wall, {cpu:.1f} s CPU")
 
-    if printer and len(todo) < len(units):
+    if len(todo) < len(units):
         printer(f"{len(units) - len(todo)} of {len(units)} unit(s) already stored, {len(todo)} to run")
     if todo:
         executor.map([units[i] for i in todo], on_done)

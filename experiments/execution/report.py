@@ -19,19 +19,15 @@ def run_score(entry: Mapping[str, Any], metric: str) -> float:
     return float(np.mean([float(e[metric]) for e in entry["episodes"]]))
 
 
-def _controls(arms: Sequence[str], rule: str) -> list[str]:
-    return sorted(a for a in arms if a.startswith(f"{rule}:"))
-
-
 def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> dict[str, Any]:
     """``{checkpoint: {mode: {arm: {...}}}}``: scores, ``L_t`` shares, and each rule paired with fixed and its controls."""
     records = sorted(records, key=lambda r: r["seed"])
     out: dict[str, Any] = {}
     for checkpoint in records[0]["checkpoints"]:
+        arms = list(records[0]["checkpoints"][checkpoint])
+        if not all(list(r["checkpoints"][checkpoint]) == arms for r in records):
+            raise ValueError(f"the runs evaluated {checkpoint} under different arms; rerun them alike")
         for mode in MODES:
-            arms = list(records[0]["checkpoints"][checkpoint])
-            if not all(list(r["checkpoints"][checkpoint]) == arms for r in records):
-                raise ValueError(f"the runs evaluated {checkpoint} under different arms; rerun them alike")
             rows: dict[str, Any] = {}
             for arm in arms:
                 entries = [r["checkpoints"][checkpoint][arm][mode] for r in records]
@@ -44,12 +40,9 @@ def summarize(records: Sequence[Mapping[str, Any]], metric: str = "reward") -> d
             for arm in arms:
                 if ":" in arm or arm == "fixed":
                     continue
-                against = ["fixed", *_controls(arms, arm)]
-                rows[arm]["paired"] = {
-                    other: (paired_difference(rows[arm]["per_seed"], rows[other]["per_seed"])
-                            if len(records) > 1 else None)
-                    for other in against
-                }
+                against = ["fixed", *sorted(a for a in arms if a.startswith(f"{arm}:"))]  # fixed, then the controls
+                rows[arm]["paired"] = {other: paired_difference(rows[arm]["per_seed"], rows[other]["per_seed"])
+                                       if len(records) > 1 else None for other in against}
             out.setdefault(checkpoint, {})[mode] = rows
     return out
 
@@ -88,9 +81,8 @@ def overview(summary: Mapping[str, Any]) -> dict[str, dict[str, float]]:
                 if ":" in arm or arm == "fixed":
                     continue
                 cell = cells.setdefault(arm, {"fixed": [], "random": [], "fixed_k": [], "mean_length": []})
-                cell["fixed"].append(row["mean"] - arms["fixed"]["mean"])
-                cell["random"].append(row["mean"] - arms[f"{arm}:random"]["mean"])
-                cell["fixed_k"].append(row["mean"] - arms[f"{arm}:fixed_k"]["mean"])
+                for key, other in (("fixed", "fixed"), ("random", f"{arm}:random"), ("fixed_k", f"{arm}:fixed_k")):
+                    cell[key].append(row["mean"] - arms[other]["mean"])
                 cell["mean_length"].append(float(np.dot(np.arange(1, len(row["length_shares"]) + 1),
                                                         row["length_shares"])))
     return {arm: {key: float(np.mean(values)) for key, values in cell.items()} | {"cells": len(cell["fixed"])}

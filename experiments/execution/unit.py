@@ -29,19 +29,9 @@ BUDGETS = {
 }
 
 
-#: ``run_episodes(model, deterministic) -> (episode rows, executed lengths L_t of every plan)``: one evaluation
+#: ``run_episodes(model, deterministic) -> (episode rows, executed lengths L_t of every plan)``: one evaluation on
+#: the run's scenarios (each study's ``episodes``)
 EpisodeRunner = Callable[[Any, bool], tuple[list[dict[str, Any]], list[int]]]
-
-
-def traffic_episodes(scenario_seed: int, n_episodes: int, settings: Mapping[str, Any]) -> EpisodeRunner:
-    """MixedTraffic-v0's evaluation on the run's scenarios (:func:`envs.evaluation.evaluate`)."""
-
-    def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
-        results = evaluate(model, n_episodes=n_episodes, seeds=(scenario_seed,), env_settings_=dict(settings),
-                           deterministic=deterministic)
-        return episode_rows(results), [n for e in results for n in e.plan_lengths]
-
-    return run
 
 
 def evaluate_rules(model: Any, rules: Sequence[str], calibration: Sequence[Any], run_episodes: EpisodeRunner,
@@ -77,7 +67,7 @@ def checkpoint_rules(name: str, screened_rules: Sequence[str], own_rule_only: bo
 
 
 def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_rules: Sequence[str],
-             screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
+                      screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run on ``MixedTraffic-v0`` with ``make main``'s pipeline and budget (see the module docstring)."""
     th.set_num_threads(1)
     root = Path(work) / f"seed{seed}"
@@ -91,7 +81,12 @@ def run_traffic_study(seed: int, work: str, budget: Mapping[str, int], online_ru
     for rule in online_rules:
         checkpoints[f"online_{rule}"] = finetune(pre, root / f"online_{rule}.zip", budget["finetune_steps"], dataset=ds,
                                                  seed=seed, algo_overrides=dict(RULES[rule]), make_env=make_traffic_env)
-    episodes = traffic_episodes(scenario_base + seed, budget["eval_episodes"], settings)
+
+    def episodes(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:  # :func:`evaluate`
+        results = evaluate(model, n_episodes=budget["eval_episodes"], seeds=(scenario_base + seed,),
+                           env_settings_=dict(settings), deterministic=deterministic)
+        return episode_rows(results), [n for e in results for n in e.plan_lengths]
+
     return {"seed": seed, "budget": dict(budget), "scenario_seed": scenario_base + seed,
             "dataset_mean_return": ds.metadata["mean_return"],
             "checkpoints": evaluate_checkpoints(checkpoints, make_traffic_env(**settings), episodes, ds.episodes,
@@ -126,14 +121,6 @@ def study_budget(task: str, quick: bool = False) -> Any:
     return budget if quick else dataclasses.replace(budget, eval_episodes=OGBENCH_EVAL_EPISODES)
 
 
-def ogbench_episodes(env: Any, n_episodes: int, seed: int, scenario_base: int) -> EpisodeRunner:
-    """The task's evaluation on the run's reset seeds, as the study's :data:`EpisodeRunner`."""
-    def run(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:
-        return run_episodes(model, env, n_episodes, seed, deterministic=deterministic, seed_base=scenario_base)
-
-    return run
-
-
 def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str, online_rules: Sequence[str],
                       screened_rules: Sequence[str], scenario_base: int, own_rule_only: bool = False) -> dict[str, Any]:
     """One run on an OGBench ``task`` (``budget``: an :class:`OGBenchBudget` as a dict)."""
@@ -148,7 +135,10 @@ def run_ogbench_study(seed: int, work: str, budget: Mapping[str, Any], task: str
         checkpoints[f"online_{rule}"] = finetune(checkpoints["offline"], root / f"online_{rule}.zip", b.finetune_steps,
                                                  dataset=ds, seed=seed, algo_overrides={**RULES[rule], **b.cadence})
     env = OGBenchSingleTask(task, **b.env_kwargs)
-    episodes = ogbench_episodes(env, b.eval_episodes, seed, scenario_base)
+
+    def episodes(model: Any, deterministic: bool) -> tuple[list[dict[str, Any]], list[int]]:  # the task's reset seeds
+        return run_episodes(model, env, b.eval_episodes, seed, deterministic=deterministic, seed_base=scenario_base)
+
     return {"seed": seed, "task": task, "budget": b.to_dict(), "scenario_seed": scenario_base + 1000 * seed,
             "checkpoints": evaluate_checkpoints(checkpoints, env, episodes, ds.episodes, screened_rules, own_rule_only,
                                                 seed)}

@@ -65,12 +65,9 @@ def online_phase_stats(episodes: Sequence[Mapping[str, Any]], last_fraction: flo
     if not episodes:
         return {"reward": math.nan, "reward_last": math.nan, "collision": math.nan, "episodes": 0}
     last = episodes[-max(1, int(round(last_fraction * len(episodes)))) :]
-    return {
-        "reward": float(np.mean([e["reward"] for e in episodes])),
-        "reward_last": float(np.mean([e["reward"] for e in last])),
-        "collision": float(np.mean([e["collision"] for e in episodes])),
-        "episodes": len(episodes),
-    }
+    return {"reward": float(np.mean([e["reward"] for e in episodes])),
+            "reward_last": float(np.mean([e["reward"] for e in last])),
+            "collision": float(np.mean([e["collision"] for e in episodes])), "episodes": len(episodes)}
 
 
 def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> dict[str, Any]:
@@ -87,7 +84,7 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
     """Everything ``fig2.json`` holds, from the raw results of ``seeds`` (``default_elite``: as the report recorded)."""
     seeds = list(seeds)
     methods = _methods(raw, seeds)
-    online_phases = _online_phases(raw, methods, seeds, _complete_phases(methods, budget))
+    online_phases = _online_phases(raw, methods, seeds, budget)
     comparisons = _comparisons(methods, online_phases)
     result: dict[str, Any] = {
         **{paper_key: comparisons[key]["change_pct"] for paper_key, key in names.CLAIM_COMPARISONS.items()},
@@ -134,12 +131,6 @@ def _compare(methods: Mapping[str, Any], new: str, base: str, key: str) -> dict[
     return compare(_per_seed(methods, new, key), _per_seed(methods, base, key))
 
 
-def _complete_phases(methods: Mapping[str, Any], budget: Fig2Budget) -> list[int]:
-    """The online phases whose two arms were evaluated on every seed: (c) pools their paired runs."""
-    return [r for r in range(budget.online_replicates)
-            if all(names.replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
-
-
 def _comparisons(methods: Mapping[str, Any], online_phases: Mapping[str, Any]) -> dict[str, Any]:
     """(a)-(c), the comparisons behind the paper's numbers, and those beyond them the run's arms allow."""
     out = {**_method_comparisons(methods, METHOD_PAIRS),
@@ -169,18 +160,11 @@ def _style_summary(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int]) -
     styles = [raw["style"][s] for s in seeds]
     macro = t_summary([float(r["macro_accuracy"]) for r in styles])
     matrix = np.sum([np.asarray(r["confusion_matrix"], dtype=np.int64) for r in styles], axis=0)
-    return {
-        "style_macro_accuracy": macro["mean"],
-        "style": {
-            "macro_accuracy": macro,
-            "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
-            "baseline_macro_accuracy_per_seed": [
-                float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
-            "confusion_matrix": matrix.tolist(),
-            "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds",
-            "classes": styles[0]["classes"],
-        },
-    }
+    return {"style_macro_accuracy": macro["mean"], "style": {
+        "macro_accuracy": macro, "accuracy_per_seed": [float(r["accuracy"]) for r in styles],
+        "baseline_macro_accuracy_per_seed": [float(r["baseline"]["macro_accuracy"]) for r in styles if "baseline" in r],
+        "confusion_matrix": matrix.tolist(), "classes": styles[0]["classes"],
+        "confusion_matrix_layout": "rows = inferred style, columns = ground truth, summed over seeds"}}
 
 
 def _sweep(methods: Mapping[str, Any], field: str, values: Iterable[Any], method: Callable[[Any], str],
@@ -200,12 +184,11 @@ def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite:
         arms = {arm: names.acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}
         if not all(name in methods for name in arms.values()):
             continue
-        row: dict[str, Any] = {"flow_steps": default_n if n is None else n, "n_elite": m}
-        for arm, name in arms.items():
-            row[arm] = {key: methods[name][key] for key in ("reward", "cumulative_jerk", "jerk_per_step", "collision")}
-        row["jerk_change"] = _compare(methods, arms["chunk"], arms["onestep"], "cumulative_jerk")
-        row["reward_change"] = _compare(methods, arms["chunk"], arms["onestep"], "reward")
-        rows.append(row)
+        rows.append({"flow_steps": default_n if n is None else n, "n_elite": m,
+                     **{arm: {key: methods[name][key] for key in ("reward", "cumulative_jerk", "jerk_per_step",
+                                                                  "collision")} for arm, name in arms.items()},
+                     "jerk_change": _compare(methods, arms["chunk"], arms["onestep"], "cumulative_jerk"),
+                     "reward_change": _compare(methods, arms["chunk"], arms["onestep"], "reward")})
     return {"acting_sweep": rows, "acting_default": {"flow_steps": default_n, "n_elite": default_elite}}
 
 
@@ -223,8 +206,11 @@ def _training_episodes(raw: Mapping[str, Mapping[int, Any]], seeds: Sequence[int
 
 
 def _online_phases(raw: Mapping[str, Mapping[int, Any]], methods: Mapping[str, Any], seeds: Sequence[int],
-                   phases: Sequence[int]) -> dict[str, Any]:
-    """The online phases pooled into (c), (c) within each, and both arms' pooled per-run rewards."""
+                   budget: Fig2Budget) -> dict[str, Any]:
+    """The online phases pooled into (c) (those whose two arms were evaluated on every seed), (c) within each, and
+    both arms' pooled per-run rewards."""
+    phases = [r for r in range(budget.online_replicates)
+              if all(names.replicate_name(arm, r) in methods for arm in ("adaptive", "fixed"))]
 
     def rewards(arm: str, suffix: str = "") -> list[float]:
         return [v for r in phases for v in _per_seed(methods, names.replicate_name(arm, r) + suffix, "reward")]

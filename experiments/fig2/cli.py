@@ -28,8 +28,7 @@ from sb3_ua2c.checks import check_int
 
 def recorded_budget(report: str | os.PathLike) -> Fig2Budget:
     """The budget of a ``fig2.json`` or of the directory holding it (newer fields take their defaults)."""
-    path = Path(report)
-    path = path / "fig2.json" if path.is_dir() else path
+    path = Path(report) / "fig2.json" if Path(report).is_dir() else Path(report)
     try:
         recorded = json.loads(path.read_text())["budget"]
     except FileNotFoundError:

@@ -59,11 +59,9 @@ def format_table(rows: Sequence[dict], labels: Sequence[str]) -> str:
     lines = [f"| reward | {labels[0]} (A) | {labels[1]} (B) | B − A, paired [95 % CI] | runs (B ahead) |",
              "|---|---|---|---|---|"]
     for r in rows:
-        if r["label"].endswith(("fixed", "fixed, sampled")) and ": (c)" in r["label"]:
-            head = f"| {r['label']} | fixed {r['a']:.1f} | adaptive {r['b']:.1f} |"
-        else:
-            head = f"| {r['label']} | {r['a']:.1f} | {r['b']:.1f} |"
-        lines.append(f"{head} {interval(r, digits=1)} | {r['runs']} ({r['x_better_runs']}) |")
+        c = ": (c)" in r["label"]  # a report's own (c): A is its fixed arm, B its adaptive arm
+        lines.append(f"| {r['label']} | {'fixed ' * c}{r['a']:.1f} | {'adaptive ' * c}{r['b']:.1f} | "
+                     f"{interval(r, digits=1)} | {r['runs']} ({r['x_better_runs']}) |")
     return "\n".join(lines)
 
 

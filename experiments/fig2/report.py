@@ -109,11 +109,9 @@ def _claims_table(summary: Mapping[str, Any]) -> Lines:
         verdict = "" if paper_key is None else paper_verdict(paper_key, cmp["change_pct"])
         rows.append([label, format_pct(cmp["change_pct"]), per_seed, diff, paper, verdict])
     lines = table(["claim", "ours", "per-seed changes", "paired difference [95 % CI]", "paper", "vs paper"], rows)
-    style = summary.get("style")
-    if style:
-        lines.append(
-            f"| (d) style inference, macro accuracy | {_fmt(style['macro_accuracy'], 3)} | | confusion matrix only | |"
-        )
+    if summary.get("style"):
+        lines.append(f"| (d) style inference, macro accuracy | {_fmt(summary['style']['macro_accuracy'], 3)} | | "
+                     "confusion matrix only | |")
     return lines
 
 
@@ -270,9 +268,7 @@ def _claim_panels(summary: Mapping[str, Any]) -> list[tuple[str, str, str, list[
         for name, title, ylabel, arms, metric, paper_key in CLAIM_PANELS:
             if suffix:
                 name, title = name.replace(".png", "_sampled.png"), f"{title}, sampled"
-                ours = summary["sampled"][paper_key]
-            else:
-                ours = summary["comparisons"][names.CLAIM_COMPARISONS[paper_key]]["change_pct"]
+            ours = (summary["sampled"] if suffix else summary)[paper_key]  # the change_pct of the claim's comparison
             stats = {a: methods[a + suffix][metric] for a in arms}
             if paper_key == "online_reward_gain_pct" and len(op.get("phases", [0])) > 1:  # every pooled run
                 stats, title = {a: op[a + suffix] for a in arms}, f"{title}, {op['runs']} runs"

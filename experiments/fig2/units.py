@@ -32,13 +32,11 @@ _PART_FILES = {"main": (".lock", "unit_seconds.json"), "style": (".lock-style", 
 
 def complete_dataset(path: Path, n_episodes: int) -> Any:
     """The dataset at ``path`` when it holds ``n_episodes`` episodes, else ``None`` (missing, damaged: collect it)."""
-    if (path / METADATA_FILE).is_file():
-        try:
-            ds = load_dataset(path)
-        except OfflineDatasetError:
-            return None
-        return ds if len(ds) == n_episodes else None
-    return None
+    try:
+        ds = load_dataset(path) if (path / METADATA_FILE).is_file() else None
+    except OfflineDatasetError:
+        return None
+    return ds if ds is not None and len(ds) == n_episodes else None
 
 
 class SeedBusyError(ValueError):
@@ -180,8 +178,7 @@ class SeedUnits:
         if budget.sampled_eval:  # the same checkpoints acting with fresh candidate noise, as in Phase 2
             sampled = {"onestep": (ckpt[1], None), "chunk": (ckpt[k], math.inf), "chunk_adaptive": (ckpt[k], delta),
                        "fixed": (fixed, math.inf), "adaptive": (adaptive, delta), "fixed_adaptive": (fixed, delta)}
-            for method in names.SAMPLED_METHODS:
-                checkpoint, threshold = sampled[method]
+            for method, (checkpoint, threshold) in sampled.items():  # names.SAMPLED_METHODS, in order
                 self.evaluate(names.sampled_name(method), checkpoint, settings, threshold, deterministic=False)
         # more online phases from the same checkpoint, pooled into (c) (the first one is in online())
         for r in range(1, budget.online_replicates):
@@ -280,8 +277,7 @@ def run_all(seeds: Sequence[int], budget: Fig2Budget, paths: RunPaths, workers: 
     check_int("Fig2Budget.workers", workers)
     paths.check_budget(budget)
     parts = [(s, part) for part in SEED_PARTS for s in seeds]
-    serial = ray_address is None and workers == 1
-    executor = make_executor(min(workers, len(parts)), ray_address, serial=serial)
+    executor = make_executor(min(workers, len(parts)), ray_address, serial=ray_address is None and workers == 1)
     units = [Unit(f"seed{s}/{part}", run_fig2_seed_unit, {"seed": s, "budget": budget.to_dict(), "paths": paths,
                                                            "part": part}) for s, part in parts]
     executed: list[str] = []

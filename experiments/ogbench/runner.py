@@ -97,22 +97,18 @@ def build_units(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OG
     data_dir = work / "data"
     data = Unit(f"data/{task}", generation_unit, {"task": task, "budget": budget, "data_dir": str(data_dir)},
                 result_file=dataset_file(task, budget, data_dir).with_suffix(".json"))
-    units = [
-        Unit(f"{task}/{arm}-s{seed}", run_ogbench_unit,
-             {"arm": arm, "task": task, "seed": seed, "budget": budget,
-              "out_dir": str(unit_dir(work, task, arm, seed)), "data_dir": str(data_dir)},
-             result_file=unit_dir(work, task, arm, seed) / "record.json")
-        for arm in arms for seed in seeds
-    ]
+    units = [Unit(f"{task}/{arm}-s{seed}", run_ogbench_unit,
+                  {"arm": arm, "task": task, "seed": seed, "budget": budget,
+                   "out_dir": str(unit_dir(work, task, arm, seed)), "data_dir": str(data_dir)},
+                  result_file=unit_dir(work, task, arm, seed) / "record.json") for arm in arms for seed in seeds]
     return data, units
 
 
 def check_stored_budget(units: Sequence[Unit], budget: OGBenchBudget) -> None:
     """Refuse a work directory whose stored units ran under another budget (``--work``)."""
-    for unit in units:
-        if unit.result_file is not None:
-            check_budget_record(unit.result_file, budget.to_dict(), f"--work: {unit.result_file}",
-                                read=lambda record: record.get("budget") or {}, write=False)
+    for unit in units:  # each with its result file (build_units)
+        check_budget_record(unit.result_file, budget.to_dict(), f"--work: {unit.result_file}",
+                            read=lambda record: record.get("budget") or {}, write=False)
 
 
 def run_benchmark(task: str, arms: Sequence[str], seeds: Sequence[int], budget: OGBenchBudget, work: str | Path,
@@ -126,17 +122,11 @@ def run_benchmark(task: str, arms: Sequence[str], seeds: Sequence[int], budget: 
 
 def stored_records(task: str, arms: Sequence[str], seeds: Sequence[int], work: str | Path) -> list[dict[str, Any]]:
     """The records already stored in ``work`` (``--report-only``); a missing one is a ``ValueError``."""
-    records, missing = [], []
-    for arm in arms:
-        for seed in seeds:
-            path = unit_dir(Path(work), task, arm, seed) / "record.json"
-            if path.is_file():
-                records.append(json.loads(path.read_text()))
-            else:
-                missing.append(f"{arm}-s{seed}")
+    paths = {f"{arm}-s{seed}": unit_dir(Path(work), task, arm, seed) / "record.json" for arm in arms for seed in seeds}
+    missing = [name for name, path in paths.items() if not path.is_file()]
     if missing:
         raise ValueError(f"--report-only: no stored record for {missing} under {Path(work) / 'units' / task}")
-    return records
+    return [json.loads(path.read_text()) for path in paths.values()]
 
 
 def seeds_arg(values: Iterable[int]) -> list[int]:

@@ -26,11 +26,8 @@ from sb3_ua2c.pipeline import finetune, load_checkpoint, pretrain, write_json
 #: UA2C arguments of the arms (everything else is the budget's ``algo_kwargs``, the same for all):
 #: ``adaptive`` is UA2C's default chunking (k and δ), ``fixed`` executes every chunk in full (δ = inf: how
 #: Q-chunking acts), ``onestep`` replans every step (k = 1).
-ARMS: dict[str, dict[str, Any]] = {
-    "adaptive": {},
-    "fixed": {"entropy_threshold": math.inf},
-    "onestep": {"chunk_size": 1},
-}
+ARMS: dict[str, dict[str, Any]] = {"adaptive": {}, "fixed": {"entropy_threshold": math.inf},
+                                   "onestep": {"chunk_size": 1}}
 
 #: Evaluation episode ``i`` of seed ``s`` resets with seed ``EVAL_SEED_BASE + 1000 * s + i``: the scenarios of
 #: the reported numbers (test). Choices (the execution-rule screen) use ``VALIDATION_SEED_BASE`` instead.
@@ -152,9 +149,8 @@ class _OnlineCurve(BaseCallback):
             self.training.append({"step": self.num_timesteps, "success": float(info["success"]), "return": self._return})
             self._return = 0.0
         while self.eval_at and self.num_timesteps >= self.eval_at[0]:
-            step = self.eval_at.pop(0)
             result = evaluate_success(self.model, self.env, self.episodes, self.seed)
-            self.evaluations.append({"step": step, "success": result["success"]})
+            self.evaluations.append({"step": self.eval_at.pop(0), "success": result["success"]})
         return True
 
 

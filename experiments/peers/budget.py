@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from experiments.common.budget import Budget, Check, integer, mapping, one_of, optional
-from experiments.common.estimate import estimate, format_minutes, recorded, seconds_per_size, wall_seconds
+from experiments.common.estimate import estimate, recorded, seconds_per_size, wall_seconds
 from experiments.common.names import SCENARIO_BASES
 from experiments.fig2.budget import FULL_BUDGET, QUICK_BUDGET, Fig2Budget, finetune_overrides
 
@@ -220,5 +220,7 @@ def estimate_units(budget: PeersBudget, arms: Sequence[str], n_seeds: int, worke
 
 def format_estimate(estimate: Mapping[str, Any]) -> str:
     """The estimate as printed before a run: per arm (one unit) and in total."""
+    head = (f"peers: estimated {estimate['cpu'] / 60:.0f} CPU-min, ~{estimate['wall'] / 60:.0f} min wall on "
+            f"{estimate['workers']} worker(s) (from the unit times of the committed records; before resuming)")
     lines = [f"  {arm:22s} {s / 60:6.1f} CPU-min per unit" for arm, s in estimate["per_unit"].items()]
-    return "\n".join([format_minutes("peers", estimate["cpu"], estimate["wall"], estimate["workers"]), *lines])
+    return "\n".join([head, *lines])

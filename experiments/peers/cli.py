@@ -119,9 +119,8 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
     print(f"peers: seeds {seeds}, arms {arms}, {budget.online_steps} online env steps per arm", flush=True)
     print(format_estimate(estimate_units(budget, arms, len(seeds), args.workers)), flush=True)
     if args.rerun:
-        for s in seeds:
-            for a in arms:
-                paths.record(s, a).unlink(missing_ok=True)
+        for record in [paths.record(s, a) for s in seeds for a in arms]:
+            record.unlink(missing_ok=True)
     executor = make_executor(args.workers, args.ray_address, serial=args.workers == 1 and args.ray_address is None)
     t0 = time.perf_counter()
     with ray_session(args.ray_address):

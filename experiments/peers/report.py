@@ -71,12 +71,9 @@ def lengths_table(summary: Mapping[str, Any]) -> list[str]:
     rows = [(arm["label"], arm.get("length_shares") or {}) for arm in summary["arms"].values()]
     if not any(shares.get("online") or shares.get("offline") for _, shares in rows):
         return ["Not recorded in these runs (the records keep L_t per plan since 2026-12-04: rerun to see it)."]
-
-    def cell(shares: list[float] | None) -> str:
-        return "–" if shares is None else format_length_shares(shares)
-
     return table(["arm", "offline: L_t = 1..k, % of plans", "online"],
-                 ([label, cell(shares.get("offline")), cell(shares.get("online"))] for label, shares in rows))
+                 ([label, *("–" if shares.get(p) is None else format_length_shares(shares[p])
+                            for p in ("offline", "online"))] for label, shares in rows))
 
 
 def arm_summary(records: Sequence[Mapping[str, Any]], reps: int = 2000) -> dict[str, Any]:
@@ -264,11 +261,9 @@ def write_plots(summary: Mapping[str, Any], out: Path) -> list[Path]:
     with figure(curves, (10, 4.5)) as fig:
         ax = fig.add_subplot()
         for name, arm in arms.items():
-            c = arm["curve"]
-            if c is None:
-                continue
-            (line,) = ax.plot(c["env_steps"], c["mean"], label=arm["label"], ls="-" if name in UA2C_ARMS else "--")
-            ax.fill_between(c["env_steps"], c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.15)
+            if (c := arm["curve"]) is not None:
+                (line,) = ax.plot(c["env_steps"], c["mean"], label=arm["label"], ls="-" if name in UA2C_ARMS else "--")
+                ax.fill_between(c["env_steps"], c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.15)
         ax.set_xlabel("online env steps")
         ax.set_ylabel("training episode return")
         ax.set_title("Online learning curves (mean over seeds, 95 % bootstrap band)", fontsize=9)
@@ -319,10 +314,8 @@ def _protocol_lines(summary: Mapping[str, Any]) -> list[str]:
 
 def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
     """The protocol's lines on the UA2C arms of ``summary`` (those it holds)."""
-    b = summary["budget"]["ua2c"]
-    arms = summary["arms"]
+    b, ours = summary["budget"]["ua2c"], set(summary["arms"]) & set(UA2C_ARMS)
     lines = []
-    ours = set(arms) & set(UA2C_ARMS)
     if ours & {"ua2c", "ua2c_paper"}:
         lines.append(
             "- UA2C as a user gets it (`ua2c`: this release's defaults with the budget's `algo_kwargs`, one "
@@ -347,7 +340,7 @@ def _ua2c_protocol(summary: Mapping[str, Any]) -> list[str]:
 def format_markdown(summary: Mapping[str, Any]) -> str:
     """``peers.md``: what ran, the verdicts, the tables and the plots."""
     est = summary["estimate"]
-    lines = [
+    return "\n".join([
         "# Head-to-head on MixedTraffic-v0: UA2C against SB3, sb3-contrib and d3rlpy",
         "",
         f"Command: `{summary['command']}` ({summary['date']}). Seeds: {summary['seeds']}. "
@@ -378,8 +371,7 @@ def format_markdown(summary: Mapping[str, Any]) -> str:
                  "![online learning curves](peers_curves.png)", "", "![IQM bars](peers_iqm.png)"),
         *section("Short table (for the README)", *readme_table(summary)),
         "",
-    ]
-    return "\n".join(lines)
+    ])
 
 
 def write_report(summary: Mapping[str, Any], out: Path) -> list[Path]:
