@@ -47,11 +47,15 @@ def _sb3_grid(lr: float) -> tuple[Setting, ...]:
             Setting("learning_starts 100", {"learning_starts": 100}))
 
 
+#: UA2C's sampler and field on the tuning's day (2026-12-04; the records hold the field): spelt out so that the
+#: tuning and its ``selected.json`` stay that day's now that the library's defaults are N = 5 and 256 × 2
+TUNING_DAY_FIELD = {"flow_steps": 10, "policy_kwargs": {"net_arch": [512, 512, 512], "n_elite": 8}}  # same as default: n_elite
+
 #: Per tuned method, its configurations; the first is its published setting (the head-to-head's default).
 GRID: dict[str, tuple[Setting, ...]] = {
-    "ua2c_adaptive": (Setting("λ (q_weight) 1, the default", {"q_weight": 1.0}),  # the default of the tuning's day
-                      Setting("λ 0.3", {"q_weight": 0.3}),  # same as default: the grid names the value it tried
-                      Setting("λ 3", {"q_weight": 3.0})),
+    "ua2c_adaptive": (Setting("λ (q_weight) 1, the default", {**TUNING_DAY_FIELD, "q_weight": 1.0}),  # that day's
+                      Setting("λ 0.3", {**TUNING_DAY_FIELD, "q_weight": 0.3}),  # same as default: the value tried
+                      Setting("λ 3", {**TUNING_DAY_FIELD, "q_weight": 3.0})),
     "sac": _sb3_grid(1e-3),
     "tqc": _sb3_grid(1e-3),
     "crossq": _sb3_grid(3e-4),

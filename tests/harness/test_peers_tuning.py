@@ -17,24 +17,26 @@ from experiments.peers.runner import PeersPaths, arm_unit
 
 def test_configuration_zero_is_every_method_at_its_published_settings():
     base = FULL_PEERS_BUDGET
-    # UA2C's published λ is 1 (the paper's, and its default when the tuning ran), written out now that the default is 0.3
-    assert tuning.overrides({a: 0 for a in tuning.TUNED_ARMS}, base) == {"ua2c": {"algo_kwargs": {"q_weight": 1.0}}}
+    # UA2C's published λ is 1 (the paper's, and its default when the tuning ran), written out now that the default
+    # is 0.3, with that day's N = 10 and 3 × 512 field (the defaults since 2026-12-07 are N = 5 and 256 × 2)
+    day = {"flow_steps": 10, "policy_kwargs": {"net_arch": [512, 512, 512], "n_elite": 8}}
+    assert tuning.overrides({a: 0 for a in tuning.TUNED_ARMS}, base) == {"ua2c": {"algo_kwargs": {**day, "q_weight": 1.0}}}
     assert tuning.overrides({a: 0 for a in tuning.TUNED_ARMS if a != "ua2c_adaptive"}, base) == {}
     assert tuning.config_budget(0, tuning.TUNED_ARMS, base) == PeersBudget(scenarios="validation").with_overrides(
-        {"ua2c": {"algo_kwargs": {"q_weight": 1.0}}})
+        {"ua2c": {"algo_kwargs": {**day, "q_weight": 1.0}}})
     assert all(len(settings) == tuning.N_CONFIGS for settings in tuning.GRID.values())  # the same budget for all
 
 
 def test_a_configuration_sets_each_method_where_its_unit_reads_it():
     base = FULL_PEERS_BUDGET
     assert tuning.overrides({"ua2c_adaptive": 1, "sac": 1, "rlpd": 2, "iql": 1}, base) == {
-        "ua2c": {"algo_kwargs": {"q_weight": 0.3}},
+        "ua2c": {"algo_kwargs": {**tuning.TUNING_DAY_FIELD, "q_weight": 0.3}},
         "peer_kwargs": {"sac": {"learning_rate": 1e-3}, "iql": {"expectile": 0.9, "weight_temp": 10.0}},
         "rlpd_updates_per_step": 8,
     }
     budget = tuning.config_budget(2, tuning.TUNED_ARMS, base)
     assert budget.scenarios == "validation" and budget.rlpd_updates_per_step == 8
-    assert budget.ua2c.algo_kwargs == {"q_weight": 3.0}  # the rest at UA2C's defaults
+    assert budget.ua2c.algo_kwargs == {**tuning.TUNING_DAY_FIELD, "q_weight": 3.0}  # the rest at UA2C's defaults
     assert budget.peer_kwargs["calql"] == {"conservative_weight": 0.2}
     paths = PeersPaths.under("/tmp/run")
     assert arm_unit("crossq", 0, budget, paths, {}).kwargs["hyperparams"] == {"learning_starts": 100}
