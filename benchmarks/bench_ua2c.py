@@ -7,6 +7,7 @@
     python benchmarks/bench_ua2c.py learning     # mean return after 20k steps, 3 seeds each
     python benchmarks/bench_ua2c.py learning --seeds 0 1 2 3 4 --json results/pendulum/pendulum.json
     python benchmarks/bench_ua2c.py learning --algos UA2C --ua2c-kwargs "{'chunk_size': 1}"
+    python benchmarks/bench_ua2c.py merge --inputs part1.json part2.json --json all.json   # runs split by seed
     python benchmarks/bench_ua2c.py profile --env envs:MixedTraffic-v0   # where a step and a replanning go
 
 Everything runs on one CPU thread. The machine may be shared: read the ratios, not the absolute times.
@@ -222,6 +223,38 @@ def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str],
         Path(json_path).write_text(json.dumps(record, indent=1) + "\n")
 
 
+def merge(inputs: list[str], json_path: str) -> None:
+    """One ``learning --json`` record from several that ran the same protocol on other seeds or algorithms
+    (e.g. in parallel processes): per algorithm its returns in seed order, the parts' commands kept."""
+    parts = [json.loads(Path(f).read_text()) for f in inputs]
+    protocol = ("steps", "eval_episodes", "env", "ua2c_kwargs", "torch")
+    for f, part in zip(inputs[1:], parts[1:]):
+        differ = [k for k in protocol if part[k] != parts[0][k]]
+        if differ:
+            raise SystemExit(f"error: {f} differs from {inputs[0]} in {differ}: not the same protocol")
+    by_seed: dict[str, dict[int, float | None]] = {}
+    for part in parts:
+        names = [k for k in part if isinstance(part[k], list) and k not in ("seeds", "ua2c_mean_executed_length")]
+        for name in names:
+            for seed, value in zip(part["seeds"], part[name]):
+                if seed in by_seed.setdefault(name, {}):
+                    raise SystemExit(f"error: {name} seed {seed} is in more than one input")
+                by_seed[name][seed] = value
+        for seed, length in zip(part["seeds"], part.get("ua2c_mean_executed_length", [])):
+            by_seed.setdefault("ua2c_mean_executed_length", {})[seed] = length
+    seeds = sorted({s for values in by_seed.values() for s in values})
+    missing = {name: [s for s in seeds if s not in values] for name, values in by_seed.items()}
+    if any(missing.values()):
+        raise SystemExit(f"error: seeds missing from the inputs: {missing}")
+    record = {name: [values[s] for s in seeds] for name, values in by_seed.items()}
+    record |= {"seeds": seeds, **{k: parts[0][k] for k in protocol}, "commands": [p["command"] for p in parts],
+               "dates": [p["date"] for p in parts], "merged_by": shlex.join(["python", *sys.argv])}
+    Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+    Path(json_path).write_text(json.dumps(record, indent=1) + "\n")
+    for name in (n for n in record if n in ("ua2c", "sac")):
+        print(f"{name}: mean {np.mean(record[name]):.1f} over seeds {seeds}")
+
+
 #: configurations of ``profile``: the defaults, the paper preset, the defaults before 2026-12-07 and one
 #: speed lever each (on the defaults). The split follows the default bootstrap (Eq. 4's candidates):
 #: ``critic_target="in_sample"`` is timed whole by ``throughput``, not here
@@ -337,7 +370,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("part", choices=["latency", "throughput", "learning", "profile"])
+    parser.add_argument("part", choices=["latency", "throughput", "learning", "profile", "merge"])
     parser.add_argument("--repeats", type=int, default=300, help="latency: timed calls")
     parser.add_argument(
         "--steps", type=int, default=None, help="throughput: 1000 timed steps; learning: 20000"
@@ -356,8 +389,14 @@ def main() -> None:
     parser.add_argument("--configs", nargs="+", choices=list(PROFILE_CONFIGS), default=list(PROFILE_CONFIGS),
                         help="profile: the configurations to measure")
     parser.add_argument("--algos", nargs="+", choices=["UA2C", "SAC"], default=["UA2C", "SAC"])
-    parser.add_argument("--json", default=None, help="learning: write the per-seed returns to this JSON file")
+    parser.add_argument("--json", default=None, help="learning, merge: write the per-seed returns to this JSON file")
+    parser.add_argument("--inputs", nargs="+", default=[], help="merge: the learning --json files to merge")
     args = parser.parse_args()
+    if args.part == "merge":
+        if not args.inputs or not args.json:
+            parser.error("merge needs --inputs FILE [FILE ...] and --json OUT")
+        merge(args.inputs, args.json)
+        return
     th.set_num_threads(1)
     print(f"torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
     if args.part == "latency":

@@ -15,10 +15,11 @@ import copy
 from typing import Any
 
 #: The paper as written ("UA2C: Uncertainty-Aware Adaptive Action Chunking for Offline-to-Online
-#: Decision-Making in Mixed Traffic"). The constructors' defaults of this release differ from it in five
+#: Decision-Making in Mixed Traffic"). The constructors' defaults of this release differ from it in six
 #: values, chosen on validation seeds and scenarios of ``MixedTraffic-v0`` (docs/algorithm.md,
 #: "Defaults and the paper preset"): ``gradient_steps`` 1 (one update per env step), ``q_weight`` 0.3,
-#: ``flow_steps`` 5, ``policy_kwargs`` ``net_arch`` [256, 256] and ``n_elite`` 8. The preset:
+#: ``flow_steps`` 5, ``exploration`` "softmax", ``policy_kwargs`` ``net_arch`` [256, 256] and ``n_elite``
+#: 8. The preset:
 #:
 #: - ``q_weight`` 1.0, ``normalize_q`` True: Eq. 2's value term ``λ Q(x̂1)``, divided by the batch mean
 #:   ``|Q|`` (TD3+BC's normalisation, so that λ does not depend on the reward scale)
@@ -26,6 +27,7 @@ from typing import Any
 #: - ``flow_steps`` 10, ``n_candidates`` 32: §3.2's sampler when acting (N Euler steps, S candidates)
 #: - ``target_flow_steps`` 2, ``n_target_candidates`` 2: the cheaper sampler of the targets of Eq. 4 / 8
 #: - ``execution_rule`` "threshold", ``entropy_threshold`` 0.0: Eq. 7 with one δ in nats
+#: - ``exploration`` "plan": rollouts act as ``predict`` (with ``n_elite`` 1, the best candidate)
 #: - ``train_freq`` 1, ``gradient_steps`` -1: one update per chunk sampled (per replanning)
 #: - ``offline_ratio`` 0.5, ``online_targets`` "auto": half of each batch offline (§3.3), online samples
 #:   with the executed prefix's target of Eq. 8 once offline episodes are stored
@@ -49,6 +51,7 @@ PAPER: dict[str, Any] = {
     "n_target_candidates": 2,  # same as default: the paper's
     "execution_rule": "threshold",  # same as default: the paper's
     "entropy_threshold": 0.0,  # same as default: the paper's
+    "exploration": "plan",
     "train_freq": 1,  # same as default: the paper's
     "gradient_steps": -1,
     "offline_ratio": 0.5,  # same as default: the paper's

@@ -165,10 +165,11 @@ class UA2C(ChunkRollouts, OfflineTraining, TrainingOptions, Checkpoints):
     :param actor_extraction_kwargs: the own arguments of the ``actor_extraction``'s class (``None``: its
         defaults): ``temperature`` β (3.0) and ``max_weight`` (100, both d3rlpy's IQL) for ``"awr"``
     :param exploration: which candidate a replanning of ``learn()``'s rollouts executes, a key of
-        :data:`~sb3_ua2c.exploration.EXPLORATIONS`: ``"plan"`` (default: as ``predict``, the elite mean)
-        or ``"softmax"`` (not in the paper; IDQL's resampling, Hansen-Estruch et al., 2023): one
-        candidate drawn with probability ``∝ exp(min_j Q_j / T)`` from torch's global random stream.
-        ``predict`` and ``evaluate_policy`` keep the elite mean; ``L_t`` follows the entropies as before
+        :data:`~sb3_ua2c.exploration.EXPLORATIONS`: ``"softmax"`` (default; not in the paper; IDQL's
+        resampling, Hansen-Estruch et al., 2023): one candidate drawn with probability
+        ``∝ exp(min_j Q_j / T)`` from torch's global random stream, or ``"plan"`` (the paper's, and the
+        default until 2026-12-07): as ``predict``, the elite mean. ``predict`` and ``evaluate_policy``
+        keep the elite mean; ``L_t`` follows the entropies as before
     :param exploration_kwargs: the own arguments of the ``exploration``'s class (``None``: its
         defaults): ``temperature`` ``T`` (1.0, in the critics' reward units) for ``"softmax"``
     :param stats_window_size: window size for the rollout logging
@@ -226,7 +227,7 @@ class UA2C(ChunkRollouts, OfflineTraining, TrainingOptions, Checkpoints):
         critic_target_kwargs: dict[str, Any] | None = None,
         actor_extraction: str = "value_term",
         actor_extraction_kwargs: dict[str, Any] | None = None,
-        exploration: str = "plan",
+        exploration: str = "softmax",
         exploration_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,

@@ -65,8 +65,9 @@ def test_defaults_by_hand():
         8, [256, 256], "flow", "transformer")
     assert policy["critic_kwargs"] == {"embed_dim": 32, "n_layers": 1, "n_heads": 1, "ff_dim": 64}
     assert critic_defaults("mlp") == {"net_arch": (256, 256), "layer_norm": True}
-    assert (out["critic_target"], out["actor_extraction"], out["exploration"]) == ("candidates", "value_term", "plan")
-    assert (out["critic_target_kwargs"], out["actor_extraction_kwargs"], out["exploration_kwargs"]) == ({}, {}, {})
+    assert (out["critic_target"], out["actor_extraction"], out["exploration"]) == ("candidates", "value_term", "softmax")
+    assert (out["critic_target_kwargs"], out["actor_extraction_kwargs"], out["exploration_kwargs"]) == (
+        {}, {}, {"temperature": 1.0})
     assert own_defaults(OPTIONS["critic_target"]["in_sample"]) == {
         "expectile": 0.7, "net_arch": (256, 256), "layer_norm": True}
     assert own_defaults(OPTIONS["actor_extraction"]["awr"]) == {"temperature": 3.0, "max_weight": 100.0}

@@ -283,12 +283,13 @@ def test_preset_is_a_copy_and_names_unknown_presets():
 
 
 #: where the defaults of this release leave the paper (docs/algorithm.md, "Defaults and the paper preset")
-CHOSEN = {"gradient_steps": 1, "q_weight": 0.3, "flow_steps": 5, "net_arch": [256, 256], "n_elite": 8}
+CHOSEN = {"gradient_steps": 1, "q_weight": 0.3, "flow_steps": 5, "exploration": "softmax", "net_arch": [256, 256],
+          "n_elite": 8}
 
 
 def test_defaults_leave_the_paper_preset_in_the_chosen_values_only():
-    """The constructors' defaults are the paper preset but for five values chosen on validation: a model
-    built with the preset and those five is the default model, bit for bit."""
+    """The constructors' defaults are the paper preset but for six values chosen on validation: a model
+    built with the preset and those six is the default model, bit for bit."""
     default = UA2C("MlpPolicy", "Pendulum-v1", seed=0)
     built = {name: getattr(default, name) for name in PAPER if name not in ("policy_kwargs", "execution_rule",
                                                                         "entropy_threshold")}
@@ -299,9 +300,9 @@ def test_defaults_leave_the_paper_preset_in_the_chosen_values_only():
     assert {name: value for name, value in built.items() if paper[name] != value} == CHOSEN
     assert list(DEFAULT_NET_ARCH) == CHOSEN["net_arch"]
     kwargs = preset("paper")
-    kwargs.update(gradient_steps=1, q_weight=0.3, flow_steps=5)
+    kwargs.update(gradient_steps=1, q_weight=0.3, flow_steps=5, exploration="softmax")
     kwargs["policy_kwargs"].update(net_arch=[256, 256], n_elite=8)
     assert state_hash(UA2C("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)) == state_hash(default)
     paper_model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, **preset("paper"))
     assert paper_model.policy.net_arch == [128, 128] and paper_model.policy.n_elite == 1
-    assert (paper_model.gradient_steps, paper_model.q_weight) == (-1, 1.0)
+    assert (paper_model.gradient_steps, paper_model.q_weight, paper_model.exploration) == (-1, 1.0, "plan")
