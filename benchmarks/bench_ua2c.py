@@ -228,7 +228,7 @@ def merge(inputs: list[str], json_path: str) -> None:
     (e.g. in parallel processes): per algorithm its returns in seed order, the parts' commands kept."""
     parts = [json.loads(Path(f).read_text()) for f in inputs]
     protocol = ("steps", "eval_episodes", "env", "ua2c_kwargs", "torch")
-    for f, part in zip(inputs[1:], parts[1:]):
+    for f, part in zip(inputs[1:], parts[1:], strict=True):
         differ = [k for k in protocol if part[k] != parts[0][k]]
         if differ:
             raise SystemExit(f"error: {f} differs from {inputs[0]} in {differ}: not the same protocol")
@@ -236,12 +236,13 @@ def merge(inputs: list[str], json_path: str) -> None:
     for part in parts:
         names = [k for k in part if isinstance(part[k], list) and k not in ("seeds", "ua2c_mean_executed_length")]
         for name in names:
-            for seed, value in zip(part["seeds"], part[name]):
+            for seed, value in zip(part["seeds"], part[name], strict=True):
                 if seed in by_seed.setdefault(name, {}):
                     raise SystemExit(f"error: {name} seed {seed} is in more than one input")
                 by_seed[name][seed] = value
-        for seed, length in zip(part["seeds"], part.get("ua2c_mean_executed_length", [])):
-            by_seed.setdefault("ua2c_mean_executed_length", {})[seed] = length
+        if part.get("ua2c_mean_executed_length"):  # empty when the part ran SAC only
+            lengths = zip(part["seeds"], part["ua2c_mean_executed_length"], strict=True)
+            by_seed.setdefault("ua2c_mean_executed_length", {}).update(lengths)
     seeds = sorted({s for values in by_seed.values() for s in values})
     missing = {name: [s for s in seeds if s not in values] for name, values in by_seed.items()}
     if any(missing.values()):
