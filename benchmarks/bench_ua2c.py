@@ -227,11 +227,14 @@ def merge(inputs: list[str], json_path: str) -> None:
     """One ``learning --json`` record from several that ran the same protocol on other seeds or algorithms
     (e.g. in parallel processes): per algorithm its returns in seed order, the parts' commands kept."""
     parts = [json.loads(Path(f).read_text()) for f in inputs]
-    protocol = ("steps", "eval_episodes", "env", "ua2c_kwargs", "torch")
-    for f, part in zip(inputs[1:], parts[1:], strict=True):
-        differ = [k for k in protocol if part[k] != parts[0][k]]
+    protocol = ("steps", "eval_episodes", "env", "torch")
+    with_ua2c = [(f, p) for f, p in zip(inputs, parts, strict=True) if p.get("ua2c")]
+    checks = [(f, p, inputs[0], parts[0], protocol) for f, p in zip(inputs[1:], parts[1:], strict=True)]
+    checks += [(f, p, *with_ua2c[0], ("ua2c_kwargs",)) for f, p in with_ua2c[1:]]  # UA2C's arguments: its parts only
+    for f, part, first, reference, keys in checks:
+        differ = [k for k in keys if part[k] != reference[k]]
         if differ:
-            raise SystemExit(f"error: {f} differs from {inputs[0]} in {differ}: not the same protocol")
+            raise SystemExit(f"error: {f} differs from {first} in {differ}: not the same protocol")
     by_seed: dict[str, dict[int, float | None]] = {}
     for part in parts:
         names = [k for k in part if isinstance(part[k], list) and k not in ("seeds", "ua2c_mean_executed_length")]
@@ -248,7 +251,8 @@ def merge(inputs: list[str], json_path: str) -> None:
     if any(missing.values()):
         raise SystemExit(f"error: seeds missing from the inputs: {missing}")
     record = {name: [values[s] for s in seeds] for name, values in by_seed.items()}
-    record |= {"seeds": seeds, **{k: parts[0][k] for k in protocol}, "commands": [p["command"] for p in parts],
+    record |= {"seeds": seeds, **{k: parts[0][k] for k in protocol},
+               "ua2c_kwargs": with_ua2c[0][1]["ua2c_kwargs"] if with_ua2c else {}, "commands": [p["command"] for p in parts],
                "dates": [p["date"] for p in parts], "merged_by": shlex.join(["python", *sys.argv])}
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     Path(json_path).write_text(json.dumps(record, indent=1) + "\n")

@@ -30,7 +30,8 @@ def _part(path: Path, seeds, command: str, **returns) -> str:
 def test_merge_orders_each_algorithm_by_seed(bench, tmp_path):
     a = _part(tmp_path / "a.json", [3, 4], "a", ua2c=[-3.0, -4.0], sac=[-30.0, -40.0])
     b = _part(tmp_path / "b.json", [0, 1, 2], "b", ua2c=[0.0, -1.0, -2.0])
-    c = _part(tmp_path / "c.json", [2, 0, 1], "c", sac=[-20.0, 0.0, -10.0])
+    c = _part(tmp_path / "c.json", [2, 0, 1], "c", sac=[-20.0, 0.0, -10.0])  # SAC alone: its ua2c_kwargs are not read
+    Path(c).write_text(Path(c).read_text().replace('"ua2c_kwargs": {}', '"ua2c_kwargs": {"ignored": 1}'))
     bench.merge([a, b, c], str(tmp_path / "all.json"))
     out = json.loads((tmp_path / "all.json").read_text())
     assert out["seeds"] == [0, 1, 2, 3, 4]
@@ -48,6 +49,11 @@ def test_merge_refuses_other_protocols_doubles_and_gaps(bench, tmp_path):
         bench.merge([a, str(other)], str(tmp_path / "out.json"))
     with pytest.raises(SystemExit, match="ua2c seed 0 is in more than one input"):
         bench.merge([a, a], str(tmp_path / "out.json"))
+    kwargs = tmp_path / "k.json"
+    _part(kwargs, [1], "k", ua2c=[0.0], sac=[1.0])
+    kwargs.write_text(kwargs.read_text().replace('"ua2c_kwargs": {}', '"ua2c_kwargs": {"chunk_size": 1}'))
+    with pytest.raises(SystemExit, match=r"differs .* \['ua2c_kwargs'\]"):
+        bench.merge([a, str(kwargs)], str(tmp_path / "out.json"))
     gap = _part(tmp_path / "c.json", [1], "c", ua2c=[0.0])
     with pytest.raises(SystemExit, match="seeds missing"):
         bench.merge([a, gap], str(tmp_path / "out.json"))
