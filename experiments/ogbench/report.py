@@ -37,7 +37,9 @@ def success_matrix(records: Sequence[Mapping[str, Any]], phase: str) -> np.ndarr
 
 def records_from_report(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The run records a written ``ogbench.json`` keeps, to rebuild the report where the unit records are gone."""
-    return [{**r, "task": summary["task"], "budget": summary["budget"]} for r in summary["records"]]
+    return [{**r, "task": summary["task"], "budget": summary["budget"],
+             **{f"eval_{phase}": {"length_shares": v} for phase, v in r.get("length_shares", {}).items()}}
+            for r in summary["records"]]
 
 
 def by_arm(records: Sequence[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
@@ -206,7 +208,10 @@ def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command:
     """Write ``ogbench.md``, ``ogbench.json`` and (``plots``) the PNGs into ``out``; return the summary."""
     summary = summarize(records, reps=reps)
     summary.update(command=command, estimate=dict(estimate) if estimate else None, date=date)
-    kept = [{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")} for r in records]
+    kept = [{**{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")},
+             **({"length_shares": shares} if (shares := {p: r[f"eval_{p}"]["length_shares"] for p in PHASES
+                                                         if "length_shares" in (r.get(f"eval_{p}") or {})}) else {})}
+            for r in records]  # the L_t shares per run, so that a rebuild from this file keeps their table
     records_module.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
                               (lambda d: write_plots(records, d)) if plots else None)
     return summary

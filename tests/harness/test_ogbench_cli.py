@@ -88,6 +88,18 @@ def test_rerun_skips_stored_units_and_reruns_one_deleted_unit(quick_run, capsys)
     assert "already stored" not in printed and "[1/" not in printed and "report:" in printed  # nothing ran
 
 
+def test_report_only_from_the_report_alone_keeps_every_table(quick_run, tmp_path):
+    out, main = quick_run
+    copy = tmp_path / "report"
+    copy.mkdir()
+    for name in ("ogbench.md", "ogbench.json"):  # a checkout: the report without its units
+        shutil.copy(out / name, copy / name)
+    assert main(["--quick", "--out", str(copy), "--report-only"]) == 0
+    text = (copy / "ogbench.md").read_text()
+    assert "Executed lengths L_t of the evaluation plans" in text
+    assert text == (out / "ogbench.md").read_text()
+
+
 def test_report_only_without_stored_units_names_them(quick_run, tmp_path, capsys):
     _, main = quick_run
     assert main(["--quick", "--out", str(tmp_path), "--report-only", "--arms", "fixed"]) == 2
