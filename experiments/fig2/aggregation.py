@@ -80,8 +80,9 @@ def _stats(per_seed: Mapping[int, Mapping[str, Any]], seeds: Sequence[int]) -> d
 
 
 def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequence[int], budget: Fig2Budget,
-              default_elite: int | None = None) -> dict[str, Any]:
-    """Everything ``fig2.json`` holds, from the raw results of ``seeds`` (``default_elite``: as the report recorded)."""
+              acting: Mapping[str, int] | None = None) -> dict[str, Any]:
+    """Everything ``fig2.json`` holds, from the raw results of ``seeds`` (``acting``: the ``flow_steps`` and
+    ``n_elite`` the checkpoints acted with by default, as the report recorded them)."""
     seeds = list(seeds)
     methods = _methods(raw, seeds)
     online_phases = _online_phases(raw, methods, seeds, budget)
@@ -95,7 +96,7 @@ def aggregate(raw: Mapping[str, Mapping[int, Mapping[str, Any]]], seeds: Sequenc
         "delta_sweep": _sweep(methods, "delta", budget.delta_sweep, lambda d: f"delta_{names.delta_name(d)}",
                               ("reward", "mean_executed_length", "cumulative_jerk")),
         "k_sweep": _sweep(methods, "k", budget.k_sweep, "k{}".format, ("reward", "cumulative_jerk", "collision")),
-        **_acting_sweep(methods, budget, default_elite),
+        **_acting_sweep(methods, budget, acting or {}),
     }
     training = _training_episodes(raw, seeds, budget)
     if training:
@@ -175,10 +176,10 @@ def _sweep(methods: Mapping[str, Any], field: str, values: Iterable[Any], method
             for v in values if method(v) in methods]
 
 
-def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, default_elite: int | None) -> dict[str, Any]:
-    """The offline checkpoints acting with each other rule (N, m), and how (a) and (b) act."""
-    default_n = int(budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
-    default_elite = budget.default_elite if default_elite is None else default_elite
+def _acting_sweep(methods: Mapping[str, Any], budget: Fig2Budget, acting: Mapping[str, int]) -> dict[str, Any]:
+    """The offline checkpoints acting with each other rule (N, m), and how (a) and (b) act (``acting``: as recorded)."""
+    default_n = int(acting.get("flow_steps") or budget.algo_kwargs.get("flow_steps", library_default("flow_steps")))
+    default_elite = int(acting.get("n_elite") or budget.default_elite)
     rows = []
     for n, m in budget.acting_variants(default_elite):  # other acting rules for the offline checkpoints
         arms = {arm: names.acting_name(arm, n, m, default_elite) for arm in ("onestep", "chunk")}

@@ -88,14 +88,14 @@ def _run(args: argparse.Namespace, checked: tuple[list[int], Fig2Budget], comman
     paths = RunPaths.under(args.out, args.raw, args.work)
     command, date, recorded = run_header(command, paths.out / "fig2.json", args.report_only)
     est = None if args.report_only else _run_units(args, seeds, budget, paths)
-    default_elite = None
+    acting = {}
     if args.report_only:
-        # without the run's manifest, fig2.json gives the n_elite its checkpoints acted with where the budget left it
-        # to the library (whose default may have changed)
+        # without the run's manifest, fig2.json gives the N and n_elite its checkpoints acted with where the budget
+        # left them to the library (whose defaults may have changed)
         if paths.recorded_budget() is None:
-            default_elite = recorded.get("acting_default", {}).get("n_elite")
+            acting = recorded.get("acting_default", {})
         budget = paths.rebuilt_budget(recorded, budget)
-    summary = aggregate(load_raw(paths, seeds), seeds, budget, default_elite)
+    summary = aggregate(load_raw(paths, seeds), seeds, budget, acting)
     seconds = recorded.get("seconds", {})
     summary["seconds"] = {
         # without the work directory (e.g. a fresh clone), the timings recorded with the run

@@ -489,6 +489,17 @@ def test_quick_run_writes_every_output(quick_run: Path) -> None:
     assert "δ sweep" in md and "k sweep" in md and "Style context" in md
 
 
+def test_a_rebuild_states_the_acting_rule_the_report_recorded() -> None:
+    """A report rebuilt without its run's manifest keeps the N and m its checkpoints acted with, not today's defaults."""
+    from experiments.fig2.aggregation import _acting_sweep
+
+    recorded = _acting_sweep({}, FULL_BUDGET, {"flow_steps": 10, "n_elite": 1})  # a run of an earlier release
+    assert recorded["acting_default"] == {"flow_steps": 10, "n_elite": 1}
+    today = _acting_sweep({}, FULL_BUDGET, {})
+    assert today["acting_default"] == {"flow_steps": library_default("flow_steps"), "n_elite": FULL_BUDGET.default_elite}
+    assert library_default("flow_steps") != 10  # else the first check could not fail
+
+
 def test_paper_verdict_by_hand() -> None:
     from experiments.fig2.report import paper_verdict
 
