@@ -226,15 +226,12 @@ def learning(steps: int, seeds: list[int], eval_episodes: int, algos: list[str],
 def merge(inputs: list[str], json_path: str) -> None:
     """One ``learning --json`` record from several that ran the same protocol on other seeds or algorithms
     (e.g. in parallel processes): per algorithm its returns in seed order, the parts' commands kept."""
-    parts = [json.loads(Path(f).read_text()) for f in inputs]
+    files = [(f, json.loads(Path(f).read_text())) for f in inputs]
+    parts = [part for _, part in files]
     protocol = ("steps", "eval_episodes", "env", "torch")
-    with_ua2c = [(f, p) for f, p in zip(inputs, parts, strict=True) if p.get("ua2c")]
-    checks = [(f, p, inputs[0], parts[0], protocol) for f, p in zip(inputs[1:], parts[1:], strict=True)]
-    checks += [(f, p, *with_ua2c[0], ("ua2c_kwargs",)) for f, p in with_ua2c[1:]]  # UA2C's arguments: its parts only
-    for f, part, first, reference, keys in checks:
-        differ = [k for k in keys if part[k] != reference[k]]
-        if differ:
-            raise SystemExit(f"error: {f} differs from {first} in {differ}: not the same protocol")
+    with_ua2c = [(f, part) for f, part in files if part.get("ua2c")]
+    _check_same(files, protocol)
+    _check_same(with_ua2c, ("ua2c_kwargs",))  # UA2C's arguments: the parts that ran it only
     by_seed: dict[str, dict[int, float | None]] = {}
     for part in parts:
         names = [k for k in part if isinstance(part[k], list) and k not in ("seeds", "ua2c_mean_executed_length")]
@@ -256,8 +253,17 @@ def merge(inputs: list[str], json_path: str) -> None:
                "dates": [p["date"] for p in parts], "merged_by": shlex.join(["python", *sys.argv])}
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     Path(json_path).write_text(json.dumps(record, indent=1) + "\n")
-    for name in (n for n in record if n in ("ua2c", "sac")):
-        print(f"{name}: mean {np.mean(record[name]):.1f} over seeds {seeds}")
+    for name in ("ua2c", "sac"):
+        if name in record:
+            print(f"{name}: mean {np.mean(record[name]):.1f} over seeds {seeds}")
+
+
+def _check_same(files: list[tuple[str, dict]], keys: tuple[str, ...]) -> None:
+    """Exit with an error naming the file and keys where a part differs from the first of ``files``."""
+    for f, part in files[1:]:
+        differ = [k for k in keys if part[k] != files[0][1][k]]
+        if differ:
+            raise SystemExit(f"error: {f} differs from {files[0][0]} in {differ}: not the same protocol")
 
 
 #: configurations of ``profile``: the defaults, the paper preset, the defaults before 2026-12-07 and one

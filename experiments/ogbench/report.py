@@ -202,6 +202,14 @@ def write_plots(records: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
     return paths
 
 
+def _length_shares(record: Mapping[str, Any]) -> dict[str, Any]:
+    """``{"length_shares": {phase: shares}}`` of a run that recorded them (else ``{}``), kept in ``ogbench.json``
+    so that a rebuild from that file alone keeps the L_t table (:func:`records_from_report`)."""
+    shares = {p: record[f"eval_{p}"]["length_shares"] for p in PHASES
+              if "length_shares" in (record.get(f"eval_{p}") or {})}
+    return {"length_shares": shares} if shares else {}
+
+
 def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command: str | None = None,
                  estimate: Mapping[str, float] | None = None, reps: int = 2000, date: str | None = None,
                  plots: bool = True) -> dict[str, Any]:
@@ -209,9 +217,7 @@ def write_report(records: Sequence[Mapping[str, Any]], out: str | Path, command:
     summary = summarize(records, reps=reps)
     summary.update(command=command, estimate=dict(estimate) if estimate else None, date=date)
     kept = [{**{k: r[k] for k in ("arm", "seed", "success_offline", "success_online", "curve", "seconds")},
-             **({"length_shares": shares} if (shares := {p: r[f"eval_{p}"]["length_shares"] for p in PHASES
-                                                         if "length_shares" in (r.get(f"eval_{p}") or {})}) else {})}
-            for r in records]  # the L_t shares per run, so that a rebuild from this file keeps their table
+             **_length_shares(r)} for r in records]
     records_module.write_report(Path(out), "ogbench", {**summary, "records": kept}, format_markdown(summary, command),
                               (lambda d: write_plots(records, d)) if plots else None)
     return summary
