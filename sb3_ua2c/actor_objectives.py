@@ -176,7 +176,7 @@ def advantage_weighted_objective(
     :param inputs: the velocity field
     :param data: the batch
     :param weights: ``smooth_weight``, ``past_action_dropout`` (``q_weight`` and ``normalize_q`` are not read)
-    :param sample_weights: one weight per chunk, ``(B,)`` (:func:`~sb3_ua2c.in_sample.advantage_weights`)
+    :param sample_weights: one weight per chunk, ``(B,)`` (:func:`~sb3_ua2c.in_sample_maths.advantage_weights`)
     :param generator: the random stream of ``x0``, ``tau`` and the dropout (``None``: torch's global one)
     """
     x0, tau, x_tau, velocity, _ = _flow_matching(inputs, data, weights.past_action_dropout, generator)

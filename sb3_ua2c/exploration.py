@@ -14,7 +14,7 @@ import torch as th
 
 from sb3_ua2c.checks import check_number
 from sb3_ua2c.chunking import select_chunk
-from sb3_ua2c.in_sample import softmax_candidate
+from sb3_ua2c.in_sample_maths import softmax_candidate
 
 
 class ChunkSelector(Protocol):
@@ -40,7 +40,7 @@ class PlanExploration:
 class SoftmaxExploration:
     """
     One candidate drawn with probability ``∝ exp(min_j Q_j / T)`` (IDQL's resampling, Hansen-Estruch et
-    al., 2023; :func:`~sb3_ua2c.in_sample.softmax_candidate`), from torch's global random stream so that
+    al., 2023; :func:`~sb3_ua2c.in_sample_maths.softmax_candidate`), from torch's global random stream so that
     seeded runs reproduce. Not in the paper: the elite mean barely explores, a draw among candidates
     of the actor's support explores without leaving it.
 

@@ -15,7 +15,7 @@ from sb3_ua2c.actor_objectives import ActorObjective, ActorWeights, advantage_we
 from sb3_ua2c.actors import actor_objective
 from sb3_ua2c.checks import check_number
 from sb3_ua2c.chunking import pessimistic_q
-from sb3_ua2c.in_sample import advantage_weights
+from sb3_ua2c.in_sample_maths import advantage_weights
 
 
 class ValueTermExtraction:
@@ -44,7 +44,7 @@ class AdvantageWeightedExtraction:
     Advantage-weighted regression of the flow on the data's chunks (AWR, Peng et al., 2019; IQL's
     extraction, Kostrikov et al., 2022; for a flow policy as IFQL, Park et al., 2025): each chunk's
     flow-matching error weighted by ``min(exp(β (min_j Q̄_j(h, a) - V(h))), w_max)``
-    (:func:`~sb3_ua2c.in_sample.advantage_weights`, the target critics and the in-sample ``V`` as d3rlpy's
+    (:func:`~sb3_ua2c.in_sample_maths.advantage_weights`, the target critics and the in-sample ``V`` as d3rlpy's
     IQL), and no value term (``q_weight`` and ``normalize_q`` are not read). The actor still acts by the
     best of S candidates under ``Q``. It needs ``critic_target="in_sample"`` (the ``V`` fitted by
     expectile regression) and ``actor_type="flow"``: QC-FQL's one-step policy is trained by a value term

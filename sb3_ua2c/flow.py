@@ -84,7 +84,7 @@ def flow_matching_loss(
     :param mask: 1 at the valid chunk positions, 0 at padding, shape ``(batch, k)``; ``None`` = all valid
     :param sample_weights: a weight per chunk, shape ``(batch,)`` (no gradient; ``None`` = all 1): the
         advantage weights of AWR / IQL's extraction (``actor_extraction="awr"``,
-        :func:`~sb3_ua2c.in_sample.advantage_weights`). The average still divides by the number of valid
+        :func:`~sb3_ua2c.in_sample_maths.advantage_weights`). The average still divides by the number of valid
         entries, as IQL's ``mean(w * log_prob)``, not by the weights' sum
     :return: scalar loss (0 if no position is valid)
     """

@@ -14,7 +14,7 @@ from torch import nn
 
 from sb3_ua2c.checks import check_bool, check_net_arch, check_number
 from sb3_ua2c.chunking import pessimistic_q
-from sb3_ua2c.in_sample import expectile_loss
+from sb3_ua2c.in_sample_maths import expectile_loss
 from sb3_ua2c.targets.base import TargetInputs
 
 
@@ -52,7 +52,7 @@ class ChunkValue(nn.Module):
 class InSampleTarget:
     """
     The in-sample bootstrap: ``V(h_t)`` is fitted by expectile regression
-    (:func:`~sb3_ua2c.in_sample.expectile_loss`, IQL's Eq. 5) to ``min_j Q̄_j(h_t, a_{t:t+k})`` of the
+    (:func:`~sb3_ua2c.in_sample_maths.expectile_loss`, IQL's Eq. 5) to ``min_j Q̄_j(h_t, a_{t:t+k})`` of the
     data's own chunk (the target critics, no gradient), and the critics regress on
     ``Σ_{u<L} γ^u r_{t+u} + m γ^L V(h_{t+L})`` (:func:`~sb3_ua2c.chunking.chunk_target` with ``V`` in place
     of the candidates' max; ``L`` and ``m`` as in Eq. 4 / 8).

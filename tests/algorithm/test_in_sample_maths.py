@@ -1,11 +1,11 @@
-"""The in-sample maths (:mod:`sb3_ua2c.in_sample`) against hand-computed values."""
+"""The in-sample maths (:mod:`sb3_ua2c.in_sample_maths`) against hand-computed values."""
 
 import math
 
 import pytest
 import torch as th
 
-from sb3_ua2c.in_sample import advantage_weights, expectile_loss, softmax_candidate
+from sb3_ua2c.in_sample_maths import advantage_weights, expectile_loss, softmax_candidate
 
 
 def test_expectile_loss_hand_computed():
