@@ -44,7 +44,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
         description="Head-to-head on MixedTraffic-v0: UA2C (Figure 2's adaptive, fixed and one-step arms) against "
         "SB3 SAC, sb3-contrib TQC and CrossQ, SAC with the offline data, d3rlpy IQL, Cal-QL and ReBRAC, and a "
         "d3rlpy BC reference row, on the Figure-2 protocol. "
-        "Resumable: every (arm, seed) is a unit with its own result file; stored units are skipped.",
+        "Resumable: every (arm, seed) is a unit with its own result file; stored units are skipped. The report "
+        "covers every record under --raw, whatever --seeds and --arms select to run.",
     )
     parser.add_argument("--arms", nargs="+", default=list(ARMS), metavar="ARM",
                         help=f"arms to run (default: all): {' '.join(ARMS)}")
