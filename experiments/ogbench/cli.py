@@ -33,7 +33,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                              "seed s resets with seed 10,000,000 + 1000 s + i, the test scenarios)")
     parser.add_argument("--arms", nargs="+", default=list(ARMS), help=f"arms among {list(ARMS)} (default: all)")
     parser.add_argument("--serial", action="store_true",
-                        help="run the units in this process (the default with --quick and one worker)")
+                        help="run the units one after the other in this process, whatever --workers says (the default with "
+                             "--quick and one worker; not with --ray-address)")
     return parser
 
 
@@ -47,6 +48,8 @@ def _run(args: argparse.Namespace, _: None, command: str) -> int:
     arms = runner.check_arms(args.arms)
     seeds = runner.seeds_arg(args.seeds if args.seeds is not None else range(2 if args.quick else 5))
     check_int("--workers", args.workers)
+    if args.serial and args.ray_address is not None:
+        raise ValueError("--serial runs the units in this process: it cannot be combined with --ray-address")
     check_extras(["ogbench", "rliable"])  # the environments, the report's statistics
     budget = runner.default_budget(args.task, quick=args.quick)
     if args.episodes is not None:

@@ -128,6 +128,7 @@ def test_work_directory_of_another_budget_is_refused(quick_run):
     (["--episodes", "0"], "--episodes must be an integer >= 1"),
     (["--episodes", "1001"], "--episodes must be <= 1000"),
     (["--workers", "0"], "--workers"),
+    (["--serial", "--ray-address", "auto"], "--serial runs the units in this process: .* --ray-address"),
 ])
 def test_bad_input_is_a_clear_error(argv, message, capsys):
     require("ogbench")
@@ -148,6 +149,22 @@ def test_chosen_seeds_and_episodes_reach_the_units(tmp_path):
     unit = tmp_path / "ogbench_work" / "units" / report["task"] / "onestep-s3" / "record.json"
     record = json.loads(unit.read_text())
     assert len(record["eval_offline"]["successes"]) == len(record["eval_online"]["successes"]) == 3
+
+
+def test_serial_runs_the_units_in_this_process_whatever_workers_says(tmp_path, monkeypatch):
+    require("ogbench")
+    from experiments.common import runner as common_runner
+    from experiments.ogbench.cli import main
+
+    def no_processes(workers):
+        raise AssertionError(f"--serial started a pool of {workers} processes")
+
+    monkeypatch.setattr(common_runner, "ProcessExecutor", no_processes)
+    argv = ["--quick", "--seeds", "3", "--episodes", "2", "--arms", "onestep", "--out", str(tmp_path)]
+    assert main([*argv, "--workers", "2", "--serial"]) == 0
+    assert json.loads((tmp_path / "ogbench.json").read_text())["arms"]["onestep"]["seeds"] == [3]
+    with pytest.raises(AssertionError, match="started a pool of 2 processes"):  # the trap is live without --serial
+        main([*argv, "--workers", "2", "--out", str(tmp_path / "pool")])
 
 
 def test_seeds_are_a_list_kept_distinct_and_sorted():
