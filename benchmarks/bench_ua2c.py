@@ -35,6 +35,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from sb3_ua2c import UA2C
 from sb3_ua2c.chunking import chunk_entropy
+from sb3_ua2c.diagnostics import DIAGNOSTICS_INTERVAL
 from sb3_ua2c.presets import preset
 
 ENV_ID = "Pendulum-v1"
@@ -152,10 +153,13 @@ def throughput(steps: int, ua2c_kwargs: dict, env_id: str = ENV_ID) -> None:
     sac = SAC("MlpPolicy", env_id, seed=0)
     sac_fps, sac_cpu_fps, sac_updates = _throughput(sac, sac.learning_starts + 200, steps)
     sac.env.close()
-    data = ua2c.replay_buffer.sample(ua2c.batch_size)
-    ua2c_step_ms = cpu_ms(lambda: ua2c._gradient_step(data), 20, warmup=3)
+    # one update as learn() makes it, batch sampling included, for both: the UA2C update that logs the
+    # diagnostics (one in DIAGNOSTICS_INTERVAL) is skipped when counting FLOPs and is outside the median
+    ua2c_step_ms = cpu_ms(lambda: ua2c.train(1, ua2c.batch_size), 20, warmup=3)
     sac_step_ms = cpu_ms(lambda: sac.train(1, sac.batch_size), 20, warmup=3)
-    ua2c_flops = flops(lambda: ua2c._gradient_step(data))
+    if (ua2c._n_updates + 1) % DIAGNOSTICS_INTERVAL == 0:
+        ua2c.train(1, ua2c.batch_size)
+    ua2c_flops = flops(lambda: ua2c.train(1, ua2c.batch_size))
     sac_flops = flops(lambda: sac.train(1, sac.batch_size))
     ua2c_gflops, sac_gflops = ua2c_flops / ua2c_step_ms / 1e6, sac_flops / sac_step_ms / 1e6
     print(
