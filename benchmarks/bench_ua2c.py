@@ -126,6 +126,13 @@ def _plan_parts(policy, obs_t: th.Tensor, act_t: th.Tensor, repeats: int) -> dic
     }
 
 
+def _skip_diagnostics_update(model: UA2C, update: int) -> None:
+    """Make one update first when update number ``update`` would also log the diagnostics (one in
+    ``DIAGNOSTICS_INTERVAL``), so that the updates timed and counted next are ordinary ones."""
+    if update % DIAGNOSTICS_INTERVAL == 0:
+        model.train(1, model.batch_size)
+
+
 def _throughput(model: UA2C | SAC, warm_steps: int, steps: int) -> tuple[float, float, int]:
     """Env steps per wall-clock second and per CPU second of ``learn(steps)`` after a warm-up."""
     model.learn(warm_steps)
@@ -153,12 +160,11 @@ def throughput(steps: int, ua2c_kwargs: dict, env_id: str = ENV_ID) -> None:
     sac = SAC("MlpPolicy", env_id, seed=0)
     sac_fps, sac_cpu_fps, sac_updates = _throughput(sac, sac.learning_starts + 200, steps)
     sac.env.close()
-    # one update as learn() makes it, batch sampling included, for both: the UA2C update that logs the
-    # diagnostics (one in DIAGNOSTICS_INTERVAL) is skipped when counting FLOPs and is outside the median
+    # one update as learn() makes it, batch sampling included, for both (train() numbers an update before
+    # making it); the UA2C update that logs the diagnostics is outside the median and not counted
     ua2c_step_ms = cpu_ms(lambda: ua2c.train(1, ua2c.batch_size), 20, warmup=3)
     sac_step_ms = cpu_ms(lambda: sac.train(1, sac.batch_size), 20, warmup=3)
-    if (ua2c._n_updates + 1) % DIAGNOSTICS_INTERVAL == 0:
-        ua2c.train(1, ua2c.batch_size)
+    _skip_diagnostics_update(ua2c, ua2c._n_updates + 1)
     ua2c_flops = flops(lambda: ua2c.train(1, ua2c.batch_size))
     sac_flops = flops(lambda: sac.train(1, sac.batch_size))
     ua2c_gflops, sac_gflops = ua2c_flops / ua2c_step_ms / 1e6, sac_flops / sac_step_ms / 1e6
@@ -342,6 +348,7 @@ def _profile_config(env_id: str, ua2c_kwargs: dict, repeats: int) -> dict[str, f
     model = UA2C("MlpPolicy", env_id, seed=0, **ua2c_kwargs)
     model.learn(model.learning_starts + 200)
     model.env.close()
+    _skip_diagnostics_update(model, model._n_updates)  # the steps below call _gradient_step's parts directly
     model.policy.set_training_mode(True)
     timer = _PartTimer()
     for _ in range(repeats + 3):
