@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +33,12 @@ class EpisodeMetrics:
     mean_speed: float  # [m/s]
     mean_executed_length: float  # mean L_t of the plans made in the episode (Eq. 7)
     plan_lengths: tuple[int, ...] = ()  # L_t of every plan of the episode, in order (1 per decision of a peer)
+    acting_seconds: float = 0.0  # wall seconds in ``predict`` over the episode (replanning and the executor)
+
+    @property
+    def ms_per_plan(self) -> float:
+        """Wall milliseconds of ``predict`` per plan made: the cost of a replanning, as the policy acts."""
+        return 1000.0 * self.acting_seconds / len(self.plan_lengths) if self.plan_lengths else math.nan
 
     @property
     def jerk_per_step(self) -> float:
@@ -48,6 +55,8 @@ def evaluate(
     deterministic: bool = True,
     n_elite: int | None = None,
     flow_steps: int | None = None,
+    selection: str | None = None,
+    execution: ExecutionRule | None = None,
 ) -> list[EpisodeMetrics]:
     """Run a checkpoint for ``n_episodes`` episodes per seed with the stateful ``predict``.
 
@@ -70,6 +79,8 @@ def evaluate(
         seeded noise per replanning
     :param n_elite: override how many best candidates a replanning averages (``UA2C.set_n_elite``)
     :param flow_steps: override the Euler steps of the sampler when acting (``UA2C.set_flow_steps``)
+    :param selection: override how a replanning selects its chunk (``UA2C.set_selection``)
+    :param execution: override the execution rule (``UA2C.set_execution_rule``; not with ``entropy_threshold``)
     """
     check_int("n_episodes", n_episodes)
     settings = dict(env_settings_ or {"env_id": "MixedTraffic-v0"})
@@ -82,7 +93,10 @@ def evaluate(
             check_spaces_match(model.observation_space, model.action_space, env, what="the model")
         else:
             raise TypeError(f"checkpoint must be a path or a policy with predict(), got {type(checkpoint).__name__}")
-        overrides = {"entropy_threshold": entropy_threshold, "n_elite": n_elite, "flow_steps": flow_steps}
+        if entropy_threshold is not None and execution is not None:
+            raise ValueError("give entropy_threshold or execution, not both")
+        overrides = {"entropy_threshold": entropy_threshold, "n_elite": n_elite, "flow_steps": flow_steps,
+                     "selection": selection, "execution": execution}
         given = sorted(name for name, value in overrides.items() if value is not None)
         if given and not isinstance(model, UA2C):
             raise ValueError(f"{given} apply to UA2C only, not to a {type(model).__name__}")
@@ -92,6 +106,10 @@ def evaluate(
             model.set_n_elite(n_elite)
         if flow_steps is not None:
             model.set_flow_steps(flow_steps)
+        if selection is not None:
+            model.set_selection(selection)
+        if execution is not None:
+            model.set_execution_rule(execution)
         results = []
         for s in seeds:
             for i in range(n_episodes):
@@ -124,11 +142,11 @@ class _EpisodeMeter:
         self.merged |= bool(info.get("merge_done", False))
         self.steps += 1
 
-    def metrics(self, seed: int, lengths: list[int]) -> EpisodeMetrics:
+    def metrics(self, seed: int, lengths: list[int], acting_seconds: float = 0.0) -> EpisodeMetrics:
         return EpisodeMetrics(
             seed=seed, reward=self.total, length=self.steps, cumulative_jerk=self.jerk, collision=self.collision,
             merge_success=self.merged, mean_speed=float(np.nanmean(self.speeds)),
-            mean_executed_length=float(np.mean(lengths)), plan_lengths=tuple(lengths),
+            mean_executed_length=float(np.mean(lengths)), plan_lengths=tuple(lengths), acting_seconds=acting_seconds,
         )
 
 
@@ -136,9 +154,11 @@ def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> Epis
     obs, info = env.reset(seed=seed)
     state, start = None, np.ones(1, dtype=bool)
     meter, lengths = _EpisodeMeter(), []
-    done = False
+    done, acting = False, 0.0
     while not done:
+        clock = time.perf_counter()
         action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+        acting += time.perf_counter() - clock
         if not hasattr(state, "plan_position"):  # a one-action-per-decision policy
             lengths.append(1)
         elif int(state.plan_position[0]) == 1:  # a plan was made at this step
@@ -147,7 +167,7 @@ def _drive_episode(model: Any, env: Any, seed: int, deterministic: bool) -> Epis
         obs, reward, terminated, truncated, info = env.step(action)
         meter.add(reward, info)
         done = terminated or truncated
-    return meter.metrics(seed, lengths)
+    return meter.metrics(seed, lengths, acting)
 
 
 def evaluate_behaviour(

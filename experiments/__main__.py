@@ -14,6 +14,7 @@ COMMANDS = {
     "peers": ("experiments.peers.cli", "the head-to-head with SB3, sb3-contrib and d3rlpy"),
     "peers-tuning": ("experiments.peers.tuning", "the head-to-head's tuning on validation scenarios"),
     "ogbench": ("experiments.ogbench.cli", "an OGBench single task, offline then online"),
+    "acting": ("experiments.acting.cli", "acting rules (selection x execution) on frozen checkpoints"),
     "execution": ("experiments.execution.cli", "execution rules against fixed chunks and matched controls"),
     "compare-runs": ("experiments.fig2.compare_runs", "two Figure-2 reports paired run by run"),
     "pool-replicates": ("experiments.fig2.pool_replicates", "Figure 2 (c) pooled over online replicates"),

@@ -63,7 +63,7 @@ class Checkpoints(OffPolicyAlgorithm):
         SB3's ``load``; keyword arguments override the saved attributes as in SB3
         (``UA2C.load(path, gradient_steps=2)``). The acting settings go through their one setter after
         loading: ``n_elite=m`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_n_elite`; SB3 would store it as an unused
-        attribute), ``flow_steps`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_flow_steps`) and the execution rule's
+        attribute), ``selection`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_selection`), ``flow_steps`` (:meth:`~sb3_ua2c.ua2c.UA2C.set_flow_steps`) and the execution rule's
         fields by UA2C's argument names, ``execution_rule``, ``entropy_threshold``, ... (the saved rule
         with those fields replaced, :meth:`~sb3_ua2c.ua2c.UA2C.set_execution_rule`). A ``policy_kwargs``
         given (as rl-zoo3 passes its YAML's when continuing) must equal the saved one, as in SB3, after both
@@ -78,6 +78,7 @@ class Checkpoints(OffPolicyAlgorithm):
             if legacy_critic_kwargs(saved) == legacy_critic_kwargs(kwargs["policy_kwargs"]):
                 kwargs.pop("policy_kwargs")  # the same networks, saved in an earlier layout
         n_elite, flow_steps = kwargs.pop("n_elite", None), kwargs.pop("flow_steps", None)
+        selection = kwargs.pop("selection", None)
         options = option_changes(kwargs)
         rule_fields = {field: kwargs.pop(name) for name, field in LEGACY_RULE_NAMES.items() if name in kwargs}
         model = super().load(
@@ -95,6 +96,8 @@ class Checkpoints(OffPolicyAlgorithm):
             model.set_execution_rule(dataclasses.replace(model.execution, **rule_fields))
         if n_elite is not None:
             model.set_n_elite(n_elite)
+        if selection is not None:
+            model.set_selection(selection)
         if flow_steps is not None:
             model.set_flow_steps(flow_steps)
         return model

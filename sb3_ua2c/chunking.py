@@ -130,6 +130,88 @@ def select_chunk(
     return chunks
 
 
+#: How a replanning turns its S candidates into the executed chunk (the policy's ``selection``):
+#: ``"elite"`` the elite mean of the ``n_elite`` best by ``min_j Q_j`` (:func:`select_chunk`; ``n_elite=1`` the
+#: best candidate, the paper's), ``"uncertainty"`` a mean weighted by the critics' ranking as far as it exceeds
+#: their disagreement (:func:`uncertainty_weights`), and three rules that do not read the critics: ``"mean"``
+#: of all candidates, one ``"sample"`` (the first candidate) and ``"zero_noise"``, the flow integrated from
+#: ``x_0 = 0``. Whatever the selection, ``L_t`` follows from the S candidates' entropies.
+SELECTIONS = ("elite", "uncertainty", "mean", "sample", "zero_noise")
+#: the selections that rank candidates by the critics (the others skip the critic call when acting)
+CRITIC_SELECTIONS = ("elite", "uncertainty")
+
+
+def uncertainty_weights(q_values: th.Tensor) -> th.Tensor:
+    """
+    Weights of the uncertainty-aware selection (not in the paper): ``w = softmax(mean_j Q_j / tau)`` over the S
+    candidates of a history, with the temperature ``tau`` the critics' own disagreement, the mean over the
+    candidates of ``max_j Q_j - min_j Q_j`` (``|Q_1 - Q_2|`` for twin critics). Where the critics' ranking
+    spreads the candidates by less than they disagree, the weights stay near uniform (the mean of the
+    candidates); where it spreads them by more, the weights concentrate on the best (towards the elite).
+
+    :param q_values: the critics' values of the candidates, shape ``(n_critics, m, S)``, ``n_critics >= 2``
+    :return: weights, shape ``(m, S)``, each row summing to 1
+    """
+    if q_values.shape[0] < 2:
+        raise ValueError(f"the uncertainty-aware selection needs at least 2 critics, got n_critics={q_values.shape[0]}")
+    spread = q_values.max(dim=0).values - q_values.min(dim=0).values  # (m, S)
+    tau = spread.mean(dim=-1, keepdim=True).clamp_min(1e-6)  # (m, 1)
+    return th.softmax(q_values.mean(dim=0) / tau, dim=-1)  # (m, S)
+
+
+def weighted_chunk(
+    candidates: th.Tensor, weights: th.Tensor, discrete_dims: Mapping[int, int] | None = None
+) -> th.Tensor:
+    """
+    ``sum_i w_i * candidate_i`` position by position; categorical dims are never averaged: they keep the
+    candidate of the largest weight (the first of equal ones).
+
+    :param candidates: clipped candidate chunks, shape ``(m, S, k, action_dim)``
+    :param weights: ``(m, S)``, rows summing to 1
+    :param discrete_dims: ``{dim: n_categories}`` of categorical dims
+    :return: chunks, shape ``(m, k, action_dim)``
+    """
+    chunks = (weights[:, :, None, None] * candidates).sum(dim=1)  # (m, S, k, A) -> (m, k, A)
+    if discrete_dims:
+        rows = th.arange(candidates.shape[0], device=candidates.device)
+        lead = candidates[rows, weights.argmax(dim=1)]  # (m, k, A)
+        for dim in discrete_dims:
+            chunks[..., dim] = lead[..., dim]
+    return chunks
+
+
+def select_candidates(
+    selection: str,
+    candidates: th.Tensor,
+    q_values: th.Tensor | None,
+    n_elite: int,
+    discrete_dims: Mapping[int, int] | None = None,
+) -> th.Tensor:
+    """
+    The executed chunk of a replanning by ``selection`` (one of :data:`SELECTIONS` but ``"zero_noise"``,
+    which is a chunk of its own: :meth:`~sb3_ua2c.policies.UA2CPolicy.plan_tensors`).
+
+    :param selection: ``"elite"``, ``"uncertainty"``, ``"mean"`` or ``"sample"``
+    :param candidates: clipped candidate chunks, shape ``(m, S, k, action_dim)``
+    :param q_values: the critics' values ``(n_critics, m, S)`` (``None`` for the selections that do not read them)
+    :param n_elite: candidates of the elite mean
+    :param discrete_dims: ``{dim: n_categories}`` of categorical dims
+    :return: ``(m, k, action_dim)``
+    """
+    if selection in CRITIC_SELECTIONS and q_values is None:
+        raise ValueError(f"selection={selection!r} ranks the candidates by the critics: q_values are needed")
+    if selection == "elite":
+        return select_chunk(candidates, pessimistic_q(q_values), n_elite, discrete_dims)
+    if selection == "uncertainty":
+        return weighted_chunk(candidates, uncertainty_weights(q_values), discrete_dims)
+    if selection == "mean":
+        m, s = candidates.shape[:2]
+        return weighted_chunk(candidates, candidates.new_full((m, s), 1.0 / s), discrete_dims)
+    if selection == "sample":
+        return candidates[:, 0]
+    raise ValueError(f"selection must be one of {list(SELECTIONS[:-1])} here, got {selection!r}")
+
+
 def executable_prefix_length(entropy: th.Tensor, threshold: float | th.Tensor) -> th.Tensor:
     """
     Executable prefix length of Eq. 7: the largest ``u`` such that ``H_1..H_u <= delta``, at least 1.

@@ -20,17 +20,21 @@ from gymnasium import spaces
 
 from sb3_ua2c.actors import ACTORS
 from sb3_ua2c.checks import check_bool, check_int, check_net_arch
+from sb3_ua2c.chunking import SELECTIONS
 from sb3_ua2c.critics import CRITICS
 from sb3_ua2c.exploration import EXPLORATIONS
 from sb3_ua2c.extraction import ACTOR_EXTRACTIONS
 from sb3_ua2c.targets import CRITIC_TARGETS
 
 #: values of ``ExecutionRule.rule`` (UA2C's ``execution_rule``): how ``L_t`` is set from the entropies ``H_u``
-EXECUTION_RULES = ("threshold", "quantile", "growth")
+EXECUTION_RULES = ("threshold", "quantile", "growth", "replan", "ensemble")
 #: ``q`` of ``execution_rule="quantile"`` when ``entropy_quantile`` is not given
 DEFAULT_ENTROPY_QUANTILE = 0.75
 #: ``c`` (nats above ``H_1``) of ``execution_rule="growth"`` when ``entropy_growth`` is not given
 DEFAULT_ENTROPY_GROWTH = 0.5
+#: ``m`` of ``execution_rule="ensemble"``: the weight of a chunk's action is ``exp(-m i)``, ``i = 0`` the oldest
+#: chunk (ACT's temporal ensembling, Zhao et al., 2023, and its default)
+DEFAULT_ENSEMBLE_DECAY = 0.01
 
 #: values of ``online_targets`` (:class:`~sb3_ua2c.buffers.ChunkReplayBuffer`, ``UA2C``)
 ONLINE_TARGETS = ("auto", "prefix", "window")
@@ -139,6 +143,7 @@ _CHECKS: dict[str, Callable[[str, Any], None]] = {
     "exploration": _one_of(EXPLORATIONS),
     "exploration_kwargs": _optional_dict,  # checked by the exploration class
     # UA2CPolicy's networks and acting rule
+    "selection": _one_of(SELECTIONS),
     "n_elite": _positive_int,
     "net_arch": _net_arch,
     "actor_type": _one_of(ACTORS),  # the registries as they are when checked
@@ -161,7 +166,8 @@ def check_arguments(**arguments: Any) -> None:
     constructors spell them) and the constraints between those given together. A bad value raises a
     ``ValueError`` that names the parameter.
 
-    Constraints between arguments: ``n_elite <= n_candidates``; an ``actor_extraction`` that reads the
+    Constraints between arguments: ``n_elite <= n_candidates``; ``selection="uncertainty"`` needs
+    ``n_critics >= 2``; an ``actor_extraction`` that reads the
     in-sample value (``"awr"``) needs a ``critic_target`` that fits one (``"in_sample"``) and an
     ``actor_type`` it trains (``"flow"``). The execution rule checks itself (:class:`ExecutionRule`), a
     critic, target, extraction or exploration class its ``*_kwargs``.
@@ -174,6 +180,9 @@ def check_arguments(**arguments: Any) -> None:
         _CHECKS[name](name, value)
     if "n_elite" in arguments and "n_candidates" in arguments and arguments["n_elite"] > arguments["n_candidates"]:
         raise ValueError(f"n_elite={arguments['n_elite']} must not exceed n_candidates={arguments['n_candidates']}")
+    if arguments.get("selection") == "uncertainty" and arguments.get("n_critics", 2) < 2:
+        raise ValueError(f"selection='uncertainty' weighs the candidates by the critics' disagreement: it needs "
+                         f"n_critics >= 2, got n_critics={arguments['n_critics']}")
     _check_extraction(arguments)
 
 
@@ -295,7 +304,10 @@ class ExecutionRule:
         every ``H_u <= entropy_threshold``; ``"quantile"`` (not in the paper): Eq. 7 with per-position
         thresholds ``delta_u``, the ``entropy_quantile`` of ``H_u`` over histories of the data, calibrated
         by :meth:`~sb3_ua2c.ua2c.UA2C.calibrate_execution` and saved with the model; ``"growth"`` (not in
-        the paper): the longest prefix with every ``H_u - H_1 <= entropy_growth``
+        the paper): the longest prefix with every ``H_u - H_1 <= entropy_growth``; ``"replan"``: one action of
+        each chunk, then a new chunk (receding horizon, ``L_t = 1``); ``"ensemble"``: a new chunk at every step
+        and the action the weighted mean of what the last ``k`` chunks planned for this step (temporal
+        ensembling as in ACT, Zhao et al., 2023; weights ``exp(-ensemble_decay * i)``, ``i = 0`` the oldest)
     :param entropy_threshold: ``delta`` of Eq. 7 in nats (``math.inf`` = the whole chunk: fixed chunk
         execution), or ``"auto"``: δ set after each training replanning from the entropies of the last
         ones, for a mean ``L_t`` of ``target_plan_length`` (:func:`~sb3_ua2c.chunking.auto_entropy_threshold`)
@@ -305,6 +317,8 @@ class ExecutionRule:
         (``None`` = :data:`DEFAULT_ENTROPY_QUANTILE`)
     :param entropy_growth: with ``rule="growth"`` only: ``c`` in nats above ``H_1`` (``None`` =
         :data:`DEFAULT_ENTROPY_GROWTH`)
+    :param ensemble_decay: with ``rule="ensemble"`` only: ``m >= 0`` of the weights ``exp(-m i)``
+        (:data:`DEFAULT_ENSEMBLE_DECAY`, ACT's; 0 = the plain mean of the overlapping chunks)
     """
 
     rule: str = "threshold"
@@ -312,6 +326,7 @@ class ExecutionRule:
     target_plan_length: float | None = None
     entropy_quantile: float | None = None
     entropy_growth: float | None = None
+    ensemble_decay: float = DEFAULT_ENSEMBLE_DECAY
 
     def __post_init__(self) -> None:
         if not isinstance(self.rule, str) or self.rule not in EXECUTION_RULES:
@@ -321,14 +336,15 @@ class ExecutionRule:
         if not (delta == "auto" if isinstance(delta, str) else _is_number(delta)):
             raise ValueError(f"entropy_threshold must be a number or 'auto', got {delta!r}")
         if delta == -math.inf:
-            raise ValueError("entropy_threshold must not be -inf (it would execute one action per plan: "
-                             "use chunk_size=1)")
+            raise ValueError("entropy_threshold must not be -inf (one action per plan is "
+                             "execution_rule='replan')")
         if self.target_plan_length is not None and not _is_number(self.target_plan_length):
             raise ValueError(f"target_plan_length must be a number or None, got {self.target_plan_length!r}")
         if self.entropy_quantile is not None:
             _fraction("entropy_quantile", self.entropy_quantile)
         if self.entropy_growth is not None:
             _non_negative_number("entropy_growth", self.entropy_growth)
+        _non_negative_number("ensemble_decay", self.ensemble_decay)
         self._check_rule_parameters()
         if self.target_plan_length is not None:
             if delta != "auto":
@@ -345,6 +361,7 @@ class ExecutionRule:
             ("threshold", "target_plan_length"),
             ("quantile", "entropy_quantile"),
             ("growth", "entropy_growth"),
+            ("ensemble", "ensemble_decay"),
         )
         for rule, name in other_rules:
             value, unset = getattr(self, name), ExecutionRule.__dataclass_fields__[name].default
@@ -403,6 +420,7 @@ def make_execution_rule(execution_rule: str | ExecutionRule | None, **fields: An
 
 
 __all__ = [
+    "DEFAULT_ENSEMBLE_DECAY",
     "DEFAULT_ENTROPY_GROWTH",
     "DEFAULT_ENTROPY_QUANTILE",
     "EXECUTION_RULES",

@@ -103,6 +103,9 @@ class ChunkExecutorState(NamedTuple):
     plan_length: np.ndarray
     #: number of actions of the current plan already executed, shape ``(n,)``
     plan_position: np.ndarray
+    #: under ``execution_rule="ensemble"``, the summed weights of the chunks that ``plan`` averages, per
+    #: position, shape ``(n, k)`` (zeros under the other rules)
+    ensemble_weight: np.ndarray
 
 
 class ExecutorStep(NamedTuple):
@@ -144,6 +147,7 @@ class AdaptiveChunkExecutor:
         self.plan = np.zeros((n_envs, chunk_size, action_dim), dtype=np.float32)
         self.plan_length = np.zeros(n_envs, dtype=np.int64)
         self.plan_position = np.zeros(n_envs, dtype=np.int64)
+        self.ensemble_weight = np.zeros((n_envs, chunk_size), dtype=np.float32)
         self._started = np.zeros(n_envs, dtype=bool)
 
     @property
@@ -155,6 +159,7 @@ class AdaptiveChunkExecutor:
             self.plan.copy(),
             self.plan_length.copy(),
             self.plan_position.copy(),
+            self.ensemble_weight.copy(),
         )
 
     def load_state(self, state: ChunkExecutorState | tuple[np.ndarray, ...]) -> None:
@@ -163,15 +168,16 @@ class AdaptiveChunkExecutor:
 
         :param state: recurrent state of the same shapes
         """
-        if len(state) != 5:
-            raise ValueError(f"state must be a ChunkExecutorState (5 arrays), got a tuple of {len(state)}")
-        obs_h, act_h, plan, plan_len, plan_pos = (np.asarray(x) for x in state)
+        if len(state) != 6:
+            raise ValueError(f"state must be a ChunkExecutorState (6 arrays), got a tuple of {len(state)}")
+        obs_h, act_h, plan, plan_len, plan_pos, weight = (np.asarray(x) for x in state)
         expected = {
             "observation_history": (obs_h.shape, self.observation_history.shape),
             "action_history": (act_h.shape, self.action_history.shape),
             "plan": (plan.shape, self.plan.shape),
             "plan_length": (plan_len.shape, self.plan_length.shape),
             "plan_position": (plan_pos.shape, self.plan_position.shape),
+            "ensemble_weight": (weight.shape, self.ensemble_weight.shape),
         }
         for name, (got, want) in expected.items():
             if got != want:
@@ -181,6 +187,7 @@ class AdaptiveChunkExecutor:
         self.plan[:] = plan
         self.plan_length[:] = plan_len
         self.plan_position[:] = plan_pos
+        self.ensemble_weight[:] = weight
         self._started[:] = True
 
     def reset(self, mask: np.ndarray, observations: np.ndarray) -> None:
@@ -195,6 +202,7 @@ class AdaptiveChunkExecutor:
         self.action_history[mask] = 0.0
         self.plan_position[mask] = 0
         self.plan_length[mask] = 0
+        self.ensemble_weight[mask] = 0.0
         self._started[mask] = True
 
     def act(
@@ -203,6 +211,7 @@ class AdaptiveChunkExecutor:
         episode_start: np.ndarray,
         planner: Planner,
         noise: np.ndarray | None = None,
+        ensemble_decay: float | None = None,
     ) -> ExecutorStep:
         """
         Observe ``o_t`` and return ``a_t`` for every environment, replanning where needed.
@@ -211,6 +220,8 @@ class AdaptiveChunkExecutor:
         :param episode_start: whether ``o_t`` is the first observation of an episode, shape ``(n,)``
         :param planner: see :data:`Planner`
         :param noise: optional exploration noise added to the executed actions (then clipped), ``(n, action_dim)``
+        :param ensemble_decay: ``m`` of ``execution_rule="ensemble"`` (:meth:`ensemble`): a new plan is averaged
+            with the earlier plans' actions for the same steps; ``None``: a new plan replaces the old one
         :return: the executed actions and what was (re)planned
         """
         observations = np.asarray(observations, dtype=np.float32).reshape(self.n_envs, self.obs_dim)
@@ -227,7 +238,8 @@ class AdaptiveChunkExecutor:
         if replan.any():
             idx = np.flatnonzero(replan)
             result = planner(self.observation_history[idx], self.action_history[idx])
-            self.plan[idx] = result.chunks
+            self.plan[idx] = result.chunks if ensemble_decay is None else self.ensemble(idx, result.chunks,
+                                                                                       ensemble_decay)
             self.plan_length[idx] = result.lengths
             self.plan_position[idx] = 0
             entropy[idx] = result.entropy
@@ -239,6 +251,29 @@ class AdaptiveChunkExecutor:
         self.action_history[:, :-1] = self.action_history[:, 1:]
         self.action_history[:, -1] = actions
         return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
+
+
+    def ensemble(self, idx: np.ndarray, chunks: np.ndarray, decay: float) -> np.ndarray:
+        """
+        Temporal ensembling (ACT, Zhao et al., 2023): the plans of rows ``idx`` become, position by position, the
+        weighted mean of the new chunks and of what the earlier plans planned for the same steps. A plan made
+        ``j`` steps before the new one weighs ``exp(decay * j)`` times as much (ACT's ``exp(-m i)``, ``i = 0`` the
+        oldest); the summed weights are kept in :attr:`ensemble_weight`, so the mean is updated in place.
+
+        :param idx: the replanned rows, shape ``(r,)``
+        :param chunks: their new chunks, shape ``(r, k, action_dim)``
+        :param decay: ``m >= 0``
+        :return: the ensembled plans, shape ``(r, k, action_dim)``
+        """
+        k = self.chunk_size
+        source = np.arange(k)[None, :] + self.plan_position[idx][:, None]  # (r, k): this step's position u in the old plan
+        carried = source < k
+        source = np.minimum(source, k - 1)
+        old_weight = np.take_along_axis(self.ensemble_weight[idx], source, axis=1) * carried * math.exp(decay)  # (r, k)
+        old_plan = np.take_along_axis(self.plan[idx], source[..., None], axis=1)  # (r, k, A)
+        weight = old_weight + 1.0
+        self.ensemble_weight[idx] = weight
+        return ((old_plan * old_weight[..., None] + chunks) / weight[..., None]).astype(np.float32)
 
 
 def length_shares(lengths: Sequence[int] | np.ndarray, chunk_size: int) -> list[float]:
@@ -261,6 +296,7 @@ def resume_and_act(
     history_len: int,
     action_dim: int,
     planner: Planner,
+    ensemble_decay: float | None = None,
 ) -> tuple[ExecutorStep, ChunkExecutorState]:
     """
     One step of a stateful ``predict``: rebuild the executor from ``state``, act, return the new state.
@@ -273,6 +309,7 @@ def resume_and_act(
     :param history_len: ``ℓ``
     :param action_dim: action size
     :param planner: see :data:`Planner`
+    :param ensemble_decay: see :meth:`AdaptiveChunkExecutor.act`
     :return: what the executor did, and its state after the step
     """
     n_envs, obs_dim = observations.shape
@@ -281,7 +318,8 @@ def resume_and_act(
         episode_start = np.full(n_envs, state is None)
     if state is not None:
         executor.load_state(state)
-    step = executor.act(observations, np.asarray(episode_start, dtype=bool).reshape(n_envs), planner)
+    step = executor.act(observations, np.asarray(episode_start, dtype=bool).reshape(n_envs), planner,
+                        ensemble_decay=ensemble_decay)
     return step, executor.state
 
 
@@ -363,6 +401,11 @@ class ExecutionRuleState(BasePolicy):
         self.calibrated_thresholds.copy_(quantile_entropy_thresholds(entropy, self.execution.quantile))
         return entropy
 
+    @property
+    def ensemble_decay(self) -> float | None:
+        """``m`` of the temporal ensembling under ``execution_rule="ensemble"``, else ``None``."""
+        return self.execution.ensemble_decay if self.execution.rule == "ensemble" else None
+
     def current_entropy_threshold(self, entropy: th.Tensor | None = None) -> float | th.Tensor:
         """
         δ of the next replanning: ``entropy_threshold``, or under ``"auto"`` the δ whose mean ``L_t`` over
@@ -390,8 +433,11 @@ class ExecutionRuleState(BasePolicy):
         """
         ``L_t`` of a replanning from its entropies ``H_u`` ``(m, k)`` by the execution rule: Eq. 7 with
         δ (``"threshold"``) or with the calibrated ``delta_u`` (``"quantile"``), or the growth rule
-        (:func:`~sb3_ua2c.chunking.entropy_growth_length`). Returns a long tensor ``(m,)`` in ``[1, k]``.
+        (:func:`~sb3_ua2c.chunking.entropy_growth_length`), or one action (``"replan"``, ``"ensemble"``).
+        Returns a long tensor ``(m,)`` in ``[1, k]``.
         """
+        if self.execution.rule in ("replan", "ensemble"):
+            return th.ones(entropy.shape[:1], dtype=th.long, device=entropy.device)
         if self.execution.rule == "growth":
             return entropy_growth_length(entropy, self.execution.growth)
         if self.execution.rule == "quantile":

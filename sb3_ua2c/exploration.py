@@ -1,7 +1,7 @@
 """Which candidate a training rollout executes, by name: UA2C's ``exploration`` picks a class of
 :data:`EXPLORATIONS` and ``exploration_kwargs`` holds its own arguments, whose defaults are in its
 signature (:mod:`sb3_ua2c.registry`). It acts in ``learn()``'s rollouts only: ``predict`` and
-``evaluate_policy`` always keep the elite mean (:func:`~sb3_ua2c.chunking.select_chunk`), and the
+``evaluate_policy`` always act by the policy's ``selection`` (:func:`~sb3_ua2c.chunking.select_candidates`), and the
 executed length ``L_t`` follows from the candidates' entropies as before, whichever candidate runs.
 """
 
@@ -27,8 +27,12 @@ class ChunkSelector(Protocol):
 
 
 class PlanExploration:
-    """Rollouts act as ``predict``: the elite mean of the ``n_elite`` best candidates
-    (:func:`~sb3_ua2c.chunking.select_chunk`). No own arguments."""
+    """Rollouts act as ``predict``: by the policy's ``selection`` (``follows_policy``; :meth:`select` is the elite
+    mean of the ``n_elite`` best candidates, :func:`~sb3_ua2c.chunking.select_chunk`, for a caller that asks it
+    directly). No own arguments."""
+
+    #: ``UA2CPolicy.plan_tensors`` selects by the policy's own ``selection`` under this rule
+    follows_policy = True
 
     def select(
         self, candidates: th.Tensor, values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]

@@ -23,11 +23,12 @@ from torch import nn
 from sb3_ua2c.actor_objectives import ActorInputs, actor_history
 from sb3_ua2c.actors import ACTORS, actor_class
 from sb3_ua2c.chunking import (
+    CRITIC_SELECTIONS,
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
     pessimistic_q,
-    select_chunk,
+    select_candidates,
 )
 from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule
 from sb3_ua2c.config import ExecutionRule, check_arguments, check_spaces, normalize_discrete_dims
@@ -120,6 +121,11 @@ class UA2CPolicy(ExecutionRuleState):
     :param n_elite: candidates whose continuous actions are averaged into the executed chunk
         (``None``: :data:`DEFAULT_N_ELITE` = 8, chosen on validation, or ``n_candidates`` when fewer;
         1 = the best candidate, the paper's; see :func:`~sb3_ua2c.chunking.select_chunk`)
+    :param selection: how a replanning turns its candidates into the executed chunk, one of
+        :data:`~sb3_ua2c.chunking.SELECTIONS`: ``"elite"`` (the elite mean of ``n_elite`` by ``min_j Q_j``),
+        ``"uncertainty"`` (weights ``softmax(mean_j Q_j / tau)``, ``tau`` the critics' disagreement:
+        :func:`~sb3_ua2c.chunking.uncertainty_weights`), or without the critics ``"mean"`` (of all candidates),
+        ``"sample"`` (one candidate) and ``"zero_noise"`` (the flow from ``x_0 = 0``)
     :param commit_discrete: extend ``L_t`` through the first switch of a categorical action in the
         selected chunk (see :func:`~sb3_ua2c.chunking.commit_through_switch`; not in the paper)
     :param net_arch: hidden sizes of the velocity-field MLP (and of the one-step policy's)
@@ -165,6 +171,7 @@ class UA2CPolicy(ExecutionRuleState):
         discrete_action_dims: Mapping[int, Sequence[float]] | None = None,
         discrete_entropy: bool = True,
         commit_discrete: bool = False,
+        selection: str = "elite",
         n_elite: int | None = None,
         net_arch: list[int] | None = None,
         actor_type: str = "flow",
@@ -200,6 +207,7 @@ class UA2CPolicy(ExecutionRuleState):
         self.discrete_action_dims = discrete_action_dims
         self.discrete_entropy = discrete_entropy
         self.commit_discrete = commit_discrete
+        self.selection = selection
         self.n_elite = min(DEFAULT_N_ELITE, n_candidates) if n_elite is None else n_elite
         self.net_arch = list(DEFAULT_NET_ARCH) if net_arch is None else net_arch
         self.actor_type = actor_type
@@ -211,7 +219,7 @@ class UA2CPolicy(ExecutionRuleState):
         check_arguments(
             chunk_size=chunk_size, history_len=history_len, flow_steps=flow_steps, n_candidates=n_candidates,
             discrete_action_dims=discrete_action_dims, discrete_entropy=discrete_entropy,
-            commit_discrete=commit_discrete, n_elite=self.n_elite, net_arch=net_arch, actor_type=actor_type,
+            commit_discrete=commit_discrete, selection=selection, n_elite=self.n_elite, net_arch=net_arch, actor_type=actor_type,
             actor_past_actions=actor_past_actions, critic_arch=critic_arch, critic_kwargs=critic_kwargs,
             n_critics=n_critics, activation_fn=activation_fn, optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs, normalize_images=normalize_images, torch_compile=torch_compile,
@@ -303,6 +311,7 @@ class UA2CPolicy(ExecutionRuleState):
             "discrete_action_dims": self.discrete_action_dims,
             "discrete_entropy": self.discrete_entropy,
             "commit_discrete": self.commit_discrete,
+            "selection": self.selection,
             "n_elite": self.n_elite,
             "net_arch": self.net_arch,
             "actor_type": self.actor_type,
@@ -356,6 +365,12 @@ class UA2CPolicy(ExecutionRuleState):
         :meth:`UA2C.set_n_elite <sb3_ua2c.ua2c.UA2C.set_n_elite>`, the one setter)."""
         check_arguments(n_elite=n_elite, n_candidates=self.n_candidates)
         self.n_elite = n_elite
+
+    def _set_selection(self, selection: str) -> None:
+        """Validate and set how a replanning selects its chunk (the implementation of
+        :meth:`UA2C.set_selection <sb3_ua2c.ua2c.UA2C.set_selection>`, the one setter)."""
+        check_arguments(selection=selection, n_critics=self.n_critics)
+        self.selection = selection
 
     def _set_flow_steps(self, flow_steps: int) -> None:
         """Validate and set the Euler steps when acting (the implementation of
@@ -453,9 +468,10 @@ class UA2CPolicy(ExecutionRuleState):
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """
         One replanning: sample S chunks, measure the per-position entropy of the S samples (clipped to
-        the action bounds: the actions that would be executed), keep the chunk with the highest
-        ``min_j Q_j`` and set the executed length ``L_t`` by the execution rule (:meth:`plan_lengths`);
-        ``commit_discrete`` then extends ``L_t`` through the first categorical switch.
+        the action bounds: the actions that would be executed), turn them into the executed chunk by the
+        ``selection`` (the critics score the candidates only for a selection that reads them) and set the
+        executed length ``L_t`` by the execution rule (:meth:`plan_lengths`); ``commit_discrete`` then
+        extends ``L_t`` through the first categorical switch.
 
         :param obs_history: shape ``(m, ℓ, obs_dim)``
         :param action_history: shape ``(m, ℓ, action_dim)``
@@ -463,9 +479,9 @@ class UA2CPolicy(ExecutionRuleState):
         :param deterministic: start from each history's own noise (:func:`history_noise`) instead of fresh noise
         :param record_entropy: add the entropies to :attr:`entropy_window` (``entropy_threshold="auto"``
             only; training rollouts)
-        :param selector: how the executed chunk is chosen among the candidates (UA2C's ``exploration`` in
-            training rollouts, :mod:`sb3_ua2c.exploration`); ``None``: the elite mean of ``n_elite``
-            (:func:`~sb3_ua2c.chunking.select_chunk`), as ``predict`` always does
+        :param selector: how the executed chunk is chosen among the candidates in training rollouts (UA2C's
+            ``exploration``, :mod:`sb3_ua2c.exploration`); ``None``, or a selector that ``follows_policy``: the
+            policy's own ``selection``, as ``predict`` always does
         :return: selected chunks (clipped) ``(m, k, action_dim)``, lengths ``(m,)``, entropy ``(m, k)``
         """
         m = obs_history.shape[0]
@@ -478,13 +494,18 @@ class UA2CPolicy(ExecutionRuleState):
         x0 = history_noise(obs_history, action_history, s, self.chunk_size) if deterministic else None
         # (m, S, k, A) clipped candidates and their (m, k) entropies
         clipped, entropy = self.sample_candidates(obs_history, action_history, s, generator, x0)
-        obs_flat = obs_history.reshape(m, -1)
-        q = self.critic(obs_flat, clipped)  # (n, m, S)
         lengths = self.plan_lengths(entropy)
-        if selector is None:
-            chunks = select_chunk(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
-        else:
+        own = selector is None or getattr(selector, "follows_policy", False)
+        q = None
+        if not own or self.selection in CRITIC_SELECTIONS:
+            q = self.critic(obs_history.reshape(m, -1), clipped)  # (n, m, S)
+        if not own:
             chunks = selector.select(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+        elif self.selection == "zero_noise":  # the flow from x_0 = 0: one chunk of its own
+            zeros = clipped.new_zeros((m, 1, self.chunk_size, self.action_dim))
+            chunks = self.sample_chunks(obs_history, action_history, 1, self.flow_steps, x0=zeros)[:, 0].clamp(-1, 1)
+        else:
+            chunks = select_candidates(self.selection, clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
         if record_entropy and self.entropy_window is not None:
             self.entropy_window.add(entropy)
         if self.commit_discrete:
@@ -557,7 +578,7 @@ class UA2CPolicy(ExecutionRuleState):
         n_envs = obs.shape[0]
         step, new_state = resume_and_act(
             state, episode_start, obs, self.chunk_size, self.history_len, self.action_dim,
-            lambda o, a: self.plan(o, a, deterministic),
+            lambda o, a: self.plan(o, a, deterministic), self.ensemble_decay,
         )
         if step.new_plan.any():
             if self.last_plan_lengths.shape != (n_envs,):

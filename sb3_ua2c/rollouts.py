@@ -100,6 +100,7 @@ class ChunkRollouts(OffPolicyAlgorithm):
                 episode_start,
                 self._random_plan if warmup else policy_plan,
                 noise,
+                self.policy.ensemble_decay,
             )
             n_new_plans += int(step.new_plan.sum())
             if not warmup:

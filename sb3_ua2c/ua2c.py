@@ -397,6 +397,17 @@ class UA2C(ChunkRollouts, OfflineTraining, TrainingOptions, Checkpoints):
         # a new dict: ``policy_kwargs`` may be the caller's own (SB3 keeps the reference)
         self.policy_kwargs = {**self.policy_kwargs, "n_elite": self.policy.n_elite}
 
+    def set_selection(self, selection: str) -> None:
+        """
+        Change how a replanning turns its candidates into the executed chunk (``policy_kwargs["selection"]``,
+        one of :data:`~sb3_ua2c.chunking.SELECTIONS`, see :func:`~sb3_ua2c.chunking.select_candidates`;
+        acting only, kept by :meth:`save`): e.g. evaluate one checkpoint under several selections.
+
+        :param selection: ``"elite"``, ``"uncertainty"``, ``"mean"``, ``"sample"`` or ``"zero_noise"``
+        """
+        self.policy._set_selection(selection)
+        self.policy_kwargs = {**self.policy_kwargs, "selection": self.policy.selection}
+
     def set_flow_steps(self, flow_steps: int) -> None:
         """
         Change the Euler steps ``N`` of the flow sampler when acting (execution only: the losses use

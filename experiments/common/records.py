@@ -112,8 +112,10 @@ def figure(path: Path, size: tuple[float, float]) -> Iterator[Any]:
 
 
 def episode_rows(episodes: Sequence[Any]) -> list[dict[str, Any]]:
-    """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as JSON rows, with their jerk per step."""
-    return [{**dataclasses.asdict(e), "jerk_per_step": e.jerk_per_step} for e in episodes]
+    """Evaluation episodes (:class:`~envs.evaluation.EpisodeMetrics`) as JSON rows, with their jerk per step and
+    without their wall time (a record of seeded episodes is the same at every run)."""
+    return [{**{k: v for k, v in dataclasses.asdict(e).items() if k != "acting_seconds"}, "jerk_per_step": e.jerk_per_step}
+            for e in episodes]
 
 
 @dataclass(frozen=True)

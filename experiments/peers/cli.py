@@ -51,6 +51,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help=f"arms to run (default: all): {' '.join(ARMS)}")
     parser.add_argument("--online-steps", type=int, default=None,
                         help=f"online env steps of every arm (default {FULL_PEERS_BUDGET.online_steps})")
+    parser.add_argument("--snapshot-every", type=int, default=0, metavar="STEPS",
+                        help="also save each UA2C arm every STEPS online steps (<work>/seed<s>/<arm>/snapshots/; the "
+                        "frozen checkpoints of `python -m experiments acting`); default 0: only the final model")
     return parser
 
 
@@ -125,7 +128,7 @@ def _run(args: argparse.Namespace, seeds: list[int], arms: list[str], budget: Pe
     executor = make_executor(args.workers, args.ray_address, serial=args.workers == 1 and args.ray_address is None)
     t0 = time.perf_counter()
     with ray_session(args.ray_address):
-        results = run_peers(seeds, arms, budget, paths, executor)
+        results = run_peers(seeds, arms, budget, paths, executor, snapshot_every=args.snapshot_every)
     print(f"{sum(not r.skipped for r in results)} arm unit(s) run, {sum(r.skipped for r in results)} stored; "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
 
@@ -136,6 +139,7 @@ def _check(args: argparse.Namespace) -> tuple[list[int], list[str], PeersBudget]
     seeds = select_seeds(args.seeds or ([0, 1] if args.quick else list(range(5))), [])
     arms, budget = check_arms(args.arms), _budget(args)
     check_int("--workers", args.workers)
+    check_int("--snapshot-every", args.snapshot_every, low=0)
     check_extras(needed_extras(arms, args.report_only))
     return seeds, arms, budget
 

@@ -43,8 +43,10 @@ def pretrain_units(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudge
                  paths.seed_work(s) / f"{name}.json") for s in seeds for name, arm in sorted(ua2c_arms.items())]
 
 
-def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any]) -> Unit:
-    """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name)."""
+def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretrained: dict[str, Any],
+             snapshot_every: int = 0) -> Unit:
+    """The unit of ``arm`` on ``seed`` (``pretrained``: the records of stage 2 by unit name; ``snapshot_every``: save
+    UA2C arms every that many online steps, see :func:`~experiments.peers.ua2c_arms.run_ua2c_arm`)."""
     inputs = ArmInputs(out_dir=str(paths.seed_work(seed) / arm), dataset=str(paths.seed_work(seed) / "dataset"),
                        seed=seed, online_steps=budget.online_steps,
                        eval_seeds=(SCENARIO_BASES[budget.scenarios] + seed,), eval_episodes=budget.ua2c.eval_episodes)
@@ -52,7 +54,8 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
     if arm in UA2C_ARMS:
         record = pretrained[f"seed{seed}/{budget.pretrain_name(arm)}"]
         fn, kwargs = run_ua2c_arm, {"arm": arm, "checkpoint": record["checkpoint"], "delta": budget.delta(arm),
-                                    "finetune_overrides": budget.finetune_overrides(arm), "pretrain_record": record}
+                                    "finetune_overrides": budget.finetune_overrides(arm), "pretrain_record": record,
+                                    "snapshot_every": snapshot_every}
     elif arm in ONLINE_SB3_ARMS:
         fn, kwargs = run_sb3_online, {"algo": arm, "hyperparams": budget.sb3_kwargs(arm)}
     elif arm == "sac_offline_mix":
@@ -71,7 +74,7 @@ def arm_unit(arm: str, seed: int, budget: PeersBudget, paths: PeersPaths, pretra
 
 
 def run_peers(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, paths: PeersPaths, executor: Executor,
-              printer: Callable[[str], Any] | None = print) -> list[UnitResult]:
+              printer: Callable[[str], Any] | None = print, snapshot_every: int = 0) -> list[UnitResult]:
     """Run (or resume) the three stages, the arm units most expensive first; return the arm units' results."""
     paths.check_budget(budget)
     for s in seeds:
@@ -80,7 +83,7 @@ def run_peers(seeds: Sequence[int], arms: Sequence[str], budget: PeersBudget, pa
     pretrained = {r.name: r.value for r in run_units(pretrain_units(seeds, arms, budget, paths), executor, printer)}
     cost = estimate_units(budget, arms, len(seeds), workers=1)["per_unit"]
     order = sorted(((a, s) for s in seeds for a in arms), key=lambda p: (-cost[p[0]], p[1]))
-    return run_units([arm_unit(a, s, budget, paths, pretrained) for a, s in order], executor, printer)
+    return run_units([arm_unit(a, s, budget, paths, pretrained, snapshot_every) for a, s in order], executor, printer)
 
 
 def load_records(paths: PeersPaths, seeds: Sequence[int] | None = None) -> dict[str, list[dict[str, Any]]]:

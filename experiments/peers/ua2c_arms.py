@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import torch as th
+from stable_baselines3.common.callbacks import CheckpointCallback
 
 from envs.collection import TRAFFIC_DEFAULTS, collect_dataset, make_traffic_env
 from experiments.common.records import recorded_path
@@ -38,21 +39,25 @@ def build_checkpoint(dataset: str | os.PathLike, out: str | os.PathLike, pretrai
 
 
 def run_ua2c_arm(inputs: common.ArmInputs, arm: str, checkpoint: str | os.PathLike, delta: float | None,
-                 finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any]) -> dict[str, Any]:
+                 finetune_overrides: Mapping[str, Any], pretrain_record: Mapping[str, Any],
+                 snapshot_every: int = 0) -> dict[str, Any]:
     """One unit: a UA2C arm from the seed's ``checkpoint``, acting with ``delta``, evaluated, fine-tuned online and
-    evaluated again."""
+    evaluated again. ``snapshot_every > 0`` also saves the model every that many online steps, as
+    ``snapshots/model_<steps>_steps.zip`` of the arm's directory (SB3's ``CheckpointCallback``: the frozen checkpoints
+    that ``python -m experiments acting`` evaluates)."""
     th.set_num_threads(1)
     ds = inputs.load_dataset()
     settings = env_settings(ds)
     out = Path(inputs.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     clock = common.PhaseClock()
+    snapshots = CheckpointCallback(snapshot_every, str(out / "snapshots"), "model") if snapshot_every > 0 else None
     with clock.phase("evaluate_offline"):
         offline_evaluation = common.evaluation_record(checkpoint, settings, inputs, entropy_threshold=delta)
     with clock.phase("online"):
         tuned = finetune(checkpoint, out / "model.zip", inputs.online_steps, dataset=ds, entropy_threshold=delta,
                          seed=inputs.seed, algo_overrides=dict(finetune_overrides), monitor_file=out / "online",
-                         make_env=make_traffic_env)
+                         make_env=make_traffic_env, callback=snapshots)
     with clock.phase("evaluate"):
         evaluation = common.evaluation_record(tuned, settings, inputs, entropy_threshold=delta)
     # the shared offline phase, counted in every arm that starts from it

@@ -74,7 +74,9 @@ def test_executor_replans_at_episode_start_and_state_round_trip():
     again = other.act(np.array([[3.0], [4.0]]), np.array([False, True]), ScriptedPlanner(3, [3]))
     assert again.actions[0, 0] == pytest.approx(0.11)
     with pytest.raises(ValueError, match="plan has shape"):
-        other.load_state((state[0], state[1], np.zeros((2, 4, 1)), state[3], state[4]))
+        other.load_state((state[0], state[1], np.zeros((2, 4, 1)), state[3], state[4], state[5]))
+    with pytest.raises(ValueError, match="6 arrays"):
+        other.load_state(state[:5])
 
 
 def test_executor_noise_is_clipped_and_recorded_in_history():

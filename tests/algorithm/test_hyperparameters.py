@@ -111,7 +111,7 @@ def test_the_rule_defaults_are_the_models():
     rule = {f.name: f.default for f in dataclasses.fields(ExecutionRule)}
     assert {name: model[name] for name in RULE_ARGUMENTS} == dict.fromkeys(RULE_ARGUMENTS)  # None: the rule's
     assert rule == {"rule": "threshold", "entropy_threshold": 0.0, "target_plan_length": None,
-                    "entropy_quantile": None, "entropy_growth": None}
+                    "entropy_quantile": None, "entropy_growth": None, "ensemble_decay": 0.01}
     resolved = resolved_defaults()
     assert {name: resolved[name] for name in RULE_ARGUMENTS} == {name: rule[f] for name, f in RULE_ARGUMENTS.items()}
     assert UA2C("MlpPolicy", "Pendulum-v1", **FAST).execution == ExecutionRule()
