@@ -36,11 +36,11 @@ EXECUTIONS: dict[str, ExecutionRule] = {
 }
 #: the cell that acts as ``predict`` does today: every other cell is paired against it
 DEFAULT_CELL = "elite@eq7"
-#: the screened cells: every selection with Eq. 7, every execution with the elite, the uncertainty-aware
-#: selection and its control (the mean)
+#: the screened cells, the default first: every selection with Eq. 7, then every execution with the
+#: uncertainty-aware selection, the elite and the mean (the uncertainty-aware selection's control)
 CELLS: tuple[str, ...] = (
-    *(f"{s}@eq7" for s in SELECTIONS),
-    *(f"{s}@{e}" for s in ("elite", "uncertainty", "mean") for e in EXECUTIONS if e != "eq7"),
+    DEFAULT_CELL, "uncertainty@eq7", "mean@eq7", "best@eq7", "sample@eq7", "zero_noise@eq7",
+    *(f"{s}@{e}" for s in ("uncertainty", "elite", "mean") for e in ("ensemble", "whole", "replan")),
 )
 #: checkpoints by stage: Phase 1, and the UA2C arm's snapshots after online steps (``peers --snapshot-every``)
 STAGES = ("pretrained", "online_5000", "online_20000")

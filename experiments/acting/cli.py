@@ -57,7 +57,8 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def units(checked: dict[str, Any], scenarios: str, raw: Path) -> list[Unit]:
-    """The behaviour policy of every seed, then every (seed, stage, cell); the Phase-1 cells first."""
+    """The behaviour policy of every seed, then every (stage, cell, seed) in the order given: a run stopped early
+    leaves whole cells (every seed) of the first stages and cells."""
     out, episodes = [], checked["episodes"]
     for seed in checked["seeds"]:
         seed_work = checked["work"] / f"seed{seed}"
@@ -66,13 +67,13 @@ def units(checked: dict[str, Any], scenarios: str, raw: Path) -> list[Unit]:
                         {"seed": seed, "dataset": dataset, "scenario_seed": scenario, "episodes": episodes},
                         raw / f"seed{seed}" / "behaviour.json"))
     for stage in checked["stages"]:
-        for seed in checked["seeds"]:
-            seed_work = checked["work"] / f"seed{seed}"
-            checkpoint = recorded_path(stage_checkpoint(seed_work, stage))
-            for cell in checked["cells"]:
+        checkpoints = {seed: recorded_path(stage_checkpoint(checked["work"] / f"seed{seed}", stage))
+                       for seed in checked["seeds"]}
+        for cell in checked["cells"]:
+            for seed in checked["seeds"]:
                 out.append(Unit(f"seed{seed}/{stage}/{cell}", run_cell,
-                                {"seed": seed, "stage": stage, "cell": cell, "checkpoint": checkpoint,
-                                 "dataset": str(seed_work / "dataset"), "episodes": episodes,
+                                {"seed": seed, "stage": stage, "cell": cell, "checkpoint": checkpoints[seed],
+                                 "dataset": str(checked["work"] / f"seed{seed}" / "dataset"), "episodes": episodes,
                                  "scenario_seed": SCENARIO_BASES[scenarios] + seed},
                                 raw / f"seed{seed}" / stage / f"{cell}.json"))
     return out
