@@ -13,7 +13,7 @@ from typing import Protocol
 import torch as th
 
 from sb3_ua2c.checks import check_number
-from sb3_ua2c.chunking import select_chunk
+from sb3_ua2c.chunking import pessimistic_q, select_chunk, uncertainty_weights
 from sb3_ua2c.in_sample_maths import softmax_candidate
 
 
@@ -21,9 +21,9 @@ class ChunkSelector(Protocol):
     """The selection of a replanning's executed chunk (``UA2CPolicy.plan_tensors(..., selector=)``)."""
 
     def select(
-        self, candidates: th.Tensor, values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
+        self, candidates: th.Tensor, q_values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
     ) -> th.Tensor:
-        """``(m, S, k, A)`` clipped candidates and their ``(m, S)`` values ``min_j Q_j`` -> ``(m, k, A)``."""
+        """``(m, S, k, A)`` clipped candidates and the critics' ``(n_critics, m, S)`` values -> ``(m, k, A)``."""
 
 
 class PlanExploration:
@@ -35,10 +35,10 @@ class PlanExploration:
     follows_policy = True
 
     def select(
-        self, candidates: th.Tensor, values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
+        self, candidates: th.Tensor, q_values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
     ) -> th.Tensor:
         """:func:`~sb3_ua2c.chunking.select_chunk` (see :class:`ChunkSelector`)."""
-        return select_chunk(candidates, values, n_elite, discrete_dims)
+        return select_chunk(candidates, pessimistic_q(q_values), n_elite, discrete_dims)
 
 
 class SoftmaxExploration:
@@ -58,18 +58,39 @@ class SoftmaxExploration:
         self.temperature = float(temperature)
 
     def select(
-        self, candidates: th.Tensor, values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
+        self, candidates: th.Tensor, q_values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
     ) -> th.Tensor:
         """The drawn candidate of each row (``n_elite`` is not read; see :class:`ChunkSelector`)."""
         rows = th.arange(candidates.shape[0], device=candidates.device)
-        return candidates[rows, softmax_candidate(values, self.temperature)]  # (m, S, k, A) -> (m, k, A)
+        drawn = softmax_candidate(pessimistic_q(q_values), self.temperature)  # (m,)
+        return candidates[rows, drawn]  # (m, S, k, A) -> (m, k, A)
 
 
-#: the exploration rules by ``exploration``: act as ``predict``, or a softmax draw over the candidates
+class UncertaintyExploration:
+    """
+    One candidate drawn with the weights of the uncertainty-aware selection
+    (:func:`~sb3_ua2c.chunking.uncertainty_weights`: ``softmax(mean_j Q_j / tau)``, ``tau`` the critics'
+    disagreement), from torch's global random stream. The rollouts then explore around what ``predict`` does
+    under ``selection="uncertainty"``, whose chunk is the mean of this draw; near uniform where the critics
+    cannot yet rank the candidates, near the best where they can. Not in the paper. No own arguments.
+    """
+
+    def select(
+        self, candidates: th.Tensor, q_values: th.Tensor, n_elite: int, discrete_dims: Mapping[int, int]
+    ) -> th.Tensor:
+        """The drawn candidate of each row (``n_elite`` is not read; see :class:`ChunkSelector`)."""
+        rows = th.arange(candidates.shape[0], device=candidates.device)
+        drawn = th.multinomial(uncertainty_weights(q_values), 1).squeeze(1)  # (m, S) -> (m,)
+        return candidates[rows, drawn]  # (m, S, k, A) -> (m, k, A)
+
+
+#: the exploration rules by ``exploration``: act as ``predict``, a softmax draw over the candidates by
+#: ``min_j Q_j``, or a draw with the uncertainty-aware selection's weights
 EXPLORATIONS: dict[str, type] = {
     "plan": PlanExploration,
     "softmax": SoftmaxExploration,
+    "uncertainty": UncertaintyExploration,
 }
 
 
-__all__ = ["EXPLORATIONS", "ChunkSelector", "PlanExploration", "SoftmaxExploration"]
+__all__ = ["EXPLORATIONS", "ChunkSelector", "PlanExploration", "SoftmaxExploration", "UncertaintyExploration"]

@@ -27,7 +27,6 @@ from sb3_ua2c.chunking import (
     chunk_entropy,
     commit_through_switch,
     continuous_dims,
-    pessimistic_q,
     select_candidates,
 )
 from sb3_ua2c.compat import legacy_critic_kwargs, legacy_execution_rule
@@ -500,7 +499,7 @@ class UA2CPolicy(ExecutionRuleState):
         if not own or self.selection in CRITIC_SELECTIONS:
             q = self.critic(obs_history.reshape(m, -1), clipped)  # (n, m, S)
         if not own:
-            chunks = selector.select(clipped, pessimistic_q(q), self.n_elite, self.discrete_dims)  # (m, k, A)
+            chunks = selector.select(clipped, q, self.n_elite, self.discrete_dims)  # (m, k, A)
         elif self.selection == "zero_noise":  # the flow from x_0 = 0: one chunk of its own
             zeros = clipped.new_zeros((m, 1, self.chunk_size, self.action_dim))
             chunks = self.sample_chunks(obs_history, action_history, 1, self.flow_steps, x0=zeros)[:, 0].clamp(-1, 1)

@@ -24,7 +24,7 @@ PROG = "python -m experiments acting"
 #: CPU seconds of one evaluation episode on one thread (MixedTraffic-v0, 200 steps; a replanning every step at worst)
 EPISODE_SECONDS = 0.6
 PARENT = harness_parent(seeds="0 1 2 3 4 5 6 7 8 9 (validation seeds)", work="the --checkpoints run's peers_work",
-                        quick="2 episodes per cell: a smoke test", scenarios=True, rerun=True)
+                        quick="2 episodes per cell: a smoke test", raw="<out>/acting_raw", scenarios=True, rerun=True)
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
@@ -81,7 +81,7 @@ def units(checked: dict[str, Any], scenarios: str, raw: Path) -> list[Unit]:
 
 def _run(args: argparse.Namespace, checked: dict[str, Any], command: str) -> int:
     out = Path(args.out)
-    raw = Path(args.raw) if getattr(args, "raw", None) else out / "acting_raw"
+    raw = Path(args.raw) if args.raw else out / "acting_raw"
     command, date, _ = run_header(command, out / "acting.json", args.report_only)
     if not args.report_only:
         todo = units(checked, args.scenarios, raw)

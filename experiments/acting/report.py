@@ -43,7 +43,8 @@ def stage_summary(cells: Mapping[str, Mapping[int, Mapping[str, float]]],
     its paired differences with the default cell, the best cell (by mean reward) and the behaviour policy."""
     scores = {c: np.array([[runs[s]["reward"]] for s in sorted(runs)]) for c, runs in cells.items()}  # (n_runs, 1)
     ci = mean_with_ci(scores, reps=reps)
-    best = max(cells, key=lambda c: ci[c]["mean"])
+    common = set.intersection(*(set(runs) for runs in cells.values()))  # the best cell: on the runs every cell has
+    best = max(cells, key=lambda c: np.mean([cells[c][s]["reward"] for s in common]) if common else ci[c]["mean"])
     out: dict[str, Any] = {"best": best, "cells": {}}
     for name, runs in cells.items():
         seeds = sorted(runs)
@@ -54,7 +55,8 @@ def stage_summary(cells: Mapping[str, Mapping[int, Mapping[str, float]]],
             row[key] = float(np.mean([runs[s][key] for s in seeds]))
         for ref_name, ref in (("default", cells.get(DEFAULT_CELL, {})), ("best", cells[best]),
                               ("behaviour", behaviour)):
-            row[f"vs_{ref_name}"] = {m: _paired(runs, ref, m, h) for m, h in METRICS.items()}
+            same = ref is runs  # a cell against itself: no comparison
+            row[f"vs_{ref_name}"] = {m: None if same else _paired(runs, ref, m, h) for m, h in METRICS.items()}
         out["cells"][name] = row
     return out
 

@@ -52,6 +52,27 @@ def test_select_candidates_mean_sample_and_elite_by_hand():
         select_candidates("uncertainty", cands, None, 1)
 
 
+def test_uncertainty_exploration_draws_candidates_with_the_selection_weights():
+    from sb3_ua2c.exploration import UncertaintyExploration
+
+    cands = th.tensor([[[[0.0]], [[1.0]], [[2.0]], [[3.0]]]])  # (1, 4, 1, 1)
+    spread = th.tensor([0.0, 1.0, 2.0, 3.0])
+    agree = th.stack([spread * 10, spread * 10 + 0.1])[:, None]
+    unsure = th.stack([spread * 0.1, spread * 0.1 + 10.0])[:, None]
+    th.manual_seed(0)
+    assert {UncertaintyExploration().select(cands, agree, 1, {}).item() for _ in range(50)} == {3.0}
+    picks = [UncertaintyExploration().select(cands, unsure, 1, {}).item() for _ in range(400)]
+    assert set(picks) == {0.0, 1.0, 2.0, 3.0} and abs(np.mean(picks) - 1.5) < 0.2  # the mean: predict's chunk
+
+
+def test_learn_explores_with_the_uncertainty_weights():
+    model = UA2C("MlpPolicy", "Pendulum-v1", seed=0, exploration="uncertainty",
+                 policy_kwargs={**FAST["policy_kwargs"], "selection": "uncertainty"},
+                 **{k: v for k, v in FAST.items() if k != "policy_kwargs"})
+    model.learn(80)
+    assert model.num_timesteps == 80 and model.policy.selection == "uncertainty"
+
+
 # ------------------------------------------------------------------------------ executions, by hand
 class ConstantPlanner:
     """Plans the chunk ``[v, v, v]`` with ``v`` = 1, 4, 7, ... at successive calls."""

@@ -147,10 +147,10 @@ def test_softmax_selection_draws_candidates_not_the_elite_mean():
     candidates = th.tensor([[[[0.0]], [[1.0]], [[-1.0]]]])  # (1, S=3, k=1, A=1)
     values = th.tensor([[0.0, 5.0, 1.0]])
     # T -> 0: the best candidate itself; the elite mean of 2 averages the best two, (1 + -1) / 2
-    assert SoftmaxExploration(1e-4).select(candidates, values, 2, {}).tolist() == [[[1.0]]]
+    assert SoftmaxExploration(1e-4).select(candidates, values[None], 2, {}).tolist() == [[[1.0]]]
     assert select_chunk(candidates, values, 2, {}).tolist() == [[[0.0]]]
     th.manual_seed(0)
-    picks = [SoftmaxExploration(100.0).select(candidates, values, 2, {}).item() for _ in range(300)]
+    picks = [SoftmaxExploration(100.0).select(candidates, values[None], 2, {}).item() for _ in range(300)]
     assert set(picks) == {0.0, 1.0, -1.0}  # T large: nearly uniform over the candidates
 
 
