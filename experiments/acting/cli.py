@@ -21,8 +21,9 @@ from experiments.common.runner import Unit, make_executor, ray_session, run_unit
 from sb3_ua2c.checks import check_int
 
 PROG = "python -m experiments acting"
-#: CPU seconds of one evaluation episode on one thread (MixedTraffic-v0, 200 steps; a replanning every step at worst)
-EPISODE_SECONDS = 0.6
+#: CPU seconds of one evaluation episode on one thread (MixedTraffic-v0, up to 200 steps), measured on 2026-12-08:
+#: 0.16 with Eq. 7's prefixes, 0.37 with a replanning at every step (replan, ensemble)
+EPISODE_SECONDS = 0.25
 PARENT = harness_parent(seeds="0 1 2 3 4 5 6 7 8 9 (validation seeds)", work="the --checkpoints run's peers_work",
                         quick="2 episodes per cell: a smoke test", raw="<out>/acting_raw", scenarios=True, rerun=True)
 
