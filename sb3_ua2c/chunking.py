@@ -159,28 +159,12 @@ def uncertainty_weights(q_values: th.Tensor) -> th.Tensor:
     return th.softmax(q_values.mean(dim=0) / tau, dim=-1)  # (m, S)
 
 
-def category_vote(candidates: th.Tensor, weights: th.Tensor, n_categories: int) -> th.Tensor:
-    """
-    The category with the largest summed weight among the candidates, position by position, as the
-    normalised action at the centre of its bin (:func:`categorize`'s bins; ties go to the lower category).
-    The categorical counterpart of a weighted mean: averaging category codes would land between categories.
-
-    :param candidates: one categorical dim of the clipped candidates, shape ``(m, S, k)``
-    :param weights: ``(m, S)``
-    :param n_categories: ``n``
-    :return: ``(m, k)`` values in ``{-1 + (2c + 1) / n}``
-    """
-    one_hot = th.nn.functional.one_hot(categorize(candidates, n_categories), n_categories)  # (m, S, k, n)
-    votes = (weights[:, :, None, None] * one_hot.to(weights.dtype)).sum(dim=1)  # (m, k, n)
-    return -1.0 + (2.0 * votes.argmax(dim=-1).to(candidates.dtype) + 1.0) / n_categories
-
-
 def weighted_chunk(
     candidates: th.Tensor, weights: th.Tensor, discrete_dims: Mapping[int, int] | None = None
 ) -> th.Tensor:
     """
-    ``sum_i w_i * candidate_i`` position by position on the continuous dims; a categorical dim takes the
-    category of largest summed weight (:func:`category_vote`).
+    ``sum_i w_i * candidate_i`` position by position; categorical dims are never averaged: they keep the
+    candidate of the largest weight (the first of equal ones).
 
     :param candidates: clipped candidate chunks, shape ``(m, S, k, action_dim)``
     :param weights: ``(m, S)``, rows summing to 1
@@ -188,8 +172,11 @@ def weighted_chunk(
     :return: chunks, shape ``(m, k, action_dim)``
     """
     chunks = (weights[:, :, None, None] * candidates).sum(dim=1)  # (m, S, k, A) -> (m, k, A)
-    for dim, n in (discrete_dims or {}).items():
-        chunks[..., dim] = category_vote(candidates[..., dim], weights, n)
+    if discrete_dims:
+        rows = th.arange(candidates.shape[0], device=candidates.device)
+        lead = candidates[rows, weights.argmax(dim=1)]  # (m, k, A)
+        for dim in discrete_dims:
+            chunks[..., dim] = lead[..., dim]
     return chunks
 
 

@@ -36,14 +36,10 @@ def test_uncertainty_weights_refuse_a_single_critic():
         uncertainty_weights(th.zeros(1, 2, 4))
 
 
-def test_weighted_chunk_averages_continuous_dims_and_votes_on_categories():
-    # (m=1, S=3, k=1, A=2); dim 1 has 3 categories, bins [-1, -1/3), [-1/3, 1/3], (1/3, 1], centres -2/3, 0, 2/3
-    cands = th.tensor([[[[0.0, -0.9]], [[1.0, 0.9]], [[0.5, 0.8]]]])
-    chunk = weighted_chunk(cands, th.tensor([[0.5, 0.25, 0.25]]), {1: 3})
-    assert chunk[0, 0, 0].item() == pytest.approx(0.375)
-    assert chunk[0, 0, 1].item() == pytest.approx(-2 / 3)  # the tie 0.5 : 0.5 goes to the lower category
-    chunk = weighted_chunk(cands, th.tensor([[0.4, 0.3, 0.3]]), {1: 3})
-    assert chunk[0, 0, 1].item() == pytest.approx(2 / 3)  # right: 0.6 against left's 0.4, not the heaviest candidate
+def test_weighted_chunk_averages_continuous_dims_and_keeps_the_lead_candidate_category():
+    cands = th.tensor([[[[0.0, -1.0]], [[1.0, 1.0]]]])  # (m=1, S=2, k=1, A=2); dim 1 categorical
+    chunk = weighted_chunk(cands, th.tensor([[0.25, 0.75]]), {1: 2})
+    assert chunk.tolist() == [[[0.75, 1.0]]]
 
 
 def test_select_candidates_mean_sample_and_elite_by_hand():
