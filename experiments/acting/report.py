@@ -43,8 +43,8 @@ def stage_summary(cells: Mapping[str, Mapping[int, Mapping[str, float]]],
     its paired differences with the default cell, the best cell (by mean reward) and the behaviour policy."""
     scores = {c: np.array([[runs[s]["reward"]] for s in sorted(runs)]) for c, runs in cells.items()}  # (n_runs, 1)
     ci = mean_with_ci(scores, reps=reps)
-    common = set.intersection(*(set(runs) for runs in cells.values()))  # the best cell: on the runs every cell has
-    best = max(cells, key=lambda c: np.mean([cells[c][s]["reward"] for s in common]) if common else ci[c]["mean"])
+    most = max(len(runs) for runs in cells.values())  # the best cell: among those with every run
+    best = max((c for c in cells if len(cells[c]) == most), key=lambda c: ci[c]["mean"])
     out: dict[str, Any] = {"best": best, "cells": {}}
     for name, runs in cells.items():
         seeds = sorted(runs)
