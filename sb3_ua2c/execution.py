@@ -258,7 +258,8 @@ class AdaptiveChunkExecutor:
         Temporal ensembling (ACT, Zhao et al., 2023): the plans of rows ``idx`` become, position by position, the
         weighted mean of the new chunks and of what the earlier plans planned for the same steps. A plan made
         ``j`` steps before the new one weighs ``exp(decay * j)`` times as much (ACT's ``exp(-m i)``, ``i = 0`` the
-        oldest); the summed weights are kept in :attr:`ensemble_weight`, so the mean is updated in place.
+        oldest); the summed weights are kept in ``ensemble_weight`` (see :class:`ChunkExecutorState`), so the
+        mean is updated in place.
 
         :param idx: the replanned rows, shape ``(r,)``
         :param chunks: their new chunks, shape ``(r, k, action_dim)``
