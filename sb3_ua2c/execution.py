@@ -212,6 +212,7 @@ class AdaptiveChunkExecutor:
         planner: Planner,
         noise: np.ndarray | None = None,
         ensemble_decay: float | None = None,
+        ensemble_dims: Sequence[int] | None = None,
     ) -> ExecutorStep:
         """
         Observe ``o_t`` and return ``a_t`` for every environment, replanning where needed.
@@ -222,6 +223,8 @@ class AdaptiveChunkExecutor:
         :param noise: optional exploration noise added to the executed actions (then clipped), ``(n, action_dim)``
         :param ensemble_decay: ``m`` of ``execution_rule="ensemble"`` (:meth:`ensemble`): a new plan is averaged
             with the earlier plans' actions for the same steps; ``None``: a new plan replaces the old one
+        :param ensemble_dims: the action dims that are averaged (``None``: all); the others (categorical dims)
+            take the new plan's value
         :return: the executed actions and what was (re)planned
         """
         observations = np.asarray(observations, dtype=np.float32).reshape(self.n_envs, self.obs_dim)
@@ -239,7 +242,7 @@ class AdaptiveChunkExecutor:
             idx = np.flatnonzero(replan)
             result = planner(self.observation_history[idx], self.action_history[idx])
             self.plan[idx] = result.chunks if ensemble_decay is None else self.ensemble(idx, result.chunks,
-                                                                                       ensemble_decay)
+                                                                                       ensemble_decay, ensemble_dims)
             self.plan_length[idx] = result.lengths
             self.plan_position[idx] = 0
             entropy[idx] = result.entropy
@@ -253,7 +256,8 @@ class AdaptiveChunkExecutor:
         return ExecutorStep(actions, replan, self.plan.copy(), self.plan_length.copy(), entropy)
 
 
-    def ensemble(self, idx: np.ndarray, chunks: np.ndarray, decay: float) -> np.ndarray:
+    def ensemble(self, idx: np.ndarray, chunks: np.ndarray, decay: float,
+                 dims: Sequence[int] | None = None) -> np.ndarray:
         """
         Temporal ensembling (ACT, Zhao et al., 2023): the plans of rows ``idx`` become, position by position, the
         weighted mean of the new chunks and of what the earlier plans planned for the same steps. A plan made
@@ -264,6 +268,8 @@ class AdaptiveChunkExecutor:
         :param idx: the replanned rows, shape ``(r,)``
         :param chunks: their new chunks, shape ``(r, k, action_dim)``
         :param decay: ``m >= 0``
+        :param dims: the action dims averaged (``None``: all); the others keep the new chunks' values, since a
+            mean of categorical codes (a lane change) falls between categories
         :return: the ensembled plans, shape ``(r, k, action_dim)``
         """
         k = self.chunk_size
@@ -274,7 +280,11 @@ class AdaptiveChunkExecutor:
         old_plan = np.take_along_axis(self.plan[idx], source[..., None], axis=1)  # (r, k, A)
         weight = old_weight + 1.0
         self.ensemble_weight[idx] = weight
-        return ((old_plan * old_weight[..., None] + chunks) / weight[..., None]).astype(np.float32)
+        plans = ((old_plan * old_weight[..., None] + chunks) / weight[..., None]).astype(np.float32)
+        if dims is not None:
+            kept = [d for d in range(chunks.shape[-1]) if d not in set(dims)]
+            plans[..., kept] = chunks[..., kept]
+        return plans
 
 
 def length_shares(lengths: Sequence[int] | np.ndarray, chunk_size: int) -> list[float]:
@@ -298,6 +308,7 @@ def resume_and_act(
     action_dim: int,
     planner: Planner,
     ensemble_decay: float | None = None,
+    ensemble_dims: Sequence[int] | None = None,
 ) -> tuple[ExecutorStep, ChunkExecutorState]:
     """
     One step of a stateful ``predict``: rebuild the executor from ``state``, act, return the new state.
@@ -311,6 +322,7 @@ def resume_and_act(
     :param action_dim: action size
     :param planner: see :data:`Planner`
     :param ensemble_decay: see :meth:`AdaptiveChunkExecutor.act`
+    :param ensemble_dims: see :meth:`AdaptiveChunkExecutor.act`
     :return: what the executor did, and its state after the step
     """
     n_envs, obs_dim = observations.shape
@@ -320,7 +332,7 @@ def resume_and_act(
     if state is not None:
         executor.load_state(state)
     step = executor.act(observations, np.asarray(episode_start, dtype=bool).reshape(n_envs), planner,
-                        ensemble_decay=ensemble_decay)
+                        ensemble_decay=ensemble_decay, ensemble_dims=ensemble_dims)
     return step, executor.state
 
 

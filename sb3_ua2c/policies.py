@@ -577,7 +577,7 @@ class UA2CPolicy(ExecutionRuleState):
         n_envs = obs.shape[0]
         step, new_state = resume_and_act(
             state, episode_start, obs, self.chunk_size, self.history_len, self.action_dim,
-            lambda o, a: self.plan(o, a, deterministic), self.ensemble_decay,
+            lambda o, a: self.plan(o, a, deterministic), self.ensemble_decay, self.continuous_dims,
         )
         if step.new_plan.any():
             if self.last_plan_lengths.shape != (n_envs,):

@@ -101,6 +101,7 @@ class ChunkRollouts(OffPolicyAlgorithm):
                 self._random_plan if warmup else policy_plan,
                 noise,
                 self.policy.ensemble_decay,
+                self.policy.continuous_dims,
             )
             n_new_plans += int(step.new_plan.sum())
             if not warmup:

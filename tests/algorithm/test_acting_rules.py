@@ -100,6 +100,18 @@ def test_temporal_ensemble_by_hand(decay, expected):
     assert actions == pytest.approx(expected, rel=1e-6)
 
 
+def test_temporal_ensemble_averages_only_the_given_dims():
+    ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=2, chunk_size=2, history_len=1)
+
+    def planner(obs_h, act_h, values=iter([[0.0, -0.9], [1.0, 0.0]])):
+        v = next(values)
+        return PlanResult(np.full((1, 2, 2), v, np.float32), np.ones(1, np.int64), np.zeros((1, 2), np.float32))
+
+    ex.act(np.zeros((1, 1)), np.array([True]), planner, ensemble_decay=0.0, ensemble_dims=[0])
+    step = ex.act(np.zeros((1, 1)), np.array([False]), planner, ensemble_decay=0.0, ensemble_dims=[0])
+    assert step.actions.tolist() == [[0.5, 0.0]]  # dim 0 averaged, dim 1 (categorical) the new chunk's
+
+
 def test_temporal_ensemble_restarts_with_the_episode():
     ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=1, chunk_size=3, history_len=1)
     planner = ConstantPlanner()
