@@ -103,7 +103,9 @@ def test_temporal_ensemble_by_hand(decay, expected):
 def test_temporal_ensemble_averages_only_the_given_dims():
     ex = AdaptiveChunkExecutor(n_envs=1, obs_dim=1, action_dim=2, chunk_size=2, history_len=1)
 
-    def planner(obs_h, act_h, values=iter([[0.0, -0.9], [1.0, 0.0]])):
+    values = iter([[0.0, -0.9], [1.0, 0.0]])
+
+    def planner(obs_h, act_h):
         v = next(values)
         return PlanResult(np.full((1, 2, 2), v, np.float32), np.ones(1, np.int64), np.zeros((1, 2), np.float32))
 
