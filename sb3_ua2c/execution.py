@@ -282,7 +282,8 @@ class AdaptiveChunkExecutor:
         self.ensemble_weight[idx] = weight
         plans = ((old_plan * old_weight[..., None] + chunks) / weight[..., None]).astype(np.float32)
         if dims is not None:
-            kept = [d for d in range(chunks.shape[-1]) if d not in set(dims)]
+            averaged = set(dims)
+            kept = [d for d in range(chunks.shape[-1]) if d not in averaged]
             plans[..., kept] = chunks[..., kept]
         return plans
 

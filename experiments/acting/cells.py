@@ -4,15 +4,14 @@ checkpoints of a head-to-head run by stage, and one unit per (seed, stage, cell)
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
 
-from envs.collection import BehaviourConfig
 from envs.evaluation import evaluate, evaluate_behaviour, summarize
+from experiments.peers.common import dataset_behaviour
 from sb3_ua2c.config import ExecutionRule
 from sb3_ua2c.offline import load_dataset
 from sb3_ua2c.pipeline import env_settings
@@ -97,10 +96,7 @@ def run_cell(seed: int, stage: str, cell: str, checkpoint: str, dataset: str, sc
 def run_behaviour(seed: int, dataset: str, scenario_seed: int, episodes: int) -> dict[str, Any]:
     """One unit: the dataset's behaviour policy on the scenarios every cell of ``seed`` acts on."""
     ds = load_dataset(dataset)
-    config: Mapping[str, Any] | None = ds.metadata.get("behaviour_config")
-    if config is None:
-        raise ValueError(f"dataset {dataset} records no behaviour_config: it was not collected by envs.collection")
-    results = evaluate_behaviour(BehaviourConfig.from_dict(dict(config)), episodes, (scenario_seed,), env_settings(ds))
+    results = evaluate_behaviour(dataset_behaviour(ds), episodes, (scenario_seed,), env_settings(ds))
     summary = summarize(results)
     summary["ms_per_plan"] = math.nan
     return {"seed": seed, "stage": "behaviour", "cell": "behaviour", "scenario_seed": scenario_seed,

@@ -140,18 +140,24 @@ def episodes_record(episodes: Sequence[Any]) -> dict[str, Any]:
     return {"summary": summarize(list(episodes)), "episodes": episode_rows(episodes)}
 
 
-def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
-    """One unit, the reference row of the data: the dataset's behaviour policy on the evaluation scenarios."""
-    ds = inputs.load_dataset()
+def dataset_behaviour(ds: OfflineDataset) -> BehaviourConfig:
+    """The behaviour policy that collected ``ds`` (its metadata's ``behaviour_config``; a ``ValueError`` if none)."""
     config = ds.metadata.get("behaviour_config")
     if config is None:
         raise ValueError(f"dataset {ds.path} records no behaviour_config: it was not collected by envs.collection")
+    return BehaviourConfig.from_dict(dict(config))
+
+
+def run_behaviour(inputs: ArmInputs) -> dict[str, Any]:
+    """One unit, the reference row of the data: the dataset's behaviour policy on the evaluation scenarios."""
+    ds = inputs.load_dataset()
+    behaviour = dataset_behaviour(ds)
     clock = PhaseClock()
     with clock.phase("evaluate"):
-        evaluation = episodes_record(evaluate_behaviour(BehaviourConfig.from_dict(dict(config)), inputs.eval_episodes,
-                                                        inputs.eval_seeds, env_settings(ds)))
+        evaluation = episodes_record(evaluate_behaviour(behaviour, inputs.eval_episodes, inputs.eval_seeds,
+                                                        env_settings(ds)))
     notes = "the dataset's behaviour policy (its behaviour_config) on the evaluation scenarios; nothing trained"
-    return unit_record("behaviour", inputs, ds, 0, {"behaviour_config": dict(config)}, evaluation, [], clock,
+    return unit_record("behaviour", inputs, ds, 0, {"behaviour_config": dict(ds.metadata["behaviour_config"])}, evaluation, [], clock,
                        offline_evaluation=evaluation, notes=notes)
 
 
